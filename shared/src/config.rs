@@ -1,0 +1,349 @@
+//! Configuration in TOML.
+//!
+//! Every configuration struct of the project is read through [`load`] / [`parse`]: the file
+//! is parsed, `--set key.path=value` overrides are applied to it, and the result is
+//! deserialised with unknown fields rejected, then validated ([`Validate`]) with errors
+//! that name the field and its allowed range.
+
+use std::path::Path;
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::kinematics::{ActuatorStiffness, H4Params, KinError, Workspace, WorkspaceLimits};
+
+/// A configuration that could not be read or is not acceptable.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The text is not valid TOML, or does not fit the expected fields (unknown field,
+    /// wrong type, missing field). The message names the field.
+    #[error("{source_name}: {message}")]
+    Parse {
+        /// File name, or a description of where the text came from.
+        source_name: String,
+        /// The parser's message.
+        message: String,
+    },
+    /// A `--set key=value` argument is malformed or names a key that cannot be set.
+    #[error("bad override `{arg}`: {reason}")]
+    BadOverride {
+        /// The argument as given.
+        arg: String,
+        /// Why it was refused.
+        reason: String,
+    },
+    /// A field has a value outside its allowed range.
+    #[error("{field} = {value} is out of range: allowed {allowed}")]
+    OutOfRange {
+        /// Dotted path of the field.
+        field: String,
+        /// The value given.
+        value: String,
+        /// The allowed range, with unit.
+        allowed: String,
+    },
+}
+
+/// A configuration that can check its own values.
+pub trait Validate {
+    /// Returns the first value outside its allowed range.
+    fn validate(&self) -> Result<(), ConfigError>;
+}
+
+/// Checks `min ≤ value ≤ max` (and finiteness) for the field at `field`.
+pub fn check_range(
+    field: &str,
+    value: f64,
+    min: f64,
+    max: f64,
+    unit: &str,
+) -> Result<(), ConfigError> {
+    if value.is_finite() && value >= min && value <= max {
+        Ok(())
+    } else {
+        Err(ConfigError::OutOfRange {
+            field: field.to_string(),
+            value: value.to_string(),
+            allowed: format!("{min} to {max} {unit}").trim_end().to_string(),
+        })
+    }
+}
+
+/// Reads a TOML file, applies overrides, deserialises and validates it.
+pub fn load<T: DeserializeOwned + Validate>(
+    path: &Path,
+    overrides: &[String],
+) -> Result<T, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    parse(&text, &path.display().to_string(), overrides)
+}
+
+/// Parses TOML text, applies `key.path=value` overrides, deserialises and validates it.
+pub fn parse<T: DeserializeOwned + Validate>(
+    text: &str,
+    source_name: &str,
+    overrides: &[String],
+) -> Result<T, ConfigError> {
+    let parse_err = |e: toml::de::Error| ConfigError::Parse {
+        source_name: source_name.to_string(),
+        message: e.to_string().trim_end().to_string(),
+    };
+    let value: T = if overrides.is_empty() {
+        toml::from_str(text).map_err(parse_err)?
+    } else {
+        let mut table: toml::Table = toml::from_str(text).map_err(parse_err)?;
+        for arg in overrides {
+            apply_override(&mut table, arg)?;
+        }
+        let merged = toml::to_string(&table).map_err(|e| ConfigError::Parse {
+            source_name: source_name.to_string(),
+            message: e.to_string(),
+        })?;
+        toml::from_str(&merged).map_err(|e| ConfigError::Parse {
+            source_name: format!("{source_name} (with --set overrides)"),
+            message: e.to_string().trim_end().to_string(),
+        })?
+    };
+    value.validate()?;
+    Ok(value)
+}
+
+/// Applies one `a.b.c=value` override. The value is read as a TOML value (number, bool,
+/// array, quoted string); anything else is taken as a bare string, so `--set
+/// surface.material=steel` works without quotes.
+pub fn apply_override(table: &mut toml::Table, arg: &str) -> Result<(), ConfigError> {
+    let bad = |reason: &str| ConfigError::BadOverride {
+        arg: arg.to_string(),
+        reason: reason.to_string(),
+    };
+    let (key, raw) = arg
+        .split_once('=')
+        .ok_or_else(|| bad("expected key=value"))?;
+    let key = key.trim();
+    if key.is_empty() || key.split('.').any(|part| part.trim().is_empty()) {
+        return Err(bad("empty key"));
+    }
+    let raw = raw.trim();
+    let value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or_else(|| toml::Value::String(raw.to_string())),
+        Err(_) => toml::Value::String(raw.to_string()),
+    };
+    let parts: Vec<&str> = key.split('.').map(str::trim).collect();
+    let (last, parents) = parts.split_last().ok_or_else(|| bad("empty key"))?;
+    let mut node = table;
+    for (i, part) in parents.iter().enumerate() {
+        let entry = node
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        node = match entry {
+            toml::Value::Table(t) => t,
+            _ => {
+                return Err(bad(&format!("`{}` is not a table", parts[..=i].join("."))));
+            }
+        };
+    }
+    node.insert(last.to_string(), value);
+    Ok(())
+}
+
+/// Kinematic geometry as configured: a named preset, or explicit parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, untagged)]
+pub enum GeometryConfig {
+    /// `geometry = "prototype"` (R 400, e 143, c 20, d 20 mm) or `"alt"` (R 300, e 100, c 15, d 25 mm).
+    Preset(GeometryPreset),
+    /// Explicit parameters, mm.
+    Custom(H4Params),
+}
+
+/// Named parameter sets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GeometryPreset {
+    /// The paper's prototype.
+    Prototype,
+    /// The second parameter set of the reference vectors.
+    Alt,
+}
+
+impl GeometryConfig {
+    /// The parameters.
+    pub fn params(&self) -> H4Params {
+        match self {
+            GeometryConfig::Preset(GeometryPreset::Prototype) => H4Params::PROTOTYPE,
+            GeometryConfig::Preset(GeometryPreset::Alt) => H4Params::ALT,
+            GeometryConfig::Custom(p) => *p,
+        }
+    }
+}
+
+/// One arm: geometry, actuator stiffness and workspace limits.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ArmConfig {
+    /// Geometry: `"prototype"`, `"alt"`, or a table `{ leg_length_mm, e_mm, c_mm, d_mm }`.
+    pub geometry: GeometryConfig,
+    /// Axial stiffness of actuators 1–4 with their drive trains, N/mm (1 to 1e6).
+    pub actuator_stiffness_n_per_mm: [f64; 4],
+    /// Workspace limits.
+    pub workspace: WorkspaceLimits,
+}
+
+impl Default for ArmConfig {
+    fn default() -> Self {
+        ArmConfig {
+            geometry: GeometryConfig::Preset(GeometryPreset::Prototype),
+            actuator_stiffness_n_per_mm: [100.0; 4],
+            workspace: WorkspaceLimits::default(),
+        }
+    }
+}
+
+impl ArmConfig {
+    /// The workspace (geometry and limits).
+    pub fn workspace(&self) -> Workspace {
+        Workspace {
+            params: self.geometry.params(),
+            limits: self.workspace,
+        }
+    }
+
+    /// The actuator stiffness.
+    pub fn stiffness(&self) -> Result<ActuatorStiffness, KinError> {
+        ActuatorStiffness::per_actuator(self.actuator_stiffness_n_per_mm)
+    }
+}
+
+impl Validate for ArmConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        self.validate_at("")
+    }
+}
+
+impl ArmConfig {
+    /// Validates, naming fields under `prefix` (e.g. `"arm."`).
+    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        self.geometry.params().validate().map_err(|e| match e {
+            KinError::InvalidParameter {
+                name,
+                value,
+                requirement,
+            } => ConfigError::OutOfRange {
+                field: format!("{prefix}geometry.{name}"),
+                value: value.to_string(),
+                allowed: requirement.to_string(),
+            },
+            other => ConfigError::OutOfRange {
+                field: format!("{prefix}geometry"),
+                value: String::new(),
+                allowed: other.to_string(),
+            },
+        })?;
+        for (i, k) in self.actuator_stiffness_n_per_mm.iter().enumerate() {
+            check_range(
+                &format!("{prefix}actuator_stiffness_n_per_mm[{i}]"),
+                *k,
+                1.0,
+                1e6,
+                "N/mm",
+            )?;
+        }
+        let w = &self.workspace;
+        check_range(
+            &format!("{prefix}workspace.theta_max_rad"),
+            w.theta_max_rad,
+            0.0,
+            1.5,
+            "rad",
+        )?;
+        check_range(
+            &format!("{prefix}workspace.min_singular_distance_mm"),
+            w.min_singular_distance_mm,
+            0.0,
+            1e3,
+            "mm",
+        )?;
+        check_range(
+            &format!("{prefix}workspace.min_rail_clearance_mm"),
+            w.min_rail_clearance_mm,
+            0.0,
+            1e3,
+            "mm",
+        )?;
+        for i in 0..4 {
+            check_range(
+                &format!("{prefix}workspace.stroke_max_mm[{i}]"),
+                w.stroke_max_mm[i],
+                w.stroke_min_mm[i],
+                1e4,
+                "mm (and >= stroke_min_mm)",
+            )?;
+            check_range(
+                &format!("{prefix}workspace.stroke_min_mm[{i}]"),
+                w.stroke_min_mm[i],
+                -1e4,
+                1e4,
+                "mm",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overrides_apply_and_unknown_keys_are_named() {
+        let cfg: ArmConfig = parse(
+            "geometry = \"alt\"\n",
+            "test",
+            &["actuator_stiffness_n_per_mm=[50, 60, 70, 80]".into()],
+        )
+        .unwrap();
+        assert_eq!(cfg.geometry.params(), H4Params::ALT);
+        assert_eq!(cfg.actuator_stiffness_n_per_mm, [50.0, 60.0, 70.0, 80.0]);
+
+        let err =
+            parse::<ArmConfig>("", "test", &["workspace.theta_max_deg=3".into()]).unwrap_err();
+        assert!(err.to_string().contains("theta_max_deg"), "{err}");
+        let err = parse::<ArmConfig>("bogus = 1\n", "arm.toml", &[]).unwrap_err();
+        assert!(err.to_string().contains("bogus"), "{err}");
+        let err = parse::<ArmConfig>("", "test", &["novalue".into()]).unwrap_err();
+        assert!(matches!(err, ConfigError::BadOverride { .. }));
+    }
+
+    #[test]
+    fn out_of_range_names_field_and_range() {
+        let err = parse::<ArmConfig>(
+            "actuator_stiffness_n_per_mm = [100, 100, 0.5, 100]\n",
+            "t",
+            &[],
+        )
+        .unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("actuator_stiffness_n_per_mm[2]"), "{text}");
+        assert!(text.contains("1 to 1000000 N/mm"), "{text}");
+        let err = parse::<ArmConfig>(
+            "geometry = { leg_length_mm = 400, e_mm = 0, c_mm = 20, d_mm = 20 }\n",
+            "t",
+            &[],
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("geometry.e"), "{err}");
+    }
+}

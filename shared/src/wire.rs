@@ -1,0 +1,557 @@
+//! Master ↔ slave messages.
+//!
+//! Both messages are `#[repr(C)]`, `Copy` and fixed-size with no implicit padding, so the
+//! shared-memory path sends them as they are. The network path uses the checked
+//! little-endian encoding of [`Command::encode`] / [`Command::decode`]: an 8-byte header
+//! (magic `b"H4"`, protocol version, message kind, body length) and the fields in order.
+//! Decoding rejects a wrong size, magic, kind or version, an unknown mode, unknown flag
+//! bits and every non-finite number, each with its own [`WireError`].
+
+/// Version of the message layout and encoding. Bump on any change to either.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+const MAGIC: [u8; 2] = *b"H4";
+const HEADER_LEN: usize = 8;
+const KIND_COMMAND: u8 = 1;
+const KIND_FEEDBACK: u8 = 2;
+
+/// Why received bytes or a received message were rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum WireError {
+    /// The buffer does not have the size of the message.
+    #[error("wrong message size: expected {expected} bytes, got {got}")]
+    WrongSize {
+        /// Size of an encoded message of this kind.
+        expected: usize,
+        /// Size received.
+        got: usize,
+    },
+    /// The buffer does not start with the h4-teleop magic bytes.
+    #[error("not an h4-teleop message (bad magic)")]
+    BadMagic,
+    /// Another message kind than the one expected.
+    #[error("wrong message kind: expected {expected}, got {got}")]
+    WrongKind {
+        /// Kind expected (1 command, 2 feedback).
+        expected: u8,
+        /// Kind received.
+        got: u8,
+    },
+    /// The peer speaks another protocol version.
+    #[error("protocol version mismatch: ours is {ours}, the message has {theirs}")]
+    WrongVersion {
+        /// [`PROTOCOL_VERSION`].
+        ours: u16,
+        /// The version in the message.
+        theirs: u16,
+    },
+    /// A number in the message is NaN or infinite.
+    #[error("field {field} is not a finite number")]
+    NonFinite {
+        /// Name of the field.
+        field: &'static str,
+    },
+    /// The mode byte names no [`Mode`].
+    #[error("unknown mode {0}")]
+    BadMode(u8),
+    /// The status byte names no [`SlaveState`].
+    #[error("unknown slave state {0}")]
+    BadState(u8),
+    /// Flag bits that this version does not define are set.
+    #[error("unknown flag bits {0:#x}")]
+    BadFlags(u16),
+}
+
+/// What the master asks the slave to do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Mode {
+    /// Hold the current pose; no contact force control.
+    Hold = 0,
+    /// Follow the commanded pose (position–force coupling).
+    Position = 1,
+    /// Follow the commanded motion along the surface while the slave's implicit force loop
+    /// holds the commanded contact force (force-guided cutting).
+    ForceGuided = 2,
+}
+
+impl Mode {
+    /// Mode from its wire byte.
+    pub fn from_u8(b: u8) -> Result<Self, WireError> {
+        match b {
+            0 => Ok(Mode::Hold),
+            1 => Ok(Mode::Position),
+            2 => Ok(Mode::ForceGuided),
+            other => Err(WireError::BadMode(other)),
+        }
+    }
+}
+
+/// The slave's state as reported in feedback.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum SlaveState {
+    /// Started, waiting for a valid command.
+    Idle = 0,
+    /// Following commands.
+    Active = 1,
+    /// Commands stopped or became invalid: force ramped to zero, retracting, holding.
+    SafeStop = 2,
+    /// A fault stops motion until reset.
+    Fault = 3,
+}
+
+impl SlaveState {
+    /// State from its wire byte.
+    pub fn from_u8(b: u8) -> Result<Self, WireError> {
+        match b {
+            0 => Ok(SlaveState::Idle),
+            1 => Ok(SlaveState::Active),
+            2 => Ok(SlaveState::SafeStop),
+            3 => Ok(SlaveState::Fault),
+            other => Err(WireError::BadState(other)),
+        }
+    }
+}
+
+/// Command flag: the operator holds the clutch (the slave holds still; re-anchor on release).
+pub const CMD_FLAG_CLUTCH: u16 = 1 << 0;
+/// All command flags this version defines.
+pub const CMD_FLAGS_KNOWN: u16 = CMD_FLAG_CLUTCH;
+
+/// Fault flag: no valid command within the watchdog period.
+pub const FAULT_COMMAND_TIMEOUT: u16 = 1 << 0;
+/// Fault flag: a command was rejected (outside the workspace or the limits).
+pub const FAULT_COMMAND_REJECTED: u16 = 1 << 1;
+/// Fault flag: the force limit was reached.
+pub const FAULT_FORCE_LIMIT: u16 = 1 << 2;
+/// Fault flag: contact was lost during force control.
+pub const FAULT_CONTACT_LOST: u16 = 1 << 3;
+/// Fault flag: the force sensor reading is invalid.
+pub const FAULT_SENSOR: u16 = 1 << 4;
+/// Fault flag: the control loop missed deadlines.
+pub const FAULT_DEADLINE_MISS: u16 = 1 << 5;
+/// All fault flags this version defines.
+pub const FAULT_FLAGS_KNOWN: u16 = (1 << 6) - 1;
+
+/// Master → slave, once per master cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
+pub struct Command {
+    /// Sequence number, +1 per message sent.
+    pub seq: u64,
+    /// Sender's clock when sent, ns.
+    pub send_time_ns: u64,
+    /// Desired slave pose `[x_mm, y_mm, z_mm, theta_rad]`, slave frame.
+    pub pose: [f64; 4],
+    /// Desired slave velocity `[mm/s, mm/s, mm/s, rad/s]`, slave frame.
+    pub velocity: [f64; 4],
+    /// Desired normal contact force, N (force-guided mode).
+    pub force_setpoint_n: f64,
+    /// Passivity: energy that has entered the link at the master port so far, J.
+    pub energy_in_j: f64,
+    /// Passivity: energy that has left the link at the master port so far, J.
+    pub energy_out_j: f64,
+    /// [`PROTOCOL_VERSION`] of the sender.
+    pub protocol_version: u16,
+    /// Arm this command is for.
+    pub arm_id: u16,
+    /// [`Mode`] as a byte.
+    pub mode: u8,
+    /// Reserved, zero.
+    pub reserved: u8,
+    /// `CMD_FLAG_*` bits.
+    pub flags: u16,
+}
+
+/// Slave → master, once per slave cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
+pub struct Feedback {
+    /// Sequence number, +1 per message sent.
+    pub seq: u64,
+    /// Sender's clock when sent, ns.
+    pub send_time_ns: u64,
+    /// Sequence number of the last command the slave accepted.
+    pub echo_seq: u64,
+    /// `send_time_ns` of that command (the master computes round-trip time from it).
+    pub echo_send_time_ns: u64,
+    /// Measured pose `[x_mm, y_mm, z_mm, theta_rad]` (forward kinematics of the actuators).
+    pub pose: [f64; 4],
+    /// Measured contact wrench `[Fx_n, Fy_n, Fz_n, My_n_mm]` at the tool, slave frame.
+    pub wrench_measured: [f64; 4],
+    /// Desired contact wrench, same units.
+    pub wrench_desired: [f64; 4],
+    /// Passivity: energy that has entered the link at the slave port so far, J.
+    pub energy_in_j: f64,
+    /// Passivity: energy that has left the link at the slave port so far, J.
+    pub energy_out_j: f64,
+    /// [`PROTOCOL_VERSION`] of the sender.
+    pub protocol_version: u16,
+    /// Arm this feedback comes from.
+    pub arm_id: u16,
+    /// [`SlaveState`] as a byte.
+    pub state: u8,
+    /// Reserved, zero.
+    pub reserved: u8,
+    /// `FAULT_*` bits.
+    pub fault_flags: u16,
+}
+
+impl Default for Command {
+    fn default() -> Self {
+        Command {
+            seq: 0,
+            send_time_ns: 0,
+            pose: [0.0; 4],
+            velocity: [0.0; 4],
+            force_setpoint_n: 0.0,
+            energy_in_j: 0.0,
+            energy_out_j: 0.0,
+            protocol_version: PROTOCOL_VERSION,
+            arm_id: 0,
+            mode: Mode::Hold as u8,
+            reserved: 0,
+            flags: 0,
+        }
+    }
+}
+
+impl Default for Feedback {
+    fn default() -> Self {
+        Feedback {
+            seq: 0,
+            send_time_ns: 0,
+            echo_seq: 0,
+            echo_send_time_ns: 0,
+            pose: [0.0; 4],
+            wrench_measured: [0.0; 4],
+            wrench_desired: [0.0; 4],
+            energy_in_j: 0.0,
+            energy_out_j: 0.0,
+            protocol_version: PROTOCOL_VERSION,
+            arm_id: 0,
+            state: SlaveState::Idle as u8,
+            reserved: 0,
+            fault_flags: 0,
+        }
+    }
+}
+
+struct Writer<'a> {
+    buf: &'a mut [u8],
+    at: usize,
+}
+
+impl Writer<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        // Sizes are fixed at compile time and checked by the round-trip tests.
+        if let Some(dst) = self.buf.get_mut(self.at..self.at + b.len()) {
+            dst.copy_from_slice(b);
+        }
+        self.at += b.len();
+    }
+    fn u64(&mut self, v: u64) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn f64(&mut self, v: f64) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn f64s(&mut self, v: &[f64; 4]) {
+        for x in v {
+            self.f64(*x);
+        }
+    }
+    fn u16(&mut self, v: u16) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn u8(&mut self, v: u8) {
+        self.bytes(&[v]);
+    }
+}
+
+struct Reader<'a> {
+    buf: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take<const N: usize>(&mut self) -> [u8; N] {
+        let mut out = [0u8; N];
+        if let Some(src) = self.buf.get(self.at..self.at + N) {
+            out.copy_from_slice(src);
+        }
+        self.at += N;
+        out
+    }
+    fn u64(&mut self) -> u64 {
+        u64::from_le_bytes(self.take())
+    }
+    fn f64(&mut self, field: &'static str) -> Result<f64, WireError> {
+        let v = f64::from_le_bytes(self.take());
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(WireError::NonFinite { field })
+        }
+    }
+    fn f64s(&mut self, field: &'static str) -> Result<[f64; 4], WireError> {
+        Ok([
+            self.f64(field)?,
+            self.f64(field)?,
+            self.f64(field)?,
+            self.f64(field)?,
+        ])
+    }
+    fn u16(&mut self) -> u16 {
+        u16::from_le_bytes(self.take())
+    }
+    fn u8(&mut self) -> u8 {
+        self.take::<1>()[0]
+    }
+}
+
+fn write_header(w: &mut Writer<'_>, kind: u8, body_len: usize) {
+    w.bytes(&MAGIC);
+    w.u16(PROTOCOL_VERSION);
+    w.u8(kind);
+    w.u8(0);
+    w.u16(body_len as u16);
+}
+
+fn read_header<'a>(bytes: &'a [u8], kind: u8, body_len: usize) -> Result<Reader<'a>, WireError> {
+    let expected = HEADER_LEN + body_len;
+    if bytes.len() != expected {
+        return Err(WireError::WrongSize {
+            expected,
+            got: bytes.len(),
+        });
+    }
+    let mut r = Reader { buf: bytes, at: 0 };
+    if r.take::<2>() != MAGIC {
+        return Err(WireError::BadMagic);
+    }
+    let theirs = r.u16();
+    if theirs != PROTOCOL_VERSION {
+        return Err(WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs,
+        });
+    }
+    let got = r.u8();
+    if got != kind {
+        return Err(WireError::WrongKind {
+            expected: kind,
+            got,
+        });
+    }
+    let _reserved = r.u8();
+    let _len = r.u16();
+    Ok(r)
+}
+
+impl Command {
+    /// Size of the encoded command, bytes.
+    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 2 + 8 * 4 * 2 + 8 * 3 + 2 + 2 + 1 + 1 + 2;
+
+    /// Checks a command received over any transport: version, mode, flags and finiteness.
+    pub fn validate(&self) -> Result<(), WireError> {
+        if self.protocol_version != PROTOCOL_VERSION {
+            return Err(WireError::WrongVersion {
+                ours: PROTOCOL_VERSION,
+                theirs: self.protocol_version,
+            });
+        }
+        Mode::from_u8(self.mode)?;
+        if self.flags & !CMD_FLAGS_KNOWN != 0 {
+            return Err(WireError::BadFlags(self.flags & !CMD_FLAGS_KNOWN));
+        }
+        let fields: [(&'static str, &[f64]); 5] = [
+            ("pose", &self.pose),
+            ("velocity", &self.velocity),
+            (
+                "force_setpoint_n",
+                core::slice::from_ref(&self.force_setpoint_n),
+            ),
+            ("energy_in_j", core::slice::from_ref(&self.energy_in_j)),
+            ("energy_out_j", core::slice::from_ref(&self.energy_out_j)),
+        ];
+        check_all_finite(&fields)
+    }
+
+    /// The mode, checked.
+    pub fn mode(&self) -> Result<Mode, WireError> {
+        Mode::from_u8(self.mode)
+    }
+
+    /// Whether the operator holds the clutch.
+    pub fn clutch(&self) -> bool {
+        self.flags & CMD_FLAG_CLUTCH != 0
+    }
+
+    /// Encodes into `out` (little-endian, with header).
+    pub fn encode(&self, out: &mut [u8; Self::WIRE_SIZE]) {
+        let mut w = Writer { buf: out, at: 0 };
+        write_header(&mut w, KIND_COMMAND, Self::WIRE_SIZE - HEADER_LEN);
+        w.u64(self.seq);
+        w.u64(self.send_time_ns);
+        w.f64s(&self.pose);
+        w.f64s(&self.velocity);
+        w.f64(self.force_setpoint_n);
+        w.f64(self.energy_in_j);
+        w.f64(self.energy_out_j);
+        w.u16(self.protocol_version);
+        w.u16(self.arm_id);
+        w.u8(self.mode);
+        w.u8(self.reserved);
+        w.u16(self.flags);
+    }
+
+    /// Decodes and validates a command.
+    pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
+        let mut r = read_header(bytes, KIND_COMMAND, Self::WIRE_SIZE - HEADER_LEN)?;
+        let cmd = Command {
+            seq: r.u64(),
+            send_time_ns: r.u64(),
+            pose: r.f64s("pose")?,
+            velocity: r.f64s("velocity")?,
+            force_setpoint_n: r.f64("force_setpoint_n")?,
+            energy_in_j: r.f64("energy_in_j")?,
+            energy_out_j: r.f64("energy_out_j")?,
+            protocol_version: r.u16(),
+            arm_id: r.u16(),
+            mode: r.u8(),
+            reserved: r.u8(),
+            flags: r.u16(),
+        };
+        cmd.validate()?;
+        Ok(cmd)
+    }
+}
+
+impl Feedback {
+    /// Size of the encoded feedback, bytes.
+    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 4 + 8 * 4 * 3 + 8 * 2 + 2 + 2 + 1 + 1 + 2;
+
+    /// Checks feedback received over any transport: version, state, flags and finiteness.
+    pub fn validate(&self) -> Result<(), WireError> {
+        if self.protocol_version != PROTOCOL_VERSION {
+            return Err(WireError::WrongVersion {
+                ours: PROTOCOL_VERSION,
+                theirs: self.protocol_version,
+            });
+        }
+        SlaveState::from_u8(self.state)?;
+        if self.fault_flags & !FAULT_FLAGS_KNOWN != 0 {
+            return Err(WireError::BadFlags(self.fault_flags & !FAULT_FLAGS_KNOWN));
+        }
+        let fields: [(&'static str, &[f64]); 5] = [
+            ("pose", &self.pose),
+            ("wrench_measured", &self.wrench_measured),
+            ("wrench_desired", &self.wrench_desired),
+            ("energy_in_j", core::slice::from_ref(&self.energy_in_j)),
+            ("energy_out_j", core::slice::from_ref(&self.energy_out_j)),
+        ];
+        check_all_finite(&fields)
+    }
+
+    /// The slave state, checked.
+    pub fn state(&self) -> Result<SlaveState, WireError> {
+        SlaveState::from_u8(self.state)
+    }
+
+    /// Encodes into `out` (little-endian, with header).
+    pub fn encode(&self, out: &mut [u8; Self::WIRE_SIZE]) {
+        let mut w = Writer { buf: out, at: 0 };
+        write_header(&mut w, KIND_FEEDBACK, Self::WIRE_SIZE - HEADER_LEN);
+        w.u64(self.seq);
+        w.u64(self.send_time_ns);
+        w.u64(self.echo_seq);
+        w.u64(self.echo_send_time_ns);
+        w.f64s(&self.pose);
+        w.f64s(&self.wrench_measured);
+        w.f64s(&self.wrench_desired);
+        w.f64(self.energy_in_j);
+        w.f64(self.energy_out_j);
+        w.u16(self.protocol_version);
+        w.u16(self.arm_id);
+        w.u8(self.state);
+        w.u8(self.reserved);
+        w.u16(self.fault_flags);
+    }
+
+    /// Decodes and validates feedback.
+    pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
+        let mut r = read_header(bytes, KIND_FEEDBACK, Self::WIRE_SIZE - HEADER_LEN)?;
+        let fb = Feedback {
+            seq: r.u64(),
+            send_time_ns: r.u64(),
+            echo_seq: r.u64(),
+            echo_send_time_ns: r.u64(),
+            pose: r.f64s("pose")?,
+            wrench_measured: r.f64s("wrench_measured")?,
+            wrench_desired: r.f64s("wrench_desired")?,
+            energy_in_j: r.f64("energy_in_j")?,
+            energy_out_j: r.f64("energy_out_j")?,
+            protocol_version: r.u16(),
+            arm_id: r.u16(),
+            state: r.u8(),
+            reserved: r.u8(),
+            fault_flags: r.u16(),
+        };
+        fb.validate()?;
+        Ok(fb)
+    }
+}
+
+fn check_all_finite(fields: &[(&'static str, &[f64])]) -> Result<(), WireError> {
+    for (field, values) in fields {
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(WireError::NonFinite { field });
+        }
+    }
+    Ok(())
+}
+
+// The in-memory layout has no implicit padding: the shared-memory path copies it as is.
+const _: () = assert!(core::mem::size_of::<Command>() == Command::WIRE_SIZE - HEADER_LEN);
+const _: () = assert!(core::mem::size_of::<Feedback>() == Feedback::WIRE_SIZE - HEADER_LEN);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn command_round_trips() {
+        let cmd = Command {
+            seq: 7,
+            send_time_ns: 123_456,
+            pose: [1.0, -2.0, -300.0, 0.1],
+            velocity: [3.5, 0.0, 0.0, 0.0],
+            force_setpoint_n: 20.0,
+            energy_in_j: 0.5,
+            energy_out_j: 0.25,
+            arm_id: 3,
+            mode: Mode::ForceGuided as u8,
+            flags: CMD_FLAG_CLUTCH,
+            ..Command::default()
+        };
+        let mut buf = [0u8; Command::WIRE_SIZE];
+        cmd.encode(&mut buf);
+        assert_eq!(Command::decode(&buf), Ok(cmd));
+    }
+
+    #[test]
+    fn wrong_version_is_named() {
+        let mut buf = [0u8; Feedback::WIRE_SIZE];
+        Feedback::default().encode(&mut buf);
+        buf[2] = 9;
+        assert_eq!(
+            Feedback::decode(&buf),
+            Err(WireError::WrongVersion {
+                ours: PROTOCOL_VERSION,
+                theirs: 9
+            })
+        );
+    }
+}
