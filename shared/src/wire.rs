@@ -504,6 +504,64 @@ impl Feedback {
     }
 }
 
+/// What every transport needs of a message: its sequence number, its send time, a check of
+/// its contents and the checked byte encoding of the network path.
+pub trait WireMessage: Copy + Send + 'static {
+    /// Size of the encoded message, bytes.
+    const WIRE_SIZE: usize;
+    /// Short name for logs and errors ("command", "feedback").
+    const NAME: &'static str;
+    /// Sequence number.
+    fn seq(&self) -> u64;
+    /// Sender's clock when sent, ns.
+    fn send_time_ns(&self) -> u64;
+    /// Arm the message belongs to.
+    fn arm_id(&self) -> u16;
+    /// Checks version, enums, flags and finiteness.
+    fn validate(&self) -> Result<(), WireError>;
+    /// Encodes into `out`, which must be `WIRE_SIZE` bytes long (checked: a wrong size is an error).
+    fn encode_into(&self, out: &mut [u8]) -> Result<(), WireError>;
+    /// Decodes and validates.
+    fn decode_from(bytes: &[u8]) -> Result<Self, WireError>;
+}
+
+macro_rules! impl_wire_message {
+    ($ty:ty, $name:literal) => {
+        impl WireMessage for $ty {
+            const WIRE_SIZE: usize = <$ty>::WIRE_SIZE;
+            const NAME: &'static str = $name;
+            fn seq(&self) -> u64 {
+                self.seq
+            }
+            fn send_time_ns(&self) -> u64 {
+                self.send_time_ns
+            }
+            fn arm_id(&self) -> u16 {
+                self.arm_id
+            }
+            fn validate(&self) -> Result<(), WireError> {
+                <$ty>::validate(self)
+            }
+            fn encode_into(&self, out: &mut [u8]) -> Result<(), WireError> {
+                let got = out.len();
+                let buf: &mut [u8; <$ty>::WIRE_SIZE] =
+                    out.try_into().map_err(|_| WireError::WrongSize {
+                        expected: <$ty>::WIRE_SIZE,
+                        got,
+                    })?;
+                self.encode(buf);
+                Ok(())
+            }
+            fn decode_from(bytes: &[u8]) -> Result<Self, WireError> {
+                <$ty>::decode(bytes)
+            }
+        }
+    };
+}
+
+impl_wire_message!(Command, "command");
+impl_wire_message!(Feedback, "feedback");
+
 fn check_all_finite(fields: &[(&'static str, &[f64])]) -> Result<(), WireError> {
     for (field, values) in fields {
         if values.iter().any(|v| !v.is_finite()) {
