@@ -1,5 +1,6 @@
 //! Every shipped arm configuration under `config/` parses and validates, and bad files and
 //! keys give errors that name them.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
 

@@ -1,5 +1,6 @@
 //! The checked byte encoding round-trips every valid message and rejects wrong sizes,
 //! wrong versions, wrong kinds, unknown enums and flags, and non-finite numbers.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use h4_shared::wire::{
     CMD_FLAG_CLUTCH, Command, FAULT_FLAGS_KNOWN, Feedback, Mode, PROTOCOL_VERSION, SlaveState, WireError, WireMessage,
