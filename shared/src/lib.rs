@@ -1,12 +1,13 @@
 //! Shared foundation of h4-teleop: H-4 family kinematics and compliance, the master ↔ slave
 //! wire types and their checked byte encoding, clocks, a deterministic random source and
 //! TOML configuration helpers.
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 
 pub mod clock;
 pub mod config;
 pub mod kinematics;
 pub mod rng;
+pub mod rt;
 pub mod wire;
 
 pub use kinematics::{
