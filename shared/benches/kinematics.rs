@@ -50,9 +50,17 @@ fn main() {
     let k = ActuatorStiffness::uniform(100.0).unwrap_or_else(|e| panic!("{e}"));
     let poses = poses();
     let ls: Vec<_> = poses.iter().filter_map(|q| p.ik_checked(q).ok()).collect();
-    bench("ik_checked", &poses, |q| black_box(&p).ik_checked(black_box(q)).map_or(0.0, |l| l[0]));
-    bench("fk", &ls, |l| black_box(&p).fk(black_box(l)).map_or(0.0, |q| q[2]));
-    bench("jacobian", &poses, |q| black_box(&p).jacobian(black_box(q)).map_or(0.0, |j| j[(0, 1)]));
+    bench("ik_checked", &poses, |q| {
+        black_box(&p).ik_checked(black_box(q)).map_or(0.0, |l| l[0])
+    });
+    bench("fk", &ls, |l| {
+        black_box(&p).fk(black_box(l)).map_or(0.0, |q| q[2])
+    });
+    bench("jacobian", &poses, |q| {
+        black_box(&p)
+            .jacobian(black_box(q))
+            .map_or(0.0, |j| j[(0, 1)])
+    });
     bench("jacobian_inverse + compliance", &poses, |q| {
         black_box(&p)
             .compliance(black_box(q), &k)
