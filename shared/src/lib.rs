@@ -6,6 +6,7 @@
 pub mod clock;
 pub mod config;
 pub mod kinematics;
+pub mod process;
 pub mod rng;
 pub mod rt;
 pub mod wire;

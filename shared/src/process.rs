@@ -1,0 +1,134 @@
+//! Process plumbing for the 1 kHz programs: an orderly-stop flag set by SIGINT/SIGTERM, a
+//! watchdog on the last valid message, and a terminal status line that stays quiet when
+//! the output is not a terminal.
+#![allow(unsafe_code)]
+
+use std::io::{IsTerminal, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_sig: libc::c_int) {
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// Installs SIGINT and SIGTERM handlers that only set a flag ([`stop_requested`]); the loop
+/// checks it and stops in order (recording closed, summary written).
+pub fn install_stop_handlers() -> std::io::Result<()> {
+    for sig in [libc::SIGINT, libc::SIGTERM] {
+        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+        let prev = unsafe { libc::signal(sig, on_signal as *const () as libc::sighandler_t) };
+        if prev == libc::SIG_ERR {
+            return Err(std::io::Error::last_os_error());
+        }
+    }
+    Ok(())
+}
+
+/// Whether SIGINT or SIGTERM has arrived.
+pub fn stop_requested() -> bool {
+    STOP.load(Ordering::SeqCst)
+}
+
+/// Requests an orderly stop from inside the process (e.g. at the end of a fixed duration).
+pub fn request_stop() {
+    STOP.store(true, Ordering::SeqCst);
+}
+
+/// Trips when no valid message has been seen for `timeout_ns` on the caller's clock.
+#[derive(Clone, Copy, Debug)]
+pub struct Watchdog {
+    timeout_ns: u64,
+    last_valid_ns: Option<u64>,
+}
+
+impl Watchdog {
+    /// A watchdog that has seen nothing yet (it is not tripped until the first message).
+    pub fn new(timeout_ns: u64) -> Self {
+        Watchdog {
+            timeout_ns,
+            last_valid_ns: None,
+        }
+    }
+
+    /// A valid message arrived at `now_ns`.
+    pub fn feed(&mut self, now_ns: u64) {
+        self.last_valid_ns = Some(now_ns);
+    }
+
+    /// Whether a message was ever seen.
+    pub fn ever_fed(&self) -> bool {
+        self.last_valid_ns.is_some()
+    }
+
+    /// Time since the last valid message, or `None` before the first.
+    pub fn silence_ns(&self, now_ns: u64) -> Option<u64> {
+        self.last_valid_ns.map(|t| now_ns.saturating_sub(t))
+    }
+
+    /// Tripped: something was seen, and nothing valid for longer than the timeout.
+    pub fn tripped(&self, now_ns: u64) -> bool {
+        self.silence_ns(now_ns).is_some_and(|s| s > self.timeout_ns)
+    }
+}
+
+/// A single status line rewritten a few times a second on a terminal (stderr), silent
+/// otherwise. Formatting happens only when a line is due, never on the other cycles.
+#[derive(Debug)]
+pub struct StatusLine {
+    enabled: bool,
+    interval_ns: u64,
+    next_ns: u64,
+}
+
+impl StatusLine {
+    /// Enabled when stderr is a terminal; `hz` lines per second.
+    pub fn new(hz: f64) -> Self {
+        StatusLine {
+            enabled: std::io::stderr().is_terminal(),
+            interval_ns: (1e9 / hz.max(0.1)) as u64,
+            next_ns: 0,
+        }
+    }
+
+    /// Whether a line is due at `now_ns` (always false when disabled).
+    pub fn due(&mut self, now_ns: u64) -> bool {
+        if !self.enabled || now_ns < self.next_ns {
+            return false;
+        }
+        self.next_ns = now_ns + self.interval_ns;
+        true
+    }
+
+    /// Rewrites the line.
+    pub fn show(&self, text: &str) {
+        if self.enabled {
+            let mut err = std::io::stderr().lock();
+            let _ = write!(err, "\r\x1b[2K{text}");
+            let _ = err.flush();
+        }
+    }
+
+    /// Ends the line so later output starts on a fresh one.
+    pub fn finish(&self) {
+        if self.enabled {
+            let _ = writeln!(std::io::stderr());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn watchdog_trips_only_after_silence() {
+        let mut w = Watchdog::new(20_000_000);
+        assert!(!w.tripped(1_000_000_000), "not before the first message");
+        w.feed(1_000_000_000);
+        assert!(!w.tripped(1_020_000_000));
+        assert!(w.tripped(1_020_000_001));
+        w.feed(1_030_000_000);
+        assert!(!w.tripped(1_040_000_000));
+    }
+}
