@@ -7,6 +7,7 @@ pub mod clock;
 pub mod config;
 pub mod kinematics;
 pub mod process;
+pub mod recording;
 pub mod rng;
 pub mod rt;
 pub mod wire;

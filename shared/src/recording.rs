@@ -1,0 +1,297 @@
+//! MCAP recordings of per-cycle data, JSON messages with JSON-schema schemas, so Foxglove
+//! can open and plot them directly.
+//!
+//! The file holds nothing that depends on the wall clock or the machine: the same calls
+//! with the same data give the same bytes (the determinism tests compare recordings byte
+//! for byte). Timestamps are whatever the caller passes, normally the simulated clock.
+//!
+//! ```no_run
+//! use h4_shared::recording::Recorder;
+//! # fn main() -> Result<(), h4_shared::recording::RecordingError> {
+//! let mut rec = Recorder::create("run.mcap")?;
+//! let ch = rec.add_channel(
+//!     "/slave/force",
+//!     "h4.Force",
+//!     r#"{"type":"object","properties":{"fz_n":{"type":"number"}}}"#,
+//! )?;
+//! #[derive(serde::Serialize)]
+//! struct Force { fz_n: f64 }
+//! rec.write(ch, 1_000_000, &Force { fz_n: 20.0 })?;
+//! rec.finish()?;
+//! # Ok(()) }
+//! ```
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Cursor, Seek, Write};
+use std::path::Path;
+
+use serde::Serialize;
+
+/// Identifies a channel of a [`Recorder`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ChannelId(u16);
+
+/// Why a recording could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    /// The file could not be created or written.
+    #[error("recording {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The MCAP writer refused a record.
+    #[error("recording: MCAP: {0}")]
+    Mcap(String),
+    /// A message could not be serialised to JSON.
+    #[error("recording: JSON message on channel {channel}: {message}")]
+    Json {
+        /// The channel's topic.
+        channel: String,
+        /// The serialiser's message.
+        message: String,
+    },
+    /// The schema text is not valid JSON.
+    #[error("recording: schema {schema}: not valid JSON: {message}")]
+    BadSchema {
+        /// The schema name.
+        schema: String,
+        /// The parser's message.
+        message: String,
+    },
+    /// The channel id does not belong to this recorder.
+    #[error("recording: unknown channel {0}")]
+    UnknownChannel(u16),
+    /// `finish` was already called.
+    #[error("recording: already finished")]
+    Finished,
+}
+
+fn mcap_err(e: mcap::McapError) -> RecordingError {
+    RecordingError::Mcap(e.to_string())
+}
+
+/// Where a recording goes: a file, or memory (for tests).
+enum Sink {
+    File(BufWriter<File>),
+    Memory(Cursor<Vec<u8>>),
+}
+
+impl Write for Sink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Sink::File(f) => f.write(buf),
+            Sink::Memory(m) => m.write(buf),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Sink::File(f) => f.flush(),
+            Sink::Memory(m) => m.flush(),
+        }
+    }
+}
+
+impl Seek for Sink {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        match self {
+            Sink::File(f) => f.seek(pos),
+            Sink::Memory(m) => m.seek(pos),
+        }
+    }
+}
+
+/// An MCAP writer of JSON messages.
+pub struct Recorder {
+    writer: Option<mcap::Writer<Sink>>,
+    topics: Vec<(u16, String, u32)>,
+    buffer: Vec<u8>,
+    path: String,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("path", &self.path)
+            .field("channels", &self.topics.len())
+            .finish()
+    }
+}
+
+/// The library string stored in the MCAP header: fixed, so the bytes do not depend on
+/// the mcap crate's version.
+const LIBRARY: &str = "h4-teleop";
+
+impl Recorder {
+    /// Creates (or truncates) the file at `path`.
+    pub fn create(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
+        let path = path.as_ref();
+        let name = path.display().to_string();
+        let file = File::create(path).map_err(|source| RecordingError::Io {
+            path: name.clone(),
+            source,
+        })?;
+        Self::to_sink(Sink::File(BufWriter::new(file)), name)
+    }
+
+    /// A recorder writing into memory; [`Recorder::finish_into_bytes`] returns the file.
+    pub fn in_memory() -> Result<Self, RecordingError> {
+        Self::to_sink(
+            Sink::Memory(Cursor::new(Vec::new())),
+            "<memory>".to_string(),
+        )
+    }
+
+    fn to_sink(sink: Sink, path: String) -> Result<Self, RecordingError> {
+        let options = mcap::WriteOptions::new()
+            .compression(None)
+            .profile("")
+            .library(LIBRARY);
+        let writer = options.create(sink).map_err(mcap_err)?;
+        Ok(Recorder {
+            writer: Some(writer),
+            topics: Vec::new(),
+            buffer: Vec::with_capacity(1024),
+            path,
+        })
+    }
+
+    /// Adds a channel on `topic` whose messages are JSON objects described by
+    /// `json_schema` (a JSON Schema document, as text) under the name `schema_name`.
+    pub fn add_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        json_schema: &str,
+    ) -> Result<ChannelId, RecordingError> {
+        serde_json::from_str::<serde_json::Value>(json_schema).map_err(|e| {
+            RecordingError::BadSchema {
+                schema: schema_name.to_string(),
+                message: e.to_string(),
+            }
+        })?;
+        let writer = self.writer.as_mut().ok_or(RecordingError::Finished)?;
+        let schema_id = writer
+            .add_schema(schema_name, "jsonschema", json_schema.as_bytes())
+            .map_err(mcap_err)?;
+        let id = writer
+            .add_channel(schema_id, topic, "json", &BTreeMap::new())
+            .map_err(mcap_err)?;
+        self.topics.push((id, topic.to_string(), 0));
+        Ok(ChannelId(id))
+    }
+
+    /// Writes one message, timestamped `log_time_ns` (log and publish time).
+    pub fn write<T: Serialize>(
+        &mut self,
+        channel: ChannelId,
+        log_time_ns: u64,
+        message: &T,
+    ) -> Result<(), RecordingError> {
+        let writer = self.writer.as_mut().ok_or(RecordingError::Finished)?;
+        let entry = self
+            .topics
+            .iter_mut()
+            .find(|(id, _, _)| *id == channel.0)
+            .ok_or(RecordingError::UnknownChannel(channel.0))?;
+        self.buffer.clear();
+        serde_json::to_writer(&mut self.buffer, message).map_err(|e| RecordingError::Json {
+            channel: entry.1.clone(),
+            message: e.to_string(),
+        })?;
+        let header = mcap::records::MessageHeader {
+            channel_id: channel.0,
+            sequence: entry.2,
+            log_time: log_time_ns,
+            publish_time: log_time_ns,
+        };
+        entry.2 = entry.2.wrapping_add(1);
+        writer
+            .write_to_known_channel(&header, &self.buffer)
+            .map_err(mcap_err)
+    }
+
+    /// Writes the summary and closes the file.
+    pub fn finish(mut self) -> Result<(), RecordingError> {
+        let mut writer = self.writer.take().ok_or(RecordingError::Finished)?;
+        writer.finish().map_err(mcap_err)?;
+        let mut sink = writer.into_inner();
+        sink.flush().map_err(|source| RecordingError::Io {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    /// For [`Recorder::in_memory`]: finishes and returns the file's bytes (empty for a
+    /// file recorder, whose bytes are on disk).
+    pub fn finish_into_bytes(mut self) -> Result<Vec<u8>, RecordingError> {
+        let mut writer = self.writer.take().ok_or(RecordingError::Finished)?;
+        writer.finish().map_err(mcap_err)?;
+        match writer.into_inner() {
+            Sink::Memory(m) => Ok(m.into_inner()),
+            Sink::File(mut f) => {
+                f.flush().map_err(|source| RecordingError::Io {
+                    path: self.path.clone(),
+                    source,
+                })?;
+                Ok(Vec::new())
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Serialize)]
+    struct Sample {
+        t: f64,
+    }
+
+    fn record() -> Vec<u8> {
+        let mut rec = Recorder::in_memory().unwrap();
+        let ch = rec
+            .add_channel(
+                "/a",
+                "A",
+                r#"{"type":"object","properties":{"t":{"type":"number"}}}"#,
+            )
+            .unwrap();
+        for i in 0..100u64 {
+            rec.write(ch, i * 1_000_000, &Sample { t: i as f64 })
+                .unwrap();
+        }
+        rec.finish_into_bytes().unwrap()
+    }
+
+    #[test]
+    fn same_input_same_bytes_and_valid_mcap() {
+        let a = record();
+        let b = record();
+        assert_eq!(a, b);
+        assert!(a.starts_with(b"\x89MCAP0\r\n"));
+        let messages: Vec<_> = mcap::MessageStream::new(&a).unwrap().collect();
+        assert_eq!(messages.len(), 100);
+        let m = messages[7].as_ref().unwrap();
+        assert_eq!(m.log_time, 7_000_000);
+        assert_eq!(&m.data[..], br#"{"t":7.0}"#);
+        assert_eq!(m.channel.topic, "/a");
+    }
+
+    #[test]
+    fn bad_schema_and_unknown_channel_are_errors() {
+        let mut rec = Recorder::in_memory().unwrap();
+        assert!(matches!(
+            rec.add_channel("/a", "A", "{not json"),
+            Err(RecordingError::BadSchema { .. })
+        ));
+        assert!(matches!(
+            rec.write(ChannelId(42), 0, &Sample { t: 0.0 }),
+            Err(RecordingError::UnknownChannel(42))
+        ));
+    }
+}
