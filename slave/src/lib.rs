@@ -1,4 +1,15 @@
 //! The h4-teleop slave: the H-4 arm's force loop, its simulated plant, and the tools of
 //! the `h4-slave` command.
+//!
+//! * [`plant`]: the [`plant::ArmDriver`] interface a real robot driver implements, and
+//!   [`plant::SimArm`], the simulated prototype (20 kHz servos, finite stiffness, contact,
+//!   force sensor).
+//! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
+//!   implicit force control with online environment-stiffness estimation, safe stop).
+//! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
 
+pub mod controller;
+pub mod experiment;
+pub mod filter;
 pub mod kin_tool;
+pub mod plant;

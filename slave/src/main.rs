@@ -1,9 +1,11 @@
 //! `h4-slave`: the slave side of h4-teleop.
 
 use std::io::{BufReader, BufWriter};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
+use h4_shared::recording::Recorder;
 use h4_shared::{ActuatorStiffness, H4Params};
 
 /// The h4-teleop slave: the H-4 arm's force loop and its tools.
@@ -19,6 +21,47 @@ enum Command {
     /// Kinematics tool: JSON lines on stdin ({"pose":[x,y,z,theta]} or {"l":[l1,l2,l3,l4]},
     /// mm and rad), one JSON answer per line on stdout.
     Kin(KinArgs),
+    /// Runs one autonomous force-tracking experiment on the simulated clock and prints its
+    /// summary as JSON (fields in docs/slave-experiments.md).
+    Experiment(ExperimentArgs),
+}
+
+#[derive(Debug, Args)]
+struct ExperimentArgs {
+    /// The experiment file (TOML), e.g. config/experiments/fig6b.toml.
+    file: PathBuf,
+    /// Override any field: `--set surface.material=steel` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Also write the summary JSON to this file.
+    #[arg(long)]
+    summary: Option<PathBuf>,
+    /// Record every 1 ms cycle to this MCAP file (Foxglove opens it).
+    #[arg(long)]
+    record: Option<PathBuf>,
+}
+
+impl ExperimentArgs {
+    fn run(self) -> Result<(), String> {
+        let cfg: h4_slave::experiment::ExperimentConfig =
+            h4_shared::config::load(&self.file, &self.set).map_err(|e| e.to_string())?;
+        let mut recorder = match &self.record {
+            Some(path) => Some(Recorder::create(path).map_err(|e| e.to_string())?),
+            None => None,
+        };
+        let summary = h4_slave::experiment::run(&cfg, recorder.as_mut())
+            .map_err(|e| format!("{}: {e}", self.file.display()))?;
+        if let Some(rec) = recorder {
+            rec.finish().map_err(|e| e.to_string())?;
+        }
+        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
+        println!("{json}");
+        if let Some(path) = &self.summary {
+            std::fs::write(path, format!("{json}\n"))
+                .map_err(|e| format!("--summary {}: {e}", path.display()))?;
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Args)]
@@ -51,6 +94,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Kin(args) => args.run(),
+        Command::Experiment(args) => args.run(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

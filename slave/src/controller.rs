@@ -1,0 +1,893 @@
+//! The slave's 1 kHz controller: a pure step, no clock reads, no I/O, no allocation, no
+//! panic.
+//!
+//! * **Position** mode follows the commanded pose with velocity and acceleration limits
+//!   (per axis), through the checked inverse kinematics of the [`Workspace`].
+//! * **ForceGuided** mode is the paper's implicit force control (§3, figures 2 and 3): the
+//!   contact normal comes from the measured force (with the friction component along the
+//!   tracking direction removed), the tracking direction is the commanded direction of
+//!   motion projected onto the tangent plane (figure 2), and the position command moves
+//!   into the surface by the compliance times the force error,
+//!   `Δd = c · (ΔF_r + k_p Δe + k_i e dt)`, with `c = nᵀ Λ(x) n + ĉ_env`: the arm's
+//!   compliance along the normal from the kinematics (with the *assumed* actuator
+//!   stiffness) plus the environment's compliance, estimated online by recursive least
+//!   squares on force and position increments (as in Chiaverini–Siciliano–Villani's
+//!   stiffness adaptation). `F_r` is the set-point after a critically damped second-order
+//!   prefilter, fed forward. Before contact the arm approaches the commanded pose at the
+//!   approach speed; on contact loss it re-approaches along the last normal, without a jump.
+//! * **Hold** (or the clutch) holds the commanded pose.
+//! * [`SlaveController::safe_stop`] ramps the force to zero, retracts along the contact
+//!   normal and holds.
+//!
+//! Limits always hold: commanded set-points above the force limit, speeds above the speed
+//! limit, non-finite inputs and poses outside the workspace are rejected with a
+//! [`Rejection`] (the actuators then hold their last valid command); a measured force above
+//! the limit makes the arm back off; the command moves no faster than the speed limit.
+
+use h4_shared::kinematics::{ActuatorStiffness, KinError, Pose, Workspace};
+use h4_shared::wire::Mode;
+use nalgebra::{Matrix3, Vector3, Vector4};
+use serde::{Deserialize, Serialize};
+
+use crate::filter::Butterworth2;
+
+/// Tuning of the controller (`controller.*` in experiment files).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControllerParams {
+    /// Use the arm's compliance matrix Λ(x) (deflection-corrected pose, arm compliance in
+    /// the loop gain). `false` treats the arm as rigid.
+    pub compliance_model: bool,
+    /// Largest speed of the commanded tool point, mm/s.
+    pub max_speed_mm_per_s: f64,
+    /// Largest acceleration in position mode, mm/s².
+    pub max_accel_mm_per_s2: f64,
+    /// Largest rate of theta, rad/s.
+    pub max_theta_rate_rad_per_s: f64,
+    /// Speed of the approach towards an unknown surface and of re-approach, mm/s.
+    pub approach_speed_mm_per_s: f64,
+    /// Force limit: set-points above it are rejected, measured forces above it make the arm
+    /// back off, N.
+    pub force_limit_n: f64,
+    /// Force that signals contact, N.
+    pub contact_threshold_n: f64,
+    /// Normal force below which contact counts as lost, N.
+    pub contact_lost_n: f64,
+    /// Consecutive cycles below `contact_lost_n` before contact is declared lost.
+    pub contact_lost_cycles: u32,
+    /// Time constant of the set-point prefilter (critically damped, 2nd order), s.
+    pub setpoint_time_constant_s: f64,
+    /// Proportional gain of the force loop, relative (dimensionless).
+    pub kp: f64,
+    /// Integral gain of the force loop, 1/s.
+    pub ki_per_s: f64,
+    /// Environment stiffness assumed before the estimator has data, N/mm.
+    pub initial_env_stiffness_n_per_mm: f64,
+    /// Lower bound of the environment stiffness estimate, N/mm.
+    pub env_stiffness_min_n_per_mm: f64,
+    /// Upper bound of the environment stiffness estimate, N/mm.
+    pub env_stiffness_max_n_per_mm: f64,
+    /// Turn the online estimation of the environment's stiffness on.
+    pub estimate_env_stiffness: bool,
+    /// Forgetting factor of the estimator, per update (0.5 to 1).
+    pub estimator_forgetting: f64,
+    /// Window of the force/position increments the estimator uses, cycles (2 to 64).
+    pub estimator_window_cycles: u32,
+    /// Smallest force increment over the window that updates the estimate, N.
+    pub estimator_excitation_n: f64,
+    /// Time constant of the contact-normal filter, s.
+    pub normal_time_constant_s: f64,
+    /// Cut-off of the filter applied to the measured position so it lines up with the
+    /// force sensor's filtered signal, Hz (set it to the sensor filter's cut-off).
+    pub sensor_filter_cutoff_hz: f64,
+    /// Cycles at start-up averaged (in free space) to estimate the sensor's bias.
+    pub tare_cycles: u32,
+    /// Safe stop: time to ramp the force to zero, s.
+    pub safe_stop_ramp_s: f64,
+    /// Safe stop: retraction along the contact normal, mm.
+    pub safe_stop_retract_mm: f64,
+}
+
+impl Default for ControllerParams {
+    fn default() -> Self {
+        ControllerParams {
+            compliance_model: true,
+            max_speed_mm_per_s: 100.0,
+            max_accel_mm_per_s2: 1000.0,
+            max_theta_rate_rad_per_s: 1.0,
+            approach_speed_mm_per_s: 2.0,
+            force_limit_n: 80.0,
+            contact_threshold_n: 0.8,
+            contact_lost_n: 0.3,
+            contact_lost_cycles: 20,
+            setpoint_time_constant_s: 0.015,
+            kp: 0.3,
+            ki_per_s: 40.0,
+            initial_env_stiffness_n_per_mm: 200.0,
+            env_stiffness_min_n_per_mm: 1.0,
+            env_stiffness_max_n_per_mm: 20_000.0,
+            estimate_env_stiffness: true,
+            estimator_forgetting: 0.98,
+            estimator_window_cycles: 10,
+            estimator_excitation_n: 0.4,
+            normal_time_constant_s: 0.02,
+            sensor_filter_cutoff_hz: 80.0,
+            tare_cycles: 100,
+            safe_stop_ramp_s: 0.2,
+            safe_stop_retract_mm: 3.0,
+        }
+    }
+}
+
+/// What the master (or an experiment) asks of the slave this cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlaveCommand {
+    /// Hold, Position or ForceGuided.
+    pub mode: Mode,
+    /// Desired pose `[x, y, z, theta]`, mm and rad. In ForceGuided mode the point is the
+    /// target of the approach before contact; theta is followed in every mode.
+    pub pose: [f64; 4],
+    /// Desired velocity `[vx, vy, vz, ω]`, mm/s and rad/s. In ForceGuided mode its
+    /// translational part gives the direction and speed of motion along the surface.
+    pub velocity: [f64; 4],
+    /// Desired contact force along the normal, N (ForceGuided).
+    pub force_setpoint_n: f64,
+    /// Operator clutch: hold still while pressed.
+    pub clutch: bool,
+}
+
+impl Default for SlaveCommand {
+    fn default() -> Self {
+        SlaveCommand {
+            mode: Mode::Hold,
+            pose: [0.0; 4],
+            velocity: [0.0; 4],
+            force_setpoint_n: 0.0,
+            clutch: false,
+        }
+    }
+}
+
+/// One cycle's input: the arm's measurements and the current command.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct ControllerInput {
+    /// Measured actuator positions (encoders), mm.
+    pub actuators_mm: [f64; 4],
+    /// Measured wrench `[Fx, Fy, Fz, My]` (N, N·mm) in the base frame, as the sensor reports it.
+    pub wrench: [f64; 4],
+    /// The current command.
+    pub command: SlaveCommand,
+}
+
+/// The controller's state, reported every cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    /// Estimating the sensor bias at start-up (holding still).
+    Taring,
+    /// Holding (Hold mode, clutch, or after a safe stop).
+    Holding,
+    /// Moving freely (Position mode, no contact force).
+    Free,
+    /// ForceGuided, moving towards the surface.
+    Approaching,
+    /// ForceGuided, in contact, controlling force.
+    Contact,
+    /// ForceGuided, contact lost: re-approaching along the last normal.
+    ContactLost,
+    /// The measured force exceeded the limit: backing off.
+    ForceLimited,
+    /// Safe stop in progress (force ramp-down or retraction).
+    SafeStop,
+    /// This cycle's command was rejected; the actuators hold.
+    Rejected,
+}
+
+impl Status {
+    /// A small number per state, for plotting.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+/// Why a command was rejected (the actuators hold their last valid command).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum Rejection {
+    /// An input (measurement, command or dt) is NaN or infinite, or dt ≤ 0.
+    #[error("non-finite input or non-positive dt")]
+    NonFiniteInput,
+    /// The force set-point is negative or above the force limit.
+    #[error("force set-point {value_n} N outside 0 to {limit_n} N")]
+    SetpointOutOfRange {
+        /// The set-point asked for.
+        value_n: f64,
+        /// The limit.
+        limit_n: f64,
+    },
+    /// The commanded speed is above the speed limit.
+    #[error("commanded speed {value_mm_per_s} mm/s above the limit {limit_mm_per_s} mm/s")]
+    SpeedOutOfRange {
+        /// The speed asked for.
+        value_mm_per_s: f64,
+        /// The limit.
+        limit_mm_per_s: f64,
+    },
+    /// The commanded (or next) pose is outside the workspace.
+    #[error("pose outside the workspace: {0}")]
+    Workspace(KinError),
+    /// The measured actuator positions have no forward kinematics.
+    #[error("measured actuator positions invalid: {0}")]
+    MeasuredPose(KinError),
+}
+
+impl Rejection {
+    /// Machine-readable reason.
+    pub fn reason_code(&self) -> &'static str {
+        match self {
+            Rejection::NonFiniteInput => "non_finite_input",
+            Rejection::SetpointOutOfRange { .. } => "setpoint_out_of_range",
+            Rejection::SpeedOutOfRange { .. } => "speed_out_of_range",
+            Rejection::Workspace(e) => e.reason_code(),
+            Rejection::MeasuredPose(_) => "measured_pose_invalid",
+        }
+    }
+}
+
+/// One cycle's output.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ControllerOutput {
+    /// Actuator position commands, mm (the last valid ones when rejected).
+    pub actuators_cmd_mm: [f64; 4],
+    /// The commanded (undeflected) pose whose IK gives the actuator commands.
+    pub commanded_pose: [f64; 4],
+    /// The measured pose: FK of the encoders, plus Λ(x)F when the compliance model is on.
+    pub measured_pose: [f64; 4],
+    /// Estimated outward contact normal (zero before the first contact).
+    pub contact_normal: [f64; 3],
+    /// Tracking direction on the surface (zero when not tracking).
+    pub tracking_direction: [f64; 3],
+    /// Measured wrench with the sensor bias removed.
+    pub wrench_measured: [f64; 4],
+    /// Desired wrench: the (prefiltered) set-point along the normal.
+    pub wrench_desired: [f64; 4],
+    /// Measured force along the estimated normal, N.
+    pub normal_force_n: f64,
+    /// Set-point after the prefilter, N.
+    pub setpoint_n: f64,
+    /// The environment stiffness the loop uses, N/mm.
+    pub env_stiffness_n_per_mm: f64,
+    /// Total compliance along the normal the loop uses, mm/N.
+    pub compliance_mm_per_n: f64,
+    /// State.
+    pub status: Status,
+    /// Set when this cycle's command was rejected.
+    #[serde(skip)]
+    pub rejection: Option<Rejection>,
+}
+
+const WINDOW_MAX: usize = 64;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum SafeStopPhase {
+    Inactive,
+    RampDown { remaining_s: f64, from_n: f64 },
+    Retract { remaining_mm: f64 },
+    Done,
+}
+
+/// The slave controller. Build it once; call [`SlaveController::step`] every cycle.
+#[derive(Clone, Debug)]
+pub struct SlaveController {
+    ws: Workspace,
+    stiffness: ActuatorStiffness,
+    p: ControllerParams,
+    initialised: bool,
+    cycles: u64,
+    // Tare.
+    tare_sum: Vector4<f64>,
+    tare_n: u32,
+    bias: Vector4<f64>,
+    // Command state.
+    x_cmd: Pose,
+    v_ref: Pose,
+    l_cmd: [f64; 4],
+    // Contact state.
+    in_contact: bool,
+    ever_contact: bool,
+    lost: bool,
+    below_cycles: u32,
+    normal: Vector3<f64>,
+    tangent: Vector3<f64>,
+    sp1: f64,
+    sp2: f64,
+    e_prev: f64,
+    // Estimator.
+    c_env: f64,
+    c_tot: f64,
+    p_rls: f64,
+    pos_filters: [Butterworth2; 3],
+    hist_x: [[f64; 3]; WINDOW_MAX],
+    hist_f: [Vector3<f64>; WINDOW_MAX],
+    hist_head: usize,
+    contact_cycles: u32,
+    safe: SafeStopPhase,
+    last: ControllerOutput,
+}
+
+impl SlaveController {
+    /// A controller for the arm `ws` whose actuators it assumes to have stiffness
+    /// `assumed_stiffness`.
+    pub fn new(
+        ws: Workspace,
+        assumed_stiffness: ActuatorStiffness,
+        params: ControllerParams,
+    ) -> Self {
+        let pf = Butterworth2::new(params.sensor_filter_cutoff_hz, 1000.0);
+        let c_env = 1.0 / params.initial_env_stiffness_n_per_mm.max(1e-6);
+        SlaveController {
+            ws,
+            stiffness: assumed_stiffness,
+            p: params,
+            initialised: false,
+            cycles: 0,
+            tare_sum: Vector4::zeros(),
+            tare_n: 0,
+            bias: Vector4::zeros(),
+            x_cmd: Pose::zeros(),
+            v_ref: Pose::zeros(),
+            l_cmd: [0.0; 4],
+            in_contact: false,
+            ever_contact: false,
+            lost: false,
+            below_cycles: 0,
+            normal: Vector3::zeros(),
+            tangent: Vector3::zeros(),
+            sp1: 0.0,
+            sp2: 0.0,
+            e_prev: 0.0,
+            c_env,
+            c_tot: c_env,
+            p_rls: 100.0,
+            pos_filters: [pf; 3],
+            hist_x: [[0.0; 3]; WINDOW_MAX],
+            hist_f: [Vector3::zeros(); WINDOW_MAX],
+            hist_head: 0,
+            contact_cycles: 0,
+            safe: SafeStopPhase::Inactive,
+            last: ControllerOutput {
+                actuators_cmd_mm: [0.0; 4],
+                commanded_pose: [0.0; 4],
+                measured_pose: [0.0; 4],
+                contact_normal: [0.0; 3],
+                tracking_direction: [0.0; 3],
+                wrench_measured: [0.0; 4],
+                wrench_desired: [0.0; 4],
+                normal_force_n: 0.0,
+                setpoint_n: 0.0,
+                env_stiffness_n_per_mm: 1.0 / c_env,
+                compliance_mm_per_n: c_env,
+                status: Status::Taring,
+                rejection: None,
+            },
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ControllerParams {
+        &self.p
+    }
+
+    /// Starts a safe stop (for a watchdog): the force set-point ramps to zero, the arm
+    /// retracts along the contact normal by `safe_stop_retract_mm`, then holds. Commands
+    /// are ignored until [`SlaveController::clear_safe_stop`].
+    pub fn safe_stop(&mut self) {
+        if matches!(self.safe, SafeStopPhase::Inactive) {
+            self.safe = if self.in_contact {
+                SafeStopPhase::RampDown {
+                    remaining_s: self.p.safe_stop_ramp_s,
+                    from_n: self.sp2,
+                }
+            } else {
+                SafeStopPhase::Done
+            };
+            self.v_ref = Pose::zeros();
+        }
+    }
+
+    /// True while a safe stop is in progress or holding.
+    pub fn is_safe_stopped(&self) -> bool {
+        !matches!(self.safe, SafeStopPhase::Inactive)
+    }
+
+    /// Leaves the safe stop; the next command is followed from the current pose.
+    pub fn clear_safe_stop(&mut self) {
+        self.safe = SafeStopPhase::Inactive;
+        self.v_ref = Pose::zeros();
+        self.in_contact = false;
+        self.lost = false;
+    }
+
+    fn reject(&mut self, r: Rejection) -> ControllerOutput {
+        let mut out = self.last;
+        out.status = Status::Rejected;
+        out.rejection = Some(r);
+        out
+    }
+
+    /// One control cycle of `dt_s` seconds (normally 0.001).
+    pub fn step(&mut self, input: &ControllerInput, dt_s: f64) -> ControllerOutput {
+        let cmd = &input.command;
+        let finite = input.actuators_mm.iter().all(|v| v.is_finite())
+            && input.wrench.iter().all(|v| v.is_finite())
+            && cmd.pose.iter().all(|v| v.is_finite())
+            && cmd.velocity.iter().all(|v| v.is_finite())
+            && cmd.force_setpoint_n.is_finite()
+            && dt_s.is_finite()
+            && dt_s > 0.0;
+        if !finite {
+            return self.reject(Rejection::NonFiniteInput);
+        }
+        let dt = dt_s.min(0.1);
+        self.cycles += 1;
+        let q = Vector4::from(input.actuators_mm);
+        let pose_fk = match self.ws.params.fk(&q) {
+            Ok(p) => p,
+            Err(e) => return self.reject(Rejection::MeasuredPose(e)),
+        };
+        if !self.initialised {
+            self.x_cmd = pose_fk;
+            self.l_cmd = input.actuators_mm;
+            self.initialised = true;
+            let x = [pose_fk[0], pose_fk[1], pose_fk[2]];
+            for (i, f) in self.pos_filters.iter_mut().enumerate() {
+                f.reset(x[i]);
+            }
+            for h in self.hist_x.iter_mut() {
+                *h = x;
+            }
+        }
+        // Sensor bias: averaged over the first cycles, in free space, holding still.
+        let raw = Vector4::from(input.wrench);
+        if self.tare_n < self.p.tare_cycles {
+            self.tare_sum += raw;
+            self.tare_n += 1;
+            self.bias = self.tare_sum / f64::from(self.tare_n);
+            let mut out = self.output(pose_fk, raw - self.bias, 0.0, Status::Taring);
+            out.actuators_cmd_mm = self.l_cmd;
+            self.last = out;
+            return out;
+        }
+        let wrench = raw - self.bias;
+        let f3 = Vector3::new(wrench[0], wrench[1], wrench[2]);
+
+        // Compliance of the arm at the measured pose (assumed actuator stiffness).
+        let lambda = if self.p.compliance_model {
+            self.ws
+                .params
+                .compliance(&pose_fk, &self.stiffness)
+                .ok()
+                .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
+        } else {
+            None
+        };
+        let measured_pose = match (
+            &lambda,
+            self.ws.params.compliance(&pose_fk, &self.stiffness),
+        ) {
+            (Some(_), Ok(full)) => pose_fk + full * wrench,
+            _ => pose_fk,
+        };
+
+        // Position history, filtered like the force, for the stiffness estimator.
+        let xf = [
+            self.pos_filters[0].update(pose_fk[0]),
+            self.pos_filters[1].update(pose_fk[1]),
+            self.pos_filters[2].update(pose_fk[2]),
+        ];
+        let win = (self.p.estimator_window_cycles as usize).clamp(2, WINDOW_MAX - 1);
+        self.hist_head = (self.hist_head + 1) % WINDOW_MAX;
+        self.hist_x[self.hist_head] = xf;
+        self.hist_f[self.hist_head] = f3;
+        let old = (self.hist_head + WINDOW_MAX - win) % WINDOW_MAX;
+
+        // Safe stop overrides the command.
+        let mut eff = *cmd;
+        let mut safe_status = false;
+        match self.safe {
+            SafeStopPhase::Inactive => {}
+            SafeStopPhase::RampDown {
+                remaining_s,
+                from_n,
+            } => {
+                safe_status = true;
+                let rem = remaining_s - dt;
+                let frac = (rem / self.p.safe_stop_ramp_s.max(1e-6)).clamp(0.0, 1.0);
+                eff.mode = Mode::ForceGuided;
+                eff.force_setpoint_n = from_n * frac;
+                eff.velocity = [0.0; 4];
+                eff.pose = [self.x_cmd[0], self.x_cmd[1], self.x_cmd[2], self.x_cmd[3]];
+                eff.clutch = false;
+                self.safe = if rem <= 0.0 {
+                    SafeStopPhase::Retract {
+                        remaining_mm: self.p.safe_stop_retract_mm,
+                    }
+                } else {
+                    SafeStopPhase::RampDown {
+                        remaining_s: rem,
+                        from_n,
+                    }
+                };
+            }
+            SafeStopPhase::Retract { remaining_mm } => {
+                let step = (self.p.approach_speed_mm_per_s * 2.0 * dt).min(remaining_mm);
+                let n = if self.normal.norm() > 0.5 {
+                    self.normal
+                } else {
+                    Vector3::z()
+                };
+                let mut next = self.x_cmd;
+                for i in 0..3 {
+                    next[i] += n[i] * step;
+                }
+                let rem = remaining_mm - step;
+                self.safe = if rem <= 1e-9 {
+                    SafeStopPhase::Done
+                } else {
+                    SafeStopPhase::Retract { remaining_mm: rem }
+                };
+                self.in_contact = false;
+                return self.commit(next, pose_fk, measured_pose, wrench, 0.0, Status::SafeStop);
+            }
+            SafeStopPhase::Done => {
+                self.in_contact = false;
+                return self.commit(
+                    self.x_cmd,
+                    pose_fk,
+                    measured_pose,
+                    wrench,
+                    0.0,
+                    Status::Holding,
+                );
+            }
+        }
+
+        // Command checks.
+        let speed = Vector3::new(eff.velocity[0], eff.velocity[1], eff.velocity[2]).norm();
+        if speed > self.p.max_speed_mm_per_s {
+            return self.reject(Rejection::SpeedOutOfRange {
+                value_mm_per_s: speed,
+                limit_mm_per_s: self.p.max_speed_mm_per_s,
+            });
+        }
+        if eff.mode == Mode::ForceGuided
+            && !(eff.force_setpoint_n >= 0.0 && eff.force_setpoint_n <= self.p.force_limit_n)
+        {
+            return self.reject(Rejection::SetpointOutOfRange {
+                value_n: eff.force_setpoint_n,
+                limit_n: self.p.force_limit_n,
+            });
+        }
+        if eff.mode == Mode::Position || eff.mode == Mode::ForceGuided {
+            let target = Pose::from(eff.pose);
+            if eff.mode == Mode::Position || !self.in_contact {
+                if let Err(e) = self.ws.ik(&target) {
+                    if eff.mode == Mode::Position {
+                        return self.reject(Rejection::Workspace(e));
+                    }
+                }
+            }
+        }
+
+        let f_mag = f3.norm();
+        if eff.mode != Mode::ForceGuided {
+            self.in_contact = false;
+            self.lost = false;
+        }
+        if eff.mode == Mode::Hold || eff.clutch {
+            self.v_ref = Pose::zeros();
+            let status = if safe_status {
+                Status::SafeStop
+            } else {
+                Status::Holding
+            };
+            let mut next = self.x_cmd;
+            if f_mag > self.p.force_limit_n {
+                self.back_off(&mut next, f3, f_mag, lambda.as_ref());
+            }
+            return self.commit(next, pose_fk, measured_pose, wrench, 0.0, status);
+        }
+
+        if eff.mode == Mode::Position {
+            let mut next = self.x_cmd;
+            let target = Pose::from(eff.pose);
+            for j in 0..4 {
+                let (vmax, amax) = if j < 3 {
+                    (
+                        self.p.max_speed_mm_per_s / 3f64.sqrt(),
+                        self.p.max_accel_mm_per_s2 / 3f64.sqrt(),
+                    )
+                } else {
+                    (
+                        self.p.max_theta_rate_rad_per_s,
+                        self.p.max_theta_rate_rad_per_s * 10.0,
+                    )
+                };
+                let err = target[j] - next[j];
+                let v_des = err.signum()
+                    * vmax
+                        .min((2.0 * amax * err.abs()).sqrt())
+                        .min(err.abs() / dt);
+                let dv = (v_des - self.v_ref[j]).clamp(-amax * dt, amax * dt);
+                self.v_ref[j] += dv;
+                next[j] += self.v_ref[j] * dt;
+            }
+            let mut status = Status::Free;
+            if f_mag > self.p.force_limit_n {
+                self.v_ref = Pose::zeros();
+                next = self.x_cmd;
+                self.back_off(&mut next, f3, f_mag, lambda.as_ref());
+                status = Status::ForceLimited;
+            }
+            return self.commit(next, pose_fk, measured_pose, wrench, 0.0, status);
+        }
+
+        // ForceGuided.
+        self.v_ref = Pose::zeros();
+        let mut next = self.x_cmd;
+        // theta follows the command, rate limited.
+        let dth = (eff.pose[3] - next[3]).clamp(
+            -self.p.max_theta_rate_rad_per_s * dt,
+            self.p.max_theta_rate_rad_per_s * dt,
+        );
+        next[3] += dth;
+        let status;
+        if !self.in_contact {
+            if f_mag > self.p.contact_threshold_n {
+                // First touch (or touch again): bumpless start of the force loop.
+                self.in_contact = true;
+                self.ever_contact = true;
+                self.lost = false;
+                self.below_cycles = 0;
+                self.normal = f3 / f_mag;
+                self.sp1 = f_mag;
+                self.sp2 = f_mag;
+                self.e_prev = 0.0;
+                self.contact_cycles = 0;
+                self.p_rls = 100.0;
+                self.c_tot = self.arm_compliance(lambda.as_ref()) + self.c_env;
+                status = Status::Contact;
+            } else {
+                // Approach: towards the commanded point, or along the last normal.
+                let step = self.p.approach_speed_mm_per_s * dt;
+                let mv = if self.lost && self.normal.norm() > 0.5 {
+                    -self.normal * step
+                } else {
+                    let d = Vector3::new(
+                        eff.pose[0] - next[0],
+                        eff.pose[1] - next[1],
+                        eff.pose[2] - next[2],
+                    );
+                    let dn = d.norm();
+                    if dn > 1e-12 {
+                        d * (step.min(dn) / dn)
+                    } else {
+                        Vector3::zeros()
+                    }
+                };
+                for i in 0..3 {
+                    next[i] += mv[i];
+                }
+                self.tangent = Vector3::zeros();
+                let st = if self.lost {
+                    Status::ContactLost
+                } else {
+                    Status::Approaching
+                };
+                return self.commit(
+                    next,
+                    pose_fk,
+                    measured_pose,
+                    wrench,
+                    0.0,
+                    if safe_status { Status::SafeStop } else { st },
+                );
+            }
+        } else {
+            status = Status::Contact;
+        }
+        self.contact_cycles = self.contact_cycles.saturating_add(1);
+
+        // Contact normal from the measured force without its friction part along t.
+        let f_perp = f3 - self.tangent * f3.dot(&self.tangent);
+        let fp = f_perp.norm();
+        if fp > self.p.contact_lost_n.max(0.1) {
+            let a = (dt / self.p.normal_time_constant_s.max(dt)).min(1.0);
+            let n_new = self.normal + (f_perp / fp - self.normal) * a;
+            let nn = n_new.norm();
+            if nn > 1e-9 {
+                self.normal = n_new / nn;
+            }
+        }
+        let n = self.normal;
+        let f_n = f3.dot(&n);
+
+        // Tracking direction: commanded direction projected on the tangent plane (fig. 2).
+        let v3 = Vector3::new(eff.velocity[0], eff.velocity[1], eff.velocity[2]);
+        let vt = v3 - n * v3.dot(&n);
+        let vt_n = vt.norm();
+        self.tangent = if speed > 1e-9 && vt_n > 1e-9 {
+            vt / vt_n
+        } else {
+            Vector3::zeros()
+        };
+
+        // Set-point prefilter.
+        let a_sp = (dt / self.p.setpoint_time_constant_s.max(dt)).min(1.0);
+        let sp_prev = self.sp2;
+        self.sp1 += (eff.force_setpoint_n - self.sp1) * a_sp;
+        self.sp2 += (self.sp1 - self.sp2) * a_sp;
+        let d_sp = self.sp2 - sp_prev;
+
+        // Compliance along the normal: the arm's (model) plus the environment's (estimate).
+        let c_arm = self.arm_compliance(lambda.as_ref());
+        if self.p.estimate_env_stiffness && self.contact_cycles as usize > win {
+            let d_f = self.hist_f[self.hist_head].dot(&n) - self.hist_f[old].dot(&n);
+            let xo = self.hist_x[old];
+            let d_p = n[0] * (xf[0] - xo[0]) + n[1] * (xf[1] - xo[1]) + n[2] * (xf[2] - xo[2]);
+            if d_f.abs() > self.p.estimator_excitation_n {
+                let lam = self.p.estimator_forgetting.clamp(0.5, 1.0);
+                let y = -d_p;
+                let g = self.p_rls * d_f / (lam + d_f * self.p_rls * d_f);
+                self.c_tot += g * (y - self.c_tot * d_f);
+                self.p_rls = ((self.p_rls - g * d_f * self.p_rls) / lam).clamp(1e-9, 100.0);
+                let c_min = 1.0 / self.p.env_stiffness_max_n_per_mm.max(1e-6);
+                let c_max = 1.0 / self.p.env_stiffness_min_n_per_mm.max(1e-6);
+                self.c_env = (self.c_tot - c_arm).clamp(c_min, c_max);
+            }
+        }
+        let c = c_arm + self.c_env;
+
+        // Implicit force law (incremental form: bumpless when c changes).
+        let e = self.sp2 - f_n;
+        let mut d_depth = c * (d_sp + self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt);
+        self.e_prev = e;
+        let mut status = status;
+        if f_n > self.p.force_limit_n {
+            d_depth = -c * (f_n - self.p.force_limit_n);
+            status = Status::ForceLimited;
+        }
+        let dmax = self.p.max_speed_mm_per_s * dt;
+        d_depth = d_depth.clamp(-dmax, dmax);
+        let mut mv = -n * d_depth;
+        // Motion along the surface only while the force is established.
+        if !self.lost {
+            mv += self.tangent * speed.min(self.p.max_speed_mm_per_s) * dt;
+        }
+        let mvn = mv.norm();
+        if mvn > dmax {
+            mv *= dmax / mvn;
+        }
+        for i in 0..3 {
+            next[i] += mv[i];
+        }
+
+        // Contact loss.
+        if f_n < self.p.contact_lost_n && eff.force_setpoint_n > self.p.contact_lost_n {
+            self.below_cycles += 1;
+            if self.below_cycles >= self.p.contact_lost_cycles {
+                self.in_contact = false;
+                self.lost = true;
+                self.below_cycles = 0;
+                self.e_prev = 0.0;
+                self.tangent = Vector3::zeros();
+                status = Status::ContactLost;
+            }
+        } else {
+            self.below_cycles = 0;
+        }
+        if safe_status {
+            status = Status::SafeStop;
+        }
+        self.commit(next, pose_fk, measured_pose, wrench, c, status)
+    }
+
+    fn arm_compliance(&self, lambda: Option<&Matrix3<f64>>) -> f64 {
+        match lambda {
+            Some(l) if self.normal.norm() > 0.5 => {
+                (self.normal.transpose() * l * self.normal)[(0, 0)].max(0.0)
+            }
+            _ => 0.0,
+        }
+    }
+
+    fn back_off(
+        &self,
+        next: &mut Pose,
+        f3: Vector3<f64>,
+        f_mag: f64,
+        lambda: Option<&Matrix3<f64>>,
+    ) {
+        let dir = f3 / f_mag;
+        let c = match lambda {
+            Some(l) => (dir.transpose() * l * dir)[(0, 0)].max(0.0),
+            None => 0.0,
+        } + self.c_env;
+        let step = (c * (f_mag - self.p.force_limit_n)).min(self.p.max_speed_mm_per_s * 0.001);
+        for i in 0..3 {
+            next[i] += dir[i] * step;
+        }
+    }
+
+    fn output(
+        &self,
+        pose_fk: Pose,
+        wrench: Vector4<f64>,
+        c: f64,
+        status: Status,
+    ) -> ControllerOutput {
+        let n = self.normal;
+        ControllerOutput {
+            actuators_cmd_mm: self.l_cmd,
+            commanded_pose: [self.x_cmd[0], self.x_cmd[1], self.x_cmd[2], self.x_cmd[3]],
+            measured_pose: [pose_fk[0], pose_fk[1], pose_fk[2], pose_fk[3]],
+            contact_normal: [n[0], n[1], n[2]],
+            tracking_direction: [self.tangent[0], self.tangent[1], self.tangent[2]],
+            wrench_measured: [wrench[0], wrench[1], wrench[2], wrench[3]],
+            wrench_desired: if self.in_contact {
+                [n[0] * self.sp2, n[1] * self.sp2, n[2] * self.sp2, 0.0]
+            } else {
+                [0.0; 4]
+            },
+            normal_force_n: if self.in_contact {
+                wrench[0] * n[0] + wrench[1] * n[1] + wrench[2] * n[2]
+            } else {
+                0.0
+            },
+            setpoint_n: if self.in_contact { self.sp2 } else { 0.0 },
+            env_stiffness_n_per_mm: 1.0 / self.c_env,
+            compliance_mm_per_n: c,
+            status,
+            rejection: None,
+        }
+    }
+
+    /// Checks `next` against the workspace; on success it becomes the command.
+    fn commit(
+        &mut self,
+        next: Pose,
+        pose_fk: Pose,
+        measured_pose: Pose,
+        wrench: Vector4<f64>,
+        c: f64,
+        status: Status,
+    ) -> ControllerOutput {
+        match self.ws.ik(&next) {
+            Ok(l) => {
+                self.x_cmd = next;
+                self.l_cmd = [l[0], l[1], l[2], l[3]];
+                let mut out = self.output(pose_fk, wrench, c, status);
+                out.measured_pose = [
+                    measured_pose[0],
+                    measured_pose[1],
+                    measured_pose[2],
+                    measured_pose[3],
+                ];
+                self.last = out;
+                out
+            }
+            Err(e) => {
+                self.v_ref = Pose::zeros();
+                let mut out = self.output(pose_fk, wrench, c, Status::Rejected);
+                out.measured_pose = [
+                    measured_pose[0],
+                    measured_pose[1],
+                    measured_pose[2],
+                    measured_pose[3],
+                ];
+                out.rejection = Some(Rejection::Workspace(e));
+                self.last = out;
+                out
+            }
+        }
+    }
+}

@@ -1,0 +1,701 @@
+//! The arm as the controller sees it ([`ArmDriver`]) and an honest simulation of the H-4
+//! prototype behind that interface ([`SimArm`]).
+//!
+//! A real driver reads the four actuator encoders and the force/torque sensor and writes
+//! four actuator position commands; so does the simulation. What the simulation models
+//! (every number and its reasoning is in `docs/slave-simulation.md`):
+//!
+//! * four prismatic carriages, each with mass, Coulomb and viscous friction and a saturated
+//!   motor force, under a 20 kHz PID position servo whose set-point is the 1 ms command;
+//! * a finite structural stiffness (and a little damping) between each carriage and the
+//!   platform, so the platform sits at `FK(q + f/k)`, deflecting under load as `Λ(x) F`
+//!   predicts; the platform with its tool has mass and rotational inertia;
+//! * penetration-based contact with an unknown [`Surface`] (plane, cylinder or sphere;
+//!   Kelvin–Voigt spring–damper with regularised Coulomb friction);
+//! * a six-axis force/torque sensor reporting `[Fx, Fy, Fz, My]` with Gaussian noise,
+//!   bias, quantisation and a second-order Butterworth low-pass filter.
+//!
+//! Units: mm, rad, N, N·mm, seconds; masses are given in kg and converted to N·s²/mm.
+//! Everything is deterministic from the seed; time advances only through
+//! [`SimArm::advance`].
+
+use h4_shared::kinematics::{Actuators, H4Params, Pose};
+use h4_shared::rng::Rng;
+use nalgebra::{Matrix4, Vector3, Vector4};
+use serde::{Deserialize, Serialize};
+
+use crate::filter::Butterworth2;
+
+/// One reading of the arm's sensors.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ArmReading {
+    /// Time of the reading, ns (the simulated clock for [`SimArm`]).
+    pub time_ns: u64,
+    /// Actuator positions from the encoders, mm (carriage positions: they do not see the
+    /// structure's deflection).
+    pub actuators_mm: [f64; 4],
+    /// Wrench on the tool `[Fx_n, Fy_n, Fz_n, My_n_mm]` in the base frame, as the sensor
+    /// reports it after its digital low-pass filter (bias not removed).
+    pub wrench: [f64; 4],
+}
+
+/// What the slave controller needs of an arm: a real robot's driver implements this.
+pub trait ArmDriver {
+    /// The latest encoder positions and (filtered) force/torque reading.
+    fn read(&mut self) -> ArmReading;
+    /// New position set-points for the four actuator servos, mm. The driver may refuse
+    /// non-finite values (the simulation keeps the previous set-point).
+    fn command(&mut self, actuators_mm: &[f64; 4]);
+}
+
+/// The mechanical and servo parameters of the simulated arm.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlantConfig {
+    /// Plant actuator stiffness = the controller's assumed stiffness × this (0.1 to 10).
+    pub stiffness_scale: f64,
+    /// Extra relative deviation of each actuator's stiffness (−0.5 to 0.5): actuator i has
+    /// assumed_i × stiffness_scale × (1 + stiffness_spread[i]).
+    pub stiffness_spread: [f64; 4],
+    /// Damping ratio of each actuator's structural spring (0 to 1).
+    pub structural_damping_ratio: f64,
+    /// Servo (inner loop) rate, Hz (1000 to 100000); the paper's dSpace ran 20 kHz.
+    pub servo_rate_hz: f64,
+    /// Moving mass of each carriage with its reflected motor inertia, kg.
+    pub carriage_mass_kg: f64,
+    /// Servo proportional gain, N/mm.
+    pub servo_kp_n_per_mm: f64,
+    /// Servo integral gain, N/(mm·s).
+    pub servo_ki_n_per_mm_s: f64,
+    /// Servo derivative gain (on the measured velocity), N·s/mm.
+    pub servo_kd_n_s_per_mm: f64,
+    /// Largest motor force, N (the servo output saturates here).
+    pub motor_force_max_n: f64,
+    /// Coulomb friction of each carriage, N.
+    pub coulomb_friction_n: f64,
+    /// Viscous friction of each carriage, N·s/mm.
+    pub viscous_friction_n_s_per_mm: f64,
+    /// Speed below which Coulomb friction is regularised (linear), mm/s.
+    pub friction_velocity_mm_per_s: f64,
+    /// Mass of the moving platform with sensor and tool, kg.
+    pub tool_mass_kg: f64,
+    /// Rotational inertia of the platform about y, kg·mm².
+    pub tool_inertia_kg_mm2: f64,
+    /// Viscous damping of the platform's motion (joints, air), N·s/mm.
+    pub platform_damping_n_s_per_mm: f64,
+    /// Encoder resolution, mm.
+    pub encoder_resolution_mm: f64,
+}
+
+impl Default for PlantConfig {
+    fn default() -> Self {
+        PlantConfig {
+            stiffness_scale: 1.0,
+            stiffness_spread: [0.0; 4],
+            structural_damping_ratio: 0.03,
+            servo_rate_hz: 20_000.0,
+            carriage_mass_kg: 4.0,
+            servo_kp_n_per_mm: 400.0,
+            servo_ki_n_per_mm_s: 16_000.0,
+            servo_kd_n_s_per_mm: 2.0,
+            motor_force_max_n: 600.0,
+            coulomb_friction_n: 8.0,
+            viscous_friction_n_s_per_mm: 0.05,
+            friction_velocity_mm_per_s: 0.2,
+            tool_mass_kg: 1.0,
+            tool_inertia_kg_mm2: 1000.0,
+            platform_damping_n_s_per_mm: 0.02,
+            encoder_resolution_mm: 0.0005,
+        }
+    }
+}
+
+/// The force/torque sensor's imperfections and its digital filter.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SensorConfig {
+    /// Standard deviation of the Gaussian noise on each force axis per sample, N.
+    pub noise_std_n: f64,
+    /// Standard deviation of the Gaussian noise on My per sample, N·mm.
+    pub noise_std_n_mm: f64,
+    /// Force quantisation step, N (ATI mini45: 1/16 N).
+    pub quantization_n: f64,
+    /// Moment quantisation step, N·mm (ATI mini45: 1/752 N·m ≈ 1.33 N·mm).
+    pub quantization_n_mm: f64,
+    /// Constant bias on Fx, Fy, Fz, N.
+    pub bias_n: [f64; 3],
+    /// Constant bias on My, N·mm.
+    pub bias_n_mm: f64,
+    /// Sample rate of the A/D read-out, Hz.
+    pub sample_rate_hz: f64,
+    /// Cut-off of the 2nd-order Butterworth low-pass filter, Hz (≥ 0.45 × the sample rate
+    /// disables it).
+    pub filter_cutoff_hz: f64,
+}
+
+impl Default for SensorConfig {
+    fn default() -> Self {
+        SensorConfig {
+            noise_std_n: 0.1,
+            noise_std_n_mm: 2.0,
+            quantization_n: 0.0625,
+            quantization_n_mm: 1.33,
+            bias_n: [0.3, -0.2, 0.4],
+            bias_n_mm: 3.0,
+            sample_rate_hz: 1000.0,
+            filter_cutoff_hz: 80.0,
+        }
+    }
+}
+
+/// A surface's material: its contact stiffness, damping and friction.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Material {
+    /// Contact stiffness along the normal, N/mm.
+    pub stiffness_n_per_mm: f64,
+    /// Damping ratio of the contact with the tool's mass (0 to 2).
+    pub damping_ratio: f64,
+    /// Coulomb friction coefficient between tool and surface.
+    pub friction_coefficient: f64,
+}
+
+/// Named materials (values and sources in `docs/slave-simulation.md`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MaterialPreset {
+    /// Cast epoxy/polyurethane tooling resin block on its fixture.
+    Resin,
+    /// Steel plate on its fixture.
+    Steel,
+    /// Aluminium plate on its fixture.
+    Aluminium,
+}
+
+impl MaterialPreset {
+    /// The preset's values.
+    pub fn material(self) -> Material {
+        match self {
+            MaterialPreset::Resin => Material {
+                stiffness_n_per_mm: 200.0,
+                damping_ratio: 0.3,
+                friction_coefficient: 0.3,
+            },
+            MaterialPreset::Steel => Material {
+                stiffness_n_per_mm: 2000.0,
+                damping_ratio: 0.05,
+                friction_coefficient: 0.2,
+            },
+            MaterialPreset::Aluminium => Material {
+                stiffness_n_per_mm: 1000.0,
+                damping_ratio: 0.05,
+                friction_coefficient: 0.3,
+            },
+        }
+    }
+}
+
+/// The geometry of a rigid body's surface; the solid is on the side opposite the
+/// outward normal (below a plane, inside a cylinder or a sphere).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SurfaceShape {
+    /// The plane through `point_mm` with outward unit normal `normal`.
+    Plane {
+        /// A point of the plane, mm.
+        point_mm: [f64; 3],
+        /// Outward unit normal.
+        normal: [f64; 3],
+    },
+    /// An infinite cylinder.
+    Cylinder {
+        /// A point of the axis, mm.
+        axis_point_mm: [f64; 3],
+        /// Unit direction of the axis.
+        axis_dir: [f64; 3],
+        /// Radius, mm.
+        radius_mm: f64,
+    },
+    /// A sphere.
+    Sphere {
+        /// Centre, mm.
+        centre_mm: [f64; 3],
+        /// Radius, mm.
+        radius_mm: f64,
+    },
+}
+
+/// A body the tool can touch: shape and material. [`SimArm::set_surface`] swaps it at
+/// run time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Surface {
+    /// Geometry.
+    pub shape: SurfaceShape,
+    /// Material.
+    pub material: Material,
+}
+
+impl Surface {
+    /// Penetration depth (> 0 inside the solid), mm, and the outward unit normal at the
+    /// nearest surface point.
+    #[inline]
+    pub fn penetration(&self, p: &Vector3<f64>) -> (f64, Vector3<f64>) {
+        match self.shape {
+            SurfaceShape::Plane { point_mm, normal } => {
+                let n = Vector3::from(normal);
+                (-(n.dot(&(p - Vector3::from(point_mm)))), n)
+            }
+            SurfaceShape::Sphere {
+                centre_mm,
+                radius_mm,
+            } => {
+                let w = p - Vector3::from(centre_mm);
+                let d = w.norm();
+                if d > 1e-9 {
+                    (radius_mm - d, w / d)
+                } else {
+                    (radius_mm, Vector3::z())
+                }
+            }
+            SurfaceShape::Cylinder {
+                axis_point_mm,
+                axis_dir,
+                radius_mm,
+            } => {
+                let u = Vector3::from(axis_dir);
+                let w = p - Vector3::from(axis_point_mm);
+                let w_perp = w - u * u.dot(&w);
+                let d = w_perp.norm();
+                if d > 1e-9 {
+                    (radius_mm - d, w_perp / d)
+                } else {
+                    (radius_mm, Vector3::z())
+                }
+            }
+        }
+    }
+}
+
+/// Why a [`SimArm`] could not be built.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum SimError {
+    /// The initial pose has no inverse kinematics or Jacobian.
+    #[error("initial pose: {0}")]
+    Kinematics(#[from] h4_shared::KinError),
+    /// A parameter is not usable.
+    #[error("plant parameter {0} is not usable")]
+    BadParameter(&'static str),
+}
+
+/// The simulated H-4 arm.
+#[derive(Clone, Debug)]
+pub struct SimArm {
+    params: H4Params,
+    cfg: PlantConfig,
+    sensor_cfg: SensorConfig,
+    surface: Surface,
+    time_ns: u64,
+    substep_ns: u64,
+    substep_s: f64,
+    remainder_ns: u64,
+    substeps_per_linearisation: u32,
+    substep_counter: u32,
+    sensor_period_ns: u64,
+    next_sensor_ns: u64,
+    // Carriages.
+    q: [f64; 4],
+    qd: [f64; 4],
+    integral: [f64; 4],
+    command: [f64; 4],
+    // Structure.
+    k: [f64; 4],
+    c_struct: [f64; 4],
+    // Platform.
+    pose: Pose,
+    vel: Pose,
+    inv_mass: Vector4<f64>,
+    l0: Actuators,
+    pose0: Pose,
+    jac: Matrix4<f64>,
+    // Contact.
+    contact_wrench: Vector4<f64>,
+    contact_damping: f64,
+    penetration_mm: f64,
+    // Sensor.
+    rng: Rng,
+    filters: [Butterworth2; 4],
+    filtered: [f64; 4],
+    kinematics_faults: u64,
+}
+
+impl SimArm {
+    /// An arm at rest at `initial_pose` (springs unloaded), whose controller assumes the
+    /// per-actuator stiffness `assumed_stiffness_n_per_mm`; the plant's stiffness is that
+    /// × `cfg.stiffness_scale` × (1 + spread).
+    pub fn new(
+        params: H4Params,
+        assumed_stiffness_n_per_mm: [f64; 4],
+        cfg: PlantConfig,
+        sensor_cfg: SensorConfig,
+        surface: Surface,
+        initial_pose: Pose,
+        seed: u64,
+    ) -> Result<Self, SimError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(cfg.servo_rate_hz) || cfg.servo_rate_hz < 1000.0 {
+            return Err(SimError::BadParameter("servo_rate_hz"));
+        }
+        if !positive(cfg.carriage_mass_kg) {
+            return Err(SimError::BadParameter("carriage_mass_kg"));
+        }
+        if !positive(cfg.tool_mass_kg) || !positive(cfg.tool_inertia_kg_mm2) {
+            return Err(SimError::BadParameter("tool_mass_kg"));
+        }
+        if !positive(sensor_cfg.sample_rate_hz) {
+            return Err(SimError::BadParameter("sample_rate_hz"));
+        }
+        let substep_ns = (1e9 / cfg.servo_rate_hz).round() as u64;
+        let substep_s = substep_ns as f64 * 1e-9;
+        let sensor_period_ns = (1e9 / sensor_cfg.sample_rate_hz).round().max(1.0) as u64;
+        let l = params.ik_checked(&initial_pose)?;
+        let jac = params.jacobian(&initial_pose)?;
+        let tool_mass = cfg.tool_mass_kg * 1e-3; // N·s²/mm
+        let tool_inertia = cfg.tool_inertia_kg_mm2 * 1e-3; // N·mm·s²
+        let mut k = [0.0; 4];
+        let mut c_struct = [0.0; 4];
+        for i in 0..4 {
+            k[i] = assumed_stiffness_n_per_mm[i]
+                * cfg.stiffness_scale
+                * (1.0 + cfg.stiffness_spread[i]);
+            if !positive(k[i]) {
+                return Err(SimError::BadParameter("stiffness"));
+            }
+            // Each actuator carries roughly a quarter of the platform.
+            c_struct[i] = 2.0 * cfg.structural_damping_ratio * (k[i] * 0.25 * tool_mass).sqrt();
+        }
+        let filters =
+            [Butterworth2::new(sensor_cfg.filter_cutoff_hz, sensor_cfg.sample_rate_hz); 4];
+        let mut arm = SimArm {
+            params,
+            cfg,
+            sensor_cfg,
+            surface,
+            time_ns: 0,
+            substep_ns,
+            substep_s,
+            remainder_ns: 0,
+            substeps_per_linearisation: ((1_000_000 / substep_ns).max(1)) as u32,
+            substep_counter: 0,
+            sensor_period_ns,
+            next_sensor_ns: 0,
+            q: [l[0], l[1], l[2], l[3]],
+            qd: [0.0; 4],
+            integral: [0.0; 4],
+            command: [l[0], l[1], l[2], l[3]],
+            k,
+            c_struct,
+            pose: initial_pose,
+            vel: Pose::zeros(),
+            inv_mass: Vector4::new(
+                1.0 / tool_mass,
+                1.0 / tool_mass,
+                1.0 / tool_mass,
+                1.0 / tool_inertia,
+            ),
+            l0: l,
+            pose0: initial_pose,
+            jac,
+            contact_wrench: Vector4::zeros(),
+            contact_damping: 0.0,
+            penetration_mm: 0.0,
+            rng: Rng::fork(seed, 0x5E45),
+            filters,
+            filtered: [0.0; 4],
+            kinematics_faults: 0,
+        };
+        arm.update_contact_damping();
+        for (i, f) in arm.filters.iter_mut().enumerate() {
+            let b = if i < 3 {
+                sensor_cfg.bias_n[i]
+            } else {
+                sensor_cfg.bias_n_mm
+            };
+            f.reset(b);
+            arm.filtered[i] = b;
+        }
+        Ok(arm)
+    }
+
+    fn update_contact_damping(&mut self) {
+        let m = self.cfg.tool_mass_kg * 1e-3;
+        let mat = self.surface.material;
+        self.contact_damping =
+            2.0 * mat.damping_ratio * (mat.stiffness_n_per_mm.max(0.0) * m).sqrt();
+    }
+
+    /// Replaces the surface (shape and material) at run time.
+    pub fn set_surface(&mut self, surface: Surface) {
+        self.surface = surface;
+        self.update_contact_damping();
+    }
+
+    /// The current surface.
+    pub fn surface(&self) -> &Surface {
+        &self.surface
+    }
+
+    /// Simulated time, ns.
+    pub fn time_ns(&self) -> u64 {
+        self.time_ns
+    }
+
+    /// The platform's true pose (with the structure's deflection), for evaluation only.
+    pub fn true_pose(&self) -> Pose {
+        self.pose
+    }
+
+    /// The true contact wrench on the tool `[Fx, Fy, Fz, My]`, for evaluation only.
+    pub fn true_contact_wrench(&self) -> Vector4<f64> {
+        self.contact_wrench
+    }
+
+    /// The true penetration into the surface, mm (negative: distance above it).
+    pub fn penetration_mm(&self) -> f64 {
+        self.penetration_mm
+    }
+
+    /// The plant's actuator stiffness, N/mm.
+    pub fn plant_stiffness_n_per_mm(&self) -> [f64; 4] {
+        self.k
+    }
+
+    /// Count of re-linearisations that failed because the pose left the kinematics'
+    /// domain (the previous linearisation is kept).
+    pub fn kinematics_faults(&self) -> u64 {
+        self.kinematics_faults
+    }
+
+    /// Steps the servo, structure, contact and sensor physics by `dt_ns` of simulated time.
+    pub fn advance(&mut self, dt_ns: u64) {
+        let total = self.remainder_ns + dt_ns;
+        let steps = total / self.substep_ns;
+        self.remainder_ns = total % self.substep_ns;
+        for _ in 0..steps {
+            self.substep();
+            self.time_ns += self.substep_ns;
+            if self.time_ns >= self.next_sensor_ns {
+                self.sample_sensor();
+                self.next_sensor_ns += self.sensor_period_ns;
+            }
+        }
+    }
+
+    fn relinearise(&mut self) {
+        match (
+            self.params.ik_raw(&self.pose),
+            self.params.jacobian(&self.pose),
+        ) {
+            (Ok(l), Ok(j)) => {
+                self.l0 = l;
+                self.jac = j;
+                self.pose0 = self.pose;
+            }
+            _ => self.kinematics_faults += 1,
+        }
+    }
+
+    #[inline]
+    fn substep(&mut self) {
+        if self.substep_counter == 0 {
+            self.relinearise();
+        }
+        self.substep_counter += 1;
+        if self.substep_counter >= self.substeps_per_linearisation {
+            self.substep_counter = 0;
+        }
+        let dt = self.substep_s;
+        let cfg = &self.cfg;
+        // Leg lengths the platform imposes, and their rates (J at the last linearisation).
+        let l = self.l0 + self.jac * (self.pose - self.pose0);
+        let ld = self.jac * self.vel;
+        let m_c = cfg.carriage_mass_kg * 1e-3;
+        let u_max = cfg.motor_force_max_n;
+        let mut f_act = Vector4::zeros();
+        for i in 0..4 {
+            // Structural spring: positive when the platform pulls the carriage forward.
+            let f = self.k[i] * (l[i] - self.q[i]) + self.c_struct[i] * (ld[i] - self.qd[i]);
+            f_act[i] = f;
+            // PID servo on the encoder, derivative on the measurement.
+            let e = self.command[i] - self.q[i];
+            let i_term = self.integral[i] + cfg.servo_ki_n_per_mm_s * e * dt;
+            let u_raw = cfg.servo_kp_n_per_mm * e + i_term - cfg.servo_kd_n_s_per_mm * self.qd[i];
+            let u = u_raw.clamp(-u_max, u_max);
+            if u == u_raw {
+                self.integral[i] = i_term.clamp(-u_max, u_max);
+            }
+            let v = self.qd[i];
+            let friction = cfg.coulomb_friction_n
+                * (v / cfg.friction_velocity_mm_per_s).clamp(-1.0, 1.0)
+                + cfg.viscous_friction_n_s_per_mm * v;
+            let a = (u + f - friction) / m_c;
+            self.qd[i] += a * dt;
+            self.q[i] += self.qd[i] * dt;
+        }
+        // Contact at the tool point.
+        let p = Vector3::new(self.pose[0], self.pose[1], self.pose[2]);
+        let v = Vector3::new(self.vel[0], self.vel[1], self.vel[2]);
+        let (pen, n) = self.surface.penetration(&p);
+        self.penetration_mm = pen;
+        let mut fc = Vector3::zeros();
+        if pen > 0.0 {
+            let vn = v.dot(&n);
+            let f_n = (self.surface.material.stiffness_n_per_mm * pen - self.contact_damping * vn)
+                .max(0.0);
+            let vt = v - n * vn;
+            let speed = vt.norm();
+            let reg = self.cfg.friction_velocity_mm_per_s;
+            let mu = self.surface.material.friction_coefficient;
+            fc = n * f_n - vt * (mu * f_n / speed.max(reg));
+        }
+        self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
+        // Platform: springs act through J^T (f_act > 0 means the leg is stretched and
+        // pulls the platform back).
+        let generalised = -(self.jac.transpose() * f_act) + self.contact_wrench
+            - self.vel * self.cfg.platform_damping_n_s_per_mm;
+        let acc = generalised.component_mul(&self.inv_mass);
+        self.vel += acc * dt;
+        self.pose += self.vel * dt;
+    }
+
+    fn sample_sensor(&mut self) {
+        let s = &self.sensor_cfg;
+        for i in 0..4 {
+            let (bias, std, quant) = if i < 3 {
+                (s.bias_n[i], s.noise_std_n, s.quantization_n)
+            } else {
+                (s.bias_n_mm, s.noise_std_n_mm, s.quantization_n_mm)
+            };
+            let noise = if std > 0.0 {
+                std * self.rng.normal()
+            } else {
+                0.0
+            };
+            let mut raw = self.contact_wrench[i] + bias + noise;
+            if quant > 0.0 {
+                raw = (raw / quant).round() * quant;
+            }
+            self.filtered[i] = self.filters[i].update(raw);
+        }
+    }
+}
+
+impl ArmDriver for SimArm {
+    fn read(&mut self) -> ArmReading {
+        let res = self.cfg.encoder_resolution_mm;
+        let mut act = self.q;
+        if res > 0.0 {
+            for a in act.iter_mut() {
+                *a = (*a / res).round() * res;
+            }
+        }
+        ArmReading {
+            time_ns: self.time_ns,
+            actuators_mm: act,
+            wrench: self.filtered,
+        }
+    }
+
+    fn command(&mut self, actuators_mm: &[f64; 4]) {
+        if actuators_mm.iter().all(|a| a.is_finite()) {
+            self.command = *actuators_mm;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane(z: f64, k: f64) -> Surface {
+        Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: [0.0, 0.0, z],
+                normal: [0.0, 0.0, 1.0],
+            },
+            material: Material {
+                stiffness_n_per_mm: k,
+                damping_ratio: 0.3,
+                friction_coefficient: 0.0,
+            },
+        }
+    }
+
+    fn quiet_sensor() -> SensorConfig {
+        SensorConfig {
+            noise_std_n: 0.0,
+            noise_std_n_mm: 0.0,
+            quantization_n: 0.0,
+            quantization_n_mm: 0.0,
+            bias_n: [0.0; 3],
+            bias_n_mm: 0.0,
+            ..SensorConfig::default()
+        }
+    }
+
+    /// Pressing into a plane: the static force equals (Λ + 1/k_env)⁻¹ × the commanded
+    /// depth, i.e. the platform deflects as the compliance matrix predicts.
+    #[test]
+    fn static_deflection_matches_compliance_matrix() {
+        let params = H4Params::PROTOTYPE;
+        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let k_env = 200.0;
+        let mut arm = SimArm::new(
+            params,
+            [100.0; 4],
+            PlantConfig::default(),
+            quiet_sensor(),
+            plane(-250.0, k_env),
+            pose0,
+            1,
+        )
+        .unwrap();
+        let target = Pose::new(0.0, 0.0, -250.5, 0.0);
+        let l = params.ik_checked(&target).unwrap();
+        arm.command(&[l[0], l[1], l[2], l[3]]);
+        arm.advance(2_000_000_000);
+        let k = h4_shared::ActuatorStiffness::uniform(100.0).unwrap();
+        let lam = params.compliance(&arm.true_pose(), &k).unwrap();
+        let fz = arm.true_contact_wrench()[2];
+        let expected = 0.5 / (lam[(2, 2)] + 1.0 / k_env);
+        assert!(
+            (fz - expected).abs() < 0.02 * expected,
+            "fz {fz} expected {expected}"
+        );
+        let reading = arm.read();
+        assert!((reading.wrench[2] - fz).abs() < 0.05, "{reading:?}");
+        // Encoders read the commanded carriage positions, not the deflected legs.
+        assert!((reading.actuators_mm[0] - l[0]).abs() < 2e-3);
+    }
+
+    #[test]
+    fn surfaces_report_penetration_and_normal() {
+        let s = Surface {
+            shape: SurfaceShape::Sphere {
+                centre_mm: [0.0, 0.0, -400.0],
+                radius_mm: 100.0,
+            },
+            material: MaterialPreset::Steel.material(),
+        };
+        let (pen, n) = s.penetration(&Vector3::new(0.0, 0.0, -301.0));
+        assert!((pen - 1.0).abs() < 1e-12 && (n.z - 1.0).abs() < 1e-12);
+        let c = Surface {
+            shape: SurfaceShape::Cylinder {
+                axis_point_mm: [0.0, 0.0, -400.0],
+                axis_dir: [0.0, 1.0, 0.0],
+                radius_mm: 100.0,
+            },
+            material: MaterialPreset::Resin.material(),
+        };
+        let (pen, n) = c.penetration(&Vector3::new(0.0, 55.0, -295.0));
+        assert!((pen + 5.0).abs() < 1e-12 && (n.z - 1.0).abs() < 1e-12);
+    }
+}
