@@ -42,6 +42,8 @@ pub struct ControllerParams {
     pub max_speed_mm_per_s: f64,
     /// Largest acceleration in position mode, mm/s².
     pub max_accel_mm_per_s2: f64,
+    /// Acceleration of the motion along the surface in ForceGuided mode, mm/s².
+    pub track_accel_mm_per_s2: f64,
     /// Largest rate of theta, rad/s.
     pub max_theta_rate_rad_per_s: f64,
     /// Speed of the approach towards an unknown surface and of re-approach, mm/s.
@@ -95,6 +97,7 @@ impl Default for ControllerParams {
             max_speed_mm_per_s: 100.0,
             max_accel_mm_per_s2: 1000.0,
             max_theta_rate_rad_per_s: 1.0,
+            track_accel_mm_per_s2: 5.0,
             approach_speed_mm_per_s: 2.0,
             force_limit_n: 80.0,
             contact_threshold_n: 0.8,
@@ -110,7 +113,7 @@ impl Default for ControllerParams {
             estimator_forgetting: 0.98,
             estimator_window_cycles: 10,
             estimator_excitation_n: 0.4,
-            normal_time_constant_s: 0.02,
+            normal_time_constant_s: 0.1,
             sensor_filter_cutoff_hz: 80.0,
             tare_cycles: 100,
             safe_stop_ramp_s: 0.2,
@@ -266,6 +269,14 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// Time constant of the normal estimate right after touching (force direction), s.
+const ONSET_NORMAL_TIME_CONSTANT_S: f64 = 0.01;
+/// Per-cycle fade of the deflection compensation outside force control.
+const COMP_FADE: f64 = 0.98;
+/// Smallest displacement over the motion window that counts as sliding, mm.
+const MOTION_MIN_MM: f64 = 0.01;
+/// Displacement over the motion window from which the normal update has full weight, mm.
+const MOTION_FULL_MM: f64 = 0.1;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum SafeStopPhase {
@@ -289,6 +300,7 @@ pub struct SlaveController {
     bias: Vector4<f64>,
     // Command state.
     x_cmd: Pose,
+    comp: Pose,
     v_ref: Pose,
     l_cmd: [f64; 4],
     // Contact state.
@@ -300,6 +312,7 @@ pub struct SlaveController {
     tangent: Vector3<f64>,
     sp1: f64,
     sp2: f64,
+    track_speed: f64,
     e_prev: f64,
     // Estimator.
     c_env: f64,
@@ -334,6 +347,7 @@ impl SlaveController {
             tare_n: 0,
             bias: Vector4::zeros(),
             x_cmd: Pose::zeros(),
+            comp: Pose::zeros(),
             v_ref: Pose::zeros(),
             l_cmd: [0.0; 4],
             in_contact: false,
@@ -344,6 +358,7 @@ impl SlaveController {
             tangent: Vector3::zeros(),
             sp1: 0.0,
             sp2: 0.0,
+            track_speed: 0.0,
             e_prev: 0.0,
             c_env,
             c_tot: c_env,
@@ -459,23 +474,22 @@ impl SlaveController {
         }
         let wrench = raw - self.bias;
         let f3 = Vector3::new(wrench[0], wrench[1], wrench[2]);
+        // Out of force control the deflection compensation fades out (no jump).
+        if !(self.in_contact && cmd.mode == Mode::ForceGuided) {
+            self.comp *= COMP_FADE;
+        }
 
         // Compliance of the arm at the measured pose (assumed actuator stiffness).
-        let lambda = if self.p.compliance_model {
-            self.ws
-                .params
-                .compliance(&pose_fk, &self.stiffness)
-                .ok()
-                .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
+        let full_lambda = if self.p.compliance_model {
+            self.ws.params.compliance(&pose_fk, &self.stiffness).ok()
         } else {
             None
         };
-        let measured_pose = match (
-            &lambda,
-            self.ws.params.compliance(&pose_fk, &self.stiffness),
-        ) {
-            (Some(_), Ok(full)) => pose_fk + full * wrench,
-            _ => pose_fk,
+        let lambda: Option<Matrix3<f64>> =
+            full_lambda.map(|m| m.fixed_view::<3, 3>(0, 0).into_owned());
+        let measured_pose = match &full_lambda {
+            Some(full) => pose_fk + full * wrench,
+            None => pose_fk,
         };
 
         // Position history, filtered like the force, for the stiffness estimator.
@@ -653,6 +667,7 @@ impl SlaveController {
                 self.sp2 = f_mag;
                 self.e_prev = 0.0;
                 self.contact_cycles = 0;
+                self.track_speed = 0.0;
                 self.p_rls = 100.0;
                 self.c_tot = self.arm_compliance(lambda.as_ref()) + self.c_env;
                 status = Status::Contact;
@@ -697,15 +712,45 @@ impl SlaveController {
         }
         self.contact_cycles = self.contact_cycles.saturating_add(1);
 
-        // Contact normal from the measured force without its friction part along t.
-        let f_perp = f3 - self.tangent * f3.dot(&self.tangent);
-        let fp = f_perp.norm();
-        if fp > self.p.contact_lost_n.max(0.1) {
-            let a = (dt / self.p.normal_time_constant_s.max(dt)).min(1.0);
-            let n_new = self.normal + (f_perp / fp - self.normal) * a;
-            let nn = n_new.norm();
-            if nn > 1e-9 {
-                self.normal = n_new / nn;
+        // Contact normal. While the tool slides, friction acts along its motion, so the
+        // normal is the measured force without its component along the measured direction
+        // of motion (figure 2's construction, made friction-proof). Right after touching
+        // it is the force's direction; at a standstill it is held (the friction force of
+        // a stuck tool says nothing about the normal).
+        let oldest = (self.hist_head + 1) % WINDOW_MAX;
+        let xo = self.hist_x[oldest];
+        let disp = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2]);
+        let disp_n = disp.norm();
+        let moving =
+            self.contact_cycles as usize >= WINDOW_MAX && disp_n > MOTION_MIN_MM && speed > 0.0;
+        let n_raw = if moving {
+            let tm = disp / disp_n;
+            Some(f3 - tm * f3.dot(&tm))
+        } else if (self.contact_cycles as usize) < WINDOW_MAX {
+            Some(f3)
+        } else {
+            None
+        };
+        if let Some(v) = n_raw {
+            let vn = v.norm();
+            if vn > self.p.contact_lost_n.max(0.1) {
+                let tau = if moving {
+                    self.p.normal_time_constant_s
+                } else {
+                    ONSET_NORMAL_TIME_CONSTANT_S
+                };
+                // Short displacements are noisy: weigh the update by the distance slid.
+                let weight = if moving {
+                    (disp_n / MOTION_FULL_MM).min(1.0)
+                } else {
+                    1.0
+                };
+                let a = (dt / tau.max(dt) * weight).min(1.0);
+                let n_new = self.normal + (v / vn - self.normal) * a;
+                let nn = n_new.norm();
+                if nn > 1e-9 {
+                    self.normal = n_new / nn;
+                }
             }
         }
         let n = self.normal;
@@ -747,6 +792,24 @@ impl SlaveController {
         }
         let c = c_arm + self.c_env;
 
+        // The arm's deflection under the measured wrench, Λ(x)F, moves the tool sideways
+        // (Λ couples the axes): command the opposite of its tangential part (and of its
+        // rotation), so the tool stays on its path and does not drag friction sideways.
+        // The normal part is left to the force loop (compensating it would close a positive
+        // feedback loop through the contact).
+        let comp_target = match &full_lambda {
+            Some(full) => {
+                // The normal force's deflection only: friction's share is left alone, so
+                // the compensation cannot drag the tool and feed friction back into itself.
+                let d = full * Vector4::new(n[0] * f_n, n[1] * f_n, n[2] * f_n, 0.0);
+                let d3 = Vector3::new(d[0], d[1], d[2]);
+                let dt3 = d3 - n * d3.dot(&n);
+                Pose::new(-dt3[0], -dt3[1], -dt3[2], -d[3])
+            }
+            None => Pose::zeros(),
+        };
+        self.comp = comp_target;
+
         // Implicit force law (incremental form: bumpless when c changes).
         let e = self.sp2 - f_n;
         let mut d_depth = c * (d_sp + self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt);
@@ -760,9 +823,16 @@ impl SlaveController {
         d_depth = d_depth.clamp(-dmax, dmax);
         let mut mv = -n * d_depth;
         // Motion along the surface only while the force is established.
-        if !self.lost {
-            mv += self.tangent * speed.min(self.p.max_speed_mm_per_s) * dt;
-        }
+        // The speed along the surface ramps with the tracking acceleration limit, so the
+        // contact normal (estimated from the motion) settles before the speed is high.
+        let target_speed = if self.lost {
+            0.0
+        } else {
+            vt_n.min(self.p.max_speed_mm_per_s)
+        };
+        let dv = self.p.track_accel_mm_per_s2 * dt;
+        self.track_speed = (target_speed).clamp(self.track_speed - 4.0 * dv, self.track_speed + dv);
+        mv += self.tangent * self.track_speed * dt;
         let mvn = mv.norm();
         if mvn > dmax {
             mv *= dmax / mvn;
@@ -828,7 +898,12 @@ impl SlaveController {
         let n = self.normal;
         ControllerOutput {
             actuators_cmd_mm: self.l_cmd,
-            commanded_pose: [self.x_cmd[0], self.x_cmd[1], self.x_cmd[2], self.x_cmd[3]],
+            commanded_pose: [
+                self.x_cmd[0] + self.comp[0],
+                self.x_cmd[1] + self.comp[1],
+                self.x_cmd[2] + self.comp[2],
+                self.x_cmd[3] + self.comp[3],
+            ],
             measured_pose: [pose_fk[0], pose_fk[1], pose_fk[2], pose_fk[3]],
             contact_normal: [n[0], n[1], n[2]],
             tracking_direction: [self.tangent[0], self.tangent[1], self.tangent[2]],
@@ -861,7 +936,8 @@ impl SlaveController {
         c: f64,
         status: Status,
     ) -> ControllerOutput {
-        match self.ws.ik(&next) {
+        let target = next + self.comp;
+        match self.ws.ik(&target) {
             Ok(l) => {
                 self.x_cmd = next;
                 self.l_cmd = [l[0], l[1], l[2], l[3]];

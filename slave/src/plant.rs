@@ -179,17 +179,17 @@ impl MaterialPreset {
             MaterialPreset::Resin => Material {
                 stiffness_n_per_mm: 200.0,
                 damping_ratio: 0.3,
-                friction_coefficient: 0.3,
+                friction_coefficient: 0.15,
             },
             MaterialPreset::Steel => Material {
                 stiffness_n_per_mm: 2000.0,
                 damping_ratio: 0.05,
-                friction_coefficient: 0.2,
+                friction_coefficient: 0.12,
             },
             MaterialPreset::Aluminium => Material {
                 stiffness_n_per_mm: 1000.0,
                 damping_ratio: 0.05,
-                friction_coefficient: 0.3,
+                friction_coefficient: 0.15,
             },
         }
     }
@@ -477,11 +477,28 @@ impl SimArm {
     /// Steps the servo, structure, contact and sensor physics by `dt_ns` of simulated time.
     pub fn advance(&mut self, dt_ns: u64) {
         let total = self.remainder_ns + dt_ns;
-        let steps = total / self.substep_ns;
+        let mut steps = total / self.substep_ns;
         self.remainder_ns = total % self.substep_ns;
-        for _ in 0..steps {
-            self.substep();
-            self.time_ns += self.substep_ns;
+        while steps > 0 {
+            if self.substep_counter == 0 {
+                self.relinearise();
+            }
+            // Run substeps up to the next re-linearisation or sensor sample, whichever
+            // comes first, in a kernel that keeps the state in registers.
+            let to_lin = u64::from(self.substeps_per_linearisation - self.substep_counter);
+            let to_sensor = self
+                .next_sensor_ns
+                .saturating_sub(self.time_ns)
+                .div_ceil(self.substep_ns)
+                .max(1);
+            let n = steps.min(to_lin).min(to_sensor);
+            self.substeps(n as u32);
+            steps -= n;
+            self.time_ns += n * self.substep_ns;
+            self.substep_counter += n as u32;
+            if self.substep_counter >= self.substeps_per_linearisation {
+                self.substep_counter = 0;
+            }
             if self.time_ns >= self.next_sensor_ns {
                 self.sample_sensor();
                 self.next_sensor_ns += self.sensor_period_ns;
@@ -503,67 +520,143 @@ impl SimArm {
         }
     }
 
-    #[inline]
-    fn substep(&mut self) {
-        if self.substep_counter == 0 {
-            self.relinearise();
-        }
-        self.substep_counter += 1;
-        if self.substep_counter >= self.substeps_per_linearisation {
-            self.substep_counter = 0;
-        }
-        let dt = self.substep_s;
-        let cfg = &self.cfg;
-        // Leg lengths the platform imposes, and their rates (J at the last linearisation).
-        let l = self.l0 + self.jac * (self.pose - self.pose0);
-        let ld = self.jac * self.vel;
-        let m_c = cfg.carriage_mass_kg * 1e-3;
-        let u_max = cfg.motor_force_max_n;
-        let mut f_act = Vector4::zeros();
-        for i in 0..4 {
-            // Structural spring: positive when the platform pulls the carriage forward.
-            let f = self.k[i] * (l[i] - self.q[i]) + self.c_struct[i] * (ld[i] - self.qd[i]);
-            f_act[i] = f;
-            // PID servo on the encoder, derivative on the measurement.
-            let e = self.command[i] - self.q[i];
-            let i_term = self.integral[i] + cfg.servo_ki_n_per_mm_s * e * dt;
-            let u_raw = cfg.servo_kp_n_per_mm * e + i_term - cfg.servo_kd_n_s_per_mm * self.qd[i];
-            let u = u_raw.clamp(-u_max, u_max);
-            if u == u_raw {
-                self.integral[i] = i_term.clamp(-u_max, u_max);
+    /// `n` servo periods with the Jacobian held: the inner loop of the simulation,
+    /// specialised per surface shape.
+    fn substeps(&mut self, n: u32) {
+        match self.surface.shape {
+            SurfaceShape::Plane { point_mm, normal } => {
+                let p0 = Vector3::from(point_mm);
+                let nn = Vector3::from(normal);
+                self.substeps_with(n, move |p: &Vector3<f64>| (-(nn.dot(&(p - p0))), nn));
             }
-            let v = self.qd[i];
-            let friction = cfg.coulomb_friction_n
-                * (v / cfg.friction_velocity_mm_per_s).clamp(-1.0, 1.0)
-                + cfg.viscous_friction_n_s_per_mm * v;
-            let a = (u + f - friction) / m_c;
-            self.qd[i] += a * dt;
-            self.q[i] += self.qd[i] * dt;
+            _ => {
+                let s = self.surface;
+                self.substeps_with(n, move |p: &Vector3<f64>| s.penetration(p));
+            }
         }
-        // Contact at the tool point.
-        let p = Vector3::new(self.pose[0], self.pose[1], self.pose[2]);
-        let v = Vector3::new(self.vel[0], self.vel[1], self.vel[2]);
-        let (pen, n) = self.surface.penetration(&p);
+    }
+
+    #[inline(always)]
+    fn substeps_with<F: Fn(&Vector3<f64>) -> (f64, Vector3<f64>)>(
+        &mut self,
+        n: u32,
+        penetration: F,
+    ) {
+        let dt = self.substep_s;
+        let cfg = self.cfg;
+        let mut j = [[0.0f64; 4]; 4];
+        for (r, row) in j.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v = self.jac[(r, c)];
+            }
+        }
+        let inv_m_c = 1.0 / (cfg.carriage_mass_kg * 1e-3);
+        let u_max = cfg.motor_force_max_n;
+        let (kp, ki, kd) = (
+            cfg.servo_kp_n_per_mm,
+            cfg.servo_ki_n_per_mm_s,
+            cfg.servo_kd_n_s_per_mm,
+        );
+        let inv_v0 = 1.0 / cfg.friction_velocity_mm_per_s;
+        let (fc_n, fv) = (cfg.coulomb_friction_n, cfg.viscous_friction_n_s_per_mm);
+        let damp = cfg.platform_damping_n_s_per_mm;
+        let k = self.k;
+        let cs = self.c_struct;
+        let inv_mass = [
+            self.inv_mass[0],
+            self.inv_mass[1],
+            self.inv_mass[2],
+            self.inv_mass[3],
+        ];
+        let cmd = self.command;
+        let mut q = self.q;
+        let mut qd = self.qd;
+        let mut integ = self.integral;
+        let mut pose = [self.pose[0], self.pose[1], self.pose[2], self.pose[3]];
+        let mut vel = [self.vel[0], self.vel[1], self.vel[2], self.vel[3]];
+        let mut l = [0.0f64; 4];
+        for (r, lr) in l.iter_mut().enumerate() {
+            let mut acc = self.l0[r];
+            for c in 0..4 {
+                acc += j[r][c] * (pose[c] - self.pose0[c]);
+            }
+            *lr = acc;
+        }
+        let surface = self.surface;
+        let k_env = surface.material.stiffness_n_per_mm;
+        let b_env = self.contact_damping;
+        let mu = surface.material.friction_coefficient;
+        let reg = cfg.friction_velocity_mm_per_s;
+        let mut fc = [0.0f64; 3];
+        let mut pen = self.penetration_mm;
+        // Leg rates the platform imposes (J held over the block).
+        let mut ld = [0.0f64; 4];
+        for r in 0..4 {
+            ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
+        }
+        for _ in 0..n {
+            let mut f_act = [0.0f64; 4];
+            for i in 0..4 {
+                // Structural spring, positive when the platform pulls the carriage forward.
+                let f = k[i] * (l[i] - q[i]) + cs[i] * (ld[i] - qd[i]);
+                f_act[i] = f;
+                // PID servo on the encoder, derivative on the measurement, anti-windup.
+                let e = cmd[i] - q[i];
+                let i_term = integ[i] + ki * e * dt;
+                let u_raw = kp * e + i_term - kd * qd[i];
+                let u = u_raw.clamp(-u_max, u_max);
+                if u == u_raw {
+                    integ[i] = i_term;
+                }
+                let v = qd[i];
+                let friction = fc_n * (v * inv_v0).clamp(-1.0, 1.0) + fv * v;
+                qd[i] += (u + f - friction) * inv_m_c * dt;
+                q[i] += qd[i] * dt;
+            }
+            // Contact at the tool point.
+            let p = Vector3::new(pose[0], pose[1], pose[2]);
+            let (depth, nrm) = penetration(&p);
+            pen = depth;
+            fc = [0.0; 3];
+            if depth > 0.0 {
+                let vn = vel[0] * nrm[0] + vel[1] * nrm[1] + vel[2] * nrm[2];
+                let f_n = (k_env * depth - b_env * vn).max(0.0);
+                let vt = [
+                    vel[0] - nrm[0] * vn,
+                    vel[1] - nrm[1] * vn,
+                    vel[2] - nrm[2] * vn,
+                ];
+                let speed = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
+                let g = mu * f_n / speed.max(reg);
+                for a in 0..3 {
+                    fc[a] = nrm[a] * f_n - vt[a] * g;
+                }
+            }
+            // Platform: the legs act through Jᵀ.
+            for c in 0..4 {
+                let mut gen_f = -(j[0][c] * f_act[0]
+                    + j[1][c] * f_act[1]
+                    + j[2][c] * f_act[2]
+                    + j[3][c] * f_act[3]);
+                if c < 3 {
+                    gen_f += fc[c];
+                }
+                gen_f -= vel[c] * damp;
+                vel[c] += gen_f * inv_mass[c] * dt;
+                pose[c] += vel[c] * dt;
+            }
+            for r in 0..4 {
+                ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
+                l[r] += ld[r] * dt;
+            }
+        }
+        self.q = q;
+        self.qd = qd;
+        self.integral = integ;
+        self.pose = Pose::from(pose);
+        self.vel = Pose::from(vel);
         self.penetration_mm = pen;
-        let mut fc = Vector3::zeros();
-        if pen > 0.0 {
-            let vn = v.dot(&n);
-            let f_n = (self.surface.material.stiffness_n_per_mm * pen - self.contact_damping * vn)
-                .max(0.0);
-            let vt = v - n * vn;
-            let speed = vt.norm();
-            let reg = self.cfg.friction_velocity_mm_per_s;
-            let mu = self.surface.material.friction_coefficient;
-            fc = n * f_n - vt * (mu * f_n / speed.max(reg));
-        }
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
-        // Platform: springs act through J^T (f_act > 0 means the leg is stretched and
-        // pulls the platform back).
-        let generalised = -(self.jac.transpose() * f_act) + self.contact_wrench
-            - self.vel * self.cfg.platform_damping_n_s_per_mm;
-        let acc = generalised.component_mul(&self.inv_mass);
-        self.vel += acc * dt;
-        self.pose += self.vel * dt;
     }
 
     fn sample_sensor(&mut self) {
