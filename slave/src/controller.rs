@@ -59,6 +59,9 @@ pub struct ControllerParams {
     pub contact_lost_cycles: u32,
     /// Time constant of the set-point prefilter (critically damped, 2nd order), s.
     pub setpoint_time_constant_s: f64,
+    /// Share of the set-point change fed forward through the compliance (0 to 1.5); below 1
+    /// keeps an over-estimated compliance from overshooting, the PI terms close the rest.
+    pub feedforward_gain: f64,
     /// Proportional gain of the force loop, relative (dimensionless).
     pub kp: f64,
     /// Integral gain of the force loop, 1/s.
@@ -104,8 +107,9 @@ impl Default for ControllerParams {
             contact_lost_n: 0.3,
             contact_lost_cycles: 20,
             setpoint_time_constant_s: 0.015,
+            feedforward_gain: 1.0,
             kp: 0.3,
-            ki_per_s: 40.0,
+            ki_per_s: 80.0,
             initial_env_stiffness_n_per_mm: 200.0,
             env_stiffness_min_n_per_mm: 1.0,
             env_stiffness_max_n_per_mm: 20_000.0,
@@ -812,7 +816,10 @@ impl SlaveController {
 
         // Implicit force law (incremental form: bumpless when c changes).
         let e = self.sp2 - f_n;
-        let mut d_depth = c * (d_sp + self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt);
+        let mut d_depth = c
+            * (self.p.feedforward_gain * d_sp
+                + self.p.kp * (e - self.e_prev)
+                + self.p.ki_per_s * e * dt);
         self.e_prev = e;
         let mut status = status;
         if f_n > self.p.force_limit_n {

@@ -476,6 +476,13 @@ impl Validate for ExperimentConfig {
             "s",
         )?;
         check_range("controller.kp", c.kp, 0.0, 10.0, "")?;
+        check_range(
+            "controller.feedforward_gain",
+            c.feedforward_gain,
+            0.0,
+            1.5,
+            "",
+        )?;
         check_range("controller.ki_per_s", c.ki_per_s, 0.0, 1000.0, "1/s")?;
         check_range(
             "controller.initial_env_stiffness_n_per_mm",
