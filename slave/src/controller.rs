@@ -723,7 +723,13 @@ impl SlaveController {
         // a stuck tool says nothing about the normal).
         let oldest = (self.hist_head + 1) % WINDOW_MAX;
         let xo = self.hist_x[oldest];
-        let disp = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2]);
+        // The tool sinks deeper or rises as the force changes: add back that part of the
+        // displacement (compliance × force change along the normal), so what is left is
+        // the motion of the contact point along the surface.
+        let d_fn_window = (f3 - self.hist_f[oldest]).dot(&self.normal);
+        let c_prev = self.arm_compliance(lambda.as_ref()) + self.c_env;
+        let disp = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2])
+            + self.normal * (c_prev * d_fn_window);
         let disp_n = disp.norm();
         let moving =
             self.contact_cycles as usize >= WINDOW_MAX && disp_n > MOTION_MIN_MM && speed > 0.0;
@@ -783,7 +789,9 @@ impl SlaveController {
             let d_f = self.hist_f[self.hist_head].dot(&n) - self.hist_f[old].dot(&n);
             let xo = self.hist_x[old];
             let d_p = n[0] * (xf[0] - xo[0]) + n[1] * (xf[1] - xo[1]) + n[2] * (xf[2] - xo[2]);
-            if d_f.abs() > self.p.estimator_excitation_n {
+            // Pushing in can only raise the force: increments of the other sign are lag or
+            // noise and would drag the estimate through zero.
+            if d_f.abs() > self.p.estimator_excitation_n && -d_p * d_f > 0.0 {
                 let lam = self.p.estimator_forgetting.clamp(0.5, 1.0);
                 let y = -d_p;
                 let g = self.p_rls * d_f / (lam + d_f * self.p_rls * d_f);
