@@ -59,6 +59,8 @@ pub struct ControllerParams {
     pub contact_lost_cycles: u32,
     /// Time constant of the set-point prefilter (critically damped, 2nd order), s.
     pub setpoint_time_constant_s: f64,
+    /// Mass of the platform with sensor and tool, kg (for the contact resonance).
+    pub tool_mass_kg: f64,
     /// Share of the set-point change fed forward through the compliance (0 to 1.5); below 1
     /// keeps an over-estimated compliance from overshooting, the PI terms close the rest.
     pub feedforward_gain: f64,
@@ -107,6 +109,7 @@ impl Default for ControllerParams {
             contact_lost_n: 0.3,
             contact_lost_cycles: 20,
             setpoint_time_constant_s: 0.015,
+            tool_mass_kg: 1.0,
             feedforward_gain: 1.0,
             kp: 0.3,
             ki_per_s: 80.0,
@@ -273,6 +276,10 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// Cycles right after touching during which the normal follows the force's direction.
+const ONSET_CYCLES: u32 = 20;
+/// The force loop's integral gain stays this factor below the contact resonance, rad/s.
+const RESONANCE_MARGIN: f64 = 4.0;
 /// Time constant of the normal estimate right after touching (force direction), s.
 const ONSET_NORMAL_TIME_CONSTANT_S: f64 = 0.01;
 /// Per-cycle fade of the deflection compensation outside force control.
@@ -730,13 +737,19 @@ impl SlaveController {
         let c_prev = self.arm_compliance(lambda.as_ref()) + self.c_env;
         let disp = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2])
             + self.normal * (c_prev * d_fn_window);
+        // Without a commanded motion along the surface, only the sideways slide counts
+        // (the depth correction may be off): removing friction along it can only help.
+        let disp = if speed > 0.0 {
+            disp
+        } else {
+            disp - self.normal * disp.dot(&self.normal)
+        };
         let disp_n = disp.norm();
-        let moving =
-            self.contact_cycles as usize >= WINDOW_MAX && disp_n > MOTION_MIN_MM && speed > 0.0;
+        let moving = self.contact_cycles as usize >= WINDOW_MAX && disp_n > MOTION_MIN_MM;
         let n_raw = if moving {
             let tm = disp / disp_n;
             Some(f3 - tm * f3.dot(&tm))
-        } else if (self.contact_cycles as usize) < WINDOW_MAX {
+        } else if self.contact_cycles < ONSET_CYCLES {
             Some(f3)
         } else {
             None
@@ -777,7 +790,14 @@ impl SlaveController {
         };
 
         // Set-point prefilter.
-        let a_sp = (dt / self.p.setpoint_time_constant_s.max(dt)).min(1.0);
+        // Gain schedule: the tool's mass on the contact's total stiffness resonates at
+        // ω_r = sqrt(k/m); keep the loop's integral gain and the set-point prefilter well
+        // below it (soft surfaces), otherwise use the tuned values.
+        let c_sched = (self.arm_compliance(lambda.as_ref()) + self.c_env).max(1e-9);
+        let omega_r = (1000.0 / (c_sched * self.p.tool_mass_kg.max(1e-6))).sqrt();
+        let gain_scale = (omega_r / (RESONANCE_MARGIN * self.p.ki_per_s.max(1e-9))).min(1.0);
+        let tau_sp = self.p.setpoint_time_constant_s.max(2.0 / omega_r);
+        let a_sp = (dt / tau_sp.max(dt)).min(1.0);
         let sp_prev = self.sp2;
         self.sp1 += (eff.force_setpoint_n - self.sp1) * a_sp;
         self.sp2 += (self.sp1 - self.sp2) * a_sp;
@@ -826,8 +846,7 @@ impl SlaveController {
         let e = self.sp2 - f_n;
         let mut d_depth = c
             * (self.p.feedforward_gain * d_sp
-                + self.p.kp * (e - self.e_prev)
-                + self.p.ki_per_s * e * dt);
+                + gain_scale * (self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt));
         self.e_prev = e;
         let mut status = status;
         if f_n > self.p.force_limit_n {
