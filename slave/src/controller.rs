@@ -276,6 +276,8 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// Largest normal-force change over the motion window that counts as steady, N.
+const STEADY_FORCE_CHANGE_N: f64 = 0.5;
 /// Cycles right after touching during which the normal follows the force's direction.
 const ONSET_CYCLES: u32 = 20;
 /// The force loop's integral gain stays this factor below the contact resonance, rad/s.
@@ -737,12 +739,15 @@ impl SlaveController {
         let c_prev = self.arm_compliance(lambda.as_ref()) + self.c_env;
         let disp = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2])
             + self.normal * (c_prev * d_fn_window);
-        // Without a commanded motion along the surface, only the sideways slide counts
-        // (the depth correction may be off): removing friction along it can only help.
-        let disp = if speed > 0.0 {
+        // Without a commanded motion along the surface the displacement is trusted only
+        // while the force is steady (the depth correction is then small): what is left is
+        // the tool creeping along the surface under a tilted push, and removing friction
+        // along it turns the normal towards the true one.
+        let steady = d_fn_window.abs() < STEADY_FORCE_CHANGE_N;
+        let disp = if speed > 0.0 || steady {
             disp
         } else {
-            disp - self.normal * disp.dot(&self.normal)
+            Vector3::zeros()
         };
         let disp_n = disp.norm();
         let moving = self.contact_cycles as usize >= WINDOW_MAX && disp_n > MOTION_MIN_MM;
