@@ -1,0 +1,235 @@
+//! The controller's modes with the simulated arm in the loop: position mode follows within
+//! its limits and rejects poses outside the workspace (the actuators hold); a lost contact
+//! is detected and re-approached without a jump; a safe stop ramps the force to zero,
+//! retracts along the normal and holds.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use h4_shared::Pose;
+use h4_shared::config;
+use h4_shared::wire::Mode;
+use h4_slave::controller::{
+    ControllerInput, ControllerOutput, Rejection, SlaveCommand, SlaveController, Status,
+};
+use h4_slave::experiment::ExperimentConfig;
+use h4_slave::plant::{ArmDriver, SimArm, Surface, SurfaceShape};
+
+struct Rig {
+    arm: SimArm,
+    ctrl: SlaveController,
+    cfg: ExperimentConfig,
+}
+
+impl Rig {
+    fn new(extra: &[&str]) -> Rig {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/experiments/fig7b.toml"
+        );
+        let overrides: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+        let cfg: ExperimentConfig = config::load(std::path::Path::new(path), &overrides).unwrap();
+        let ws = cfg.arm.workspace();
+        let p = cfg.surface.contact_point_mm;
+        let arm = SimArm::new(
+            ws.params,
+            cfg.arm.actuator_stiffness_n_per_mm,
+            cfg.plant,
+            cfg.sensor,
+            cfg.surface(),
+            Pose::new(p[0], p[1], p[2] + 2.0, 0.0),
+            3,
+        )
+        .unwrap();
+        let ctrl = SlaveController::new(ws, cfg.arm.stiffness().unwrap(), cfg.controller);
+        Rig { arm, ctrl, cfg }
+    }
+
+    fn step(&mut self, command: SlaveCommand) -> ControllerOutput {
+        let r = self.arm.read();
+        let out = self.ctrl.step(
+            &ControllerInput {
+                actuators_mm: r.actuators_mm,
+                wrench: r.wrench,
+                command,
+            },
+            1e-3,
+        );
+        self.arm.command(&out.actuators_cmd_mm);
+        self.arm.advance(1_000_000);
+        out
+    }
+
+    fn press(&self, force_n: f64, speed: f64) -> SlaveCommand {
+        let p = self.cfg.surface.contact_point_mm;
+        SlaveCommand {
+            mode: Mode::ForceGuided,
+            pose: [p[0], p[1], p[2] - 20.0, 0.0],
+            velocity: [speed, 0.0, 0.0, 0.0],
+            force_setpoint_n: force_n,
+            clutch: false,
+        }
+    }
+
+    fn true_normal_force(&self) -> f64 {
+        let w = self.arm.true_contact_wrench();
+        w[2]
+    }
+}
+
+fn dist(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+#[test]
+fn position_mode_follows_within_limits_and_rejects_outside_the_workspace() {
+    let mut rig = Rig::new(&["surface.contact_point_mm=[-30.0, 0.0, -340.0]"]);
+    let max_speed = rig.cfg.controller.max_speed_mm_per_s;
+    let target = [10.0, 20.0, -240.0, 0.1];
+    let cmd = SlaveCommand {
+        mode: Mode::Position,
+        pose: target,
+        ..SlaveCommand::default()
+    };
+    let mut prev: Option<[f64; 4]> = None;
+    let mut last = None;
+    for _ in 0..3000 {
+        let out = rig.step(cmd);
+        if let Some(p) = prev {
+            assert!(dist(&p, &out.commanded_pose) <= max_speed * 1e-3 + 1e-9);
+        }
+        prev = Some(out.commanded_pose);
+        last = Some(out);
+    }
+    let out = last.unwrap();
+    assert_eq!(out.status, Status::Free);
+    assert!(
+        dist(&out.commanded_pose, &target) < 1e-3,
+        "{:?}",
+        out.commanded_pose
+    );
+    let pose = rig.arm.true_pose();
+    assert!(
+        (pose[0] - 10.0).abs() < 0.05 && (pose[2] + 240.0).abs() < 0.05,
+        "{pose:?}"
+    );
+
+    // Out of reach (z above the singular line): rejected with a reason, actuators hold.
+    let held = out.actuators_cmd_mm;
+    let bad = SlaveCommand {
+        pose: [0.0, 0.0, 50.0, 0.0],
+        ..cmd
+    };
+    let out = rig.step(bad);
+    assert_eq!(out.status, Status::Rejected);
+    assert!(
+        matches!(out.rejection, Some(Rejection::Workspace(_))),
+        "{:?}",
+        out.rejection
+    );
+    assert_eq!(out.actuators_cmd_mm, held);
+    let out = rig.step(SlaveCommand {
+        velocity: [f64::NAN, 0.0, 0.0, 0.0],
+        ..cmd
+    });
+    assert_eq!(out.rejection, Some(Rejection::NonFiniteInput));
+    assert_eq!(out.actuators_cmd_mm, held);
+    let out = rig.step(SlaveCommand {
+        mode: Mode::ForceGuided,
+        force_setpoint_n: 1e4,
+        ..cmd
+    });
+    assert!(matches!(
+        out.rejection,
+        Some(Rejection::SetpointOutOfRange { .. })
+    ));
+    assert_eq!(out.actuators_cmd_mm, held);
+}
+
+#[test]
+fn lost_contact_is_reapproached_without_a_jump() {
+    let mut rig = Rig::new(&[]);
+    let max_speed = rig.cfg.controller.max_speed_mm_per_s;
+    for _ in 0..2500 {
+        rig.step(rig.press(20.0, 3.5));
+    }
+    assert!((rig.true_normal_force() - 20.0).abs() < 1.0);
+    // The surface drops by 3 mm under the tool (a step in the part).
+    let Surface { shape, material } = *rig.arm.surface();
+    let SurfaceShape::Plane { point_mm, normal } = shape else {
+        panic!("plane expected")
+    };
+    rig.arm.set_surface(Surface {
+        shape: SurfaceShape::Plane {
+            point_mm: [point_mm[0], point_mm[1], point_mm[2] - 3.0],
+            normal,
+        },
+        material,
+    });
+    let mut saw_lost = false;
+    let mut regained_at = None;
+    let mut prev: Option<[f64; 4]> = None;
+    let mut peak: f64 = 0.0;
+    for k in 0..4000 {
+        let out = rig.step(rig.press(20.0, 3.5));
+        if let Some(p) = prev {
+            assert!(
+                dist(&p, &out.commanded_pose) <= max_speed * 1e-3 + 1e-9,
+                "jump at {k}"
+            );
+        }
+        prev = Some(out.commanded_pose);
+        saw_lost |= out.status == Status::ContactLost;
+        if saw_lost && regained_at.is_none() && out.status == Status::Contact {
+            regained_at = Some(k);
+        }
+        if regained_at.is_some() {
+            peak = peak.max(rig.true_normal_force());
+        }
+    }
+    assert!(saw_lost, "contact loss not detected");
+    let k = regained_at.expect("contact not regained");
+    assert!(k < 3000, "re-approach took {k} ms");
+    assert!(peak < 20.0 * 1.1, "re-contact peak {peak} N");
+    assert!(
+        (rig.true_normal_force() - 20.0).abs() < 1.0,
+        "{}",
+        rig.true_normal_force()
+    );
+}
+
+#[test]
+fn safe_stop_ramps_force_down_retracts_and_holds() {
+    let mut rig = Rig::new(&[]);
+    for _ in 0..2000 {
+        rig.step(rig.press(30.0, 0.0));
+    }
+    assert!((rig.true_normal_force() - 30.0).abs() < 1.0);
+    rig.ctrl.safe_stop();
+    assert!(rig.ctrl.is_safe_stopped());
+    let mut prev_force = rig.true_normal_force();
+    let mut rising = 0;
+    for _ in 0..150 {
+        let out = rig.step(rig.press(30.0, 5.0));
+        assert_eq!(out.status, Status::SafeStop);
+        let f = rig.true_normal_force();
+        if f > prev_force + 0.5 {
+            rising += 1;
+        }
+        prev_force = f;
+    }
+    assert_eq!(rising, 0, "force must not rise during the ramp");
+    for _ in 0..3000 {
+        rig.step(rig.press(30.0, 5.0));
+    }
+    assert_eq!(rig.true_normal_force(), 0.0);
+    let gap = -rig.arm.penetration_mm();
+    let retract = rig.cfg.controller.safe_stop_retract_mm;
+    assert!(gap > 0.5 * retract && gap < retract + 0.5, "gap {gap} mm");
+    let before = rig.arm.true_pose();
+    let out = rig.step(rig.press(30.0, 5.0));
+    assert_eq!(out.status, Status::Holding);
+    for _ in 0..500 {
+        rig.step(rig.press(30.0, 5.0));
+    }
+    let after = rig.arm.true_pose();
+    assert!((after - before).norm() < 1e-3, "moved while holding");
+}
