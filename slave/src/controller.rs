@@ -594,15 +594,12 @@ impl SlaveController {
                 limit_n: self.p.force_limit_n,
             });
         }
-        if eff.mode == Mode::Position || eff.mode == Mode::ForceGuided {
-            let target = Pose::from(eff.pose);
-            if eff.mode == Mode::Position || !self.in_contact {
-                if let Err(e) = self.ws.ik(&target) {
-                    if eff.mode == Mode::Position {
-                        return self.reject(Rejection::Workspace(e));
-                    }
-                }
-            }
+        // A Position target must lie in the workspace. (A ForceGuided approach target
+        // may lie beyond the surface: every commanded step is still checked in `commit`.)
+        if eff.mode == Mode::Position
+            && let Err(e) = self.ws.ik(&Pose::from(eff.pose))
+        {
+            return self.reject(Rejection::Workspace(e));
         }
 
         let f_mag = f3.norm();
