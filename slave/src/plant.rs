@@ -320,6 +320,7 @@ pub struct SimArm {
     contact_wrench: Vector4<f64>,
     contact_damping: f64,
     penetration_mm: f64,
+    inv_slip: f64,
     // Sensor.
     rng: Rng,
     filters: [Butterworth2; 4],
@@ -407,6 +408,7 @@ impl SimArm {
             contact_wrench: Vector4::zeros(),
             contact_damping: 0.0,
             penetration_mm: 0.0,
+            inv_slip: 1.0 / cfg.friction_velocity_mm_per_s,
             rng: Rng::fork(seed, 0x5E45),
             filters,
             filtered: [0.0; 4],
@@ -589,6 +591,7 @@ impl SimArm {
         let reg = cfg.friction_velocity_mm_per_s;
         let mut fc = [0.0f64; 3];
         let mut pen = self.penetration_mm;
+        let mut inv_slip = self.inv_slip;
         // Leg rates the platform imposes (J held over the block).
         let mut ld = [0.0f64; 4];
         for r in 0..4 {
@@ -626,11 +629,15 @@ impl SimArm {
                     vel[1] - nrm[1] * vn,
                     vel[2] - nrm[2] * vn,
                 ];
-                let speed = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
-                let g = mu * f_n / speed.max(reg);
+                // Regularised Coulomb friction. Its scale 1/max(|v_t|, v_reg) is taken from
+                // the previous servo period (50 µs earlier), which keeps the square root and
+                // the division off the simulation's critical path.
+                let g = mu * f_n * inv_slip;
                 for a in 0..3 {
                     fc[a] = nrm[a] * f_n - vt[a] * g;
                 }
+                let speed = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
+                inv_slip = 1.0 / speed.max(reg);
             }
             // Platform: the legs act through Jᵀ.
             for c in 0..4 {
@@ -656,6 +663,7 @@ impl SimArm {
         self.pose = Pose::from(pose);
         self.vel = Pose::from(vel);
         self.penetration_mm = pen;
+        self.inv_slip = inv_slip;
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
     }
 
@@ -674,10 +682,23 @@ impl SimArm {
             };
             let mut raw = self.contact_wrench[i] + bias + noise;
             if quant > 0.0 {
-                raw = (raw / quant).round() * quant;
+                raw = quantize(raw, quant);
             }
             self.filtered[i] = self.filters[i].update(raw);
         }
+    }
+}
+
+/// `value` rounded to a multiple of `step` (ties to even), without a libm call: adding and
+/// subtracting 1.5 × 2⁵² rounds any |x| < 2⁵¹ exactly, the same on every platform.
+#[inline]
+fn quantize(value: f64, step: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0;
+    let x = value / step;
+    if x.abs() < 1e15 {
+        ((x + MAGIC) - MAGIC) * step
+    } else {
+        value
     }
 }
 
@@ -687,7 +708,7 @@ impl ArmDriver for SimArm {
         let mut act = self.q;
         if res > 0.0 {
             for a in act.iter_mut() {
-                *a = (*a / res).round() * res;
+                *a = quantize(*a, res);
             }
         }
         ArmReading {
