@@ -276,6 +276,9 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// The motion direction is used only while the depth correction is below this share of
+/// the displacement.
+const DEPTH_TRUST: f64 = 0.3;
 /// Largest normal-force change over the motion window that counts as steady, N.
 const STEADY_FORCE_CHANGE_N: f64 = 0.5;
 /// Cycles right after touching during which the normal follows the force's direction.
@@ -734,8 +737,9 @@ impl SlaveController {
         // the motion of the contact point along the surface.
         let d_fn_window = (f3 - self.hist_f[oldest]).dot(&self.normal);
         let c_prev = self.arm_compliance(lambda.as_ref()) + self.c_env;
-        let disp = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2])
-            + self.normal * (c_prev * d_fn_window);
+        let depth_change = c_prev * d_fn_window;
+        let disp =
+            Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2]) + self.normal * depth_change;
         // Without a commanded motion along the surface the displacement is trusted only
         // while the force is steady (the depth correction is then small): what is left is
         // the tool creeping along the surface under a tilted push, and removing friction
@@ -747,7 +751,11 @@ impl SlaveController {
             Vector3::zeros()
         };
         let disp_n = disp.norm();
-        let moving = self.contact_cycles as usize >= WINDOW_MAX && disp_n > MOTION_MIN_MM;
+        // A large depth correction rests on the compliance estimate: then the direction of
+        // motion is not trusted (soft surfaces while the force still changes).
+        let moving = self.contact_cycles as usize >= WINDOW_MAX
+            && disp_n > MOTION_MIN_MM
+            && depth_change.abs() < DEPTH_TRUST * disp_n;
         let n_raw = if moving {
             let tm = disp / disp_n;
             Some(f3 - tm * f3.dot(&tm))

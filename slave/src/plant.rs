@@ -92,7 +92,7 @@ impl Default for PlantConfig {
         PlantConfig {
             stiffness_scale: 1.0,
             stiffness_spread: [0.0; 4],
-            structural_damping_ratio: 0.03,
+            structural_damping_ratio: 0.05,
             servo_rate_hz: 20_000.0,
             carriage_mass_kg: 4.0,
             servo_kp_n_per_mm: 4000.0,
