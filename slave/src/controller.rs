@@ -276,6 +276,15 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// Smoothing of the cycle-to-cycle force-error swing (per cycle).
+const SWING_FILTER: f64 = 0.05;
+/// Mean cycle-to-cycle swing of the force error that counts as oscillation, N.
+const SWING_LIMIT_N: f64 = 0.6;
+/// Per-cycle gain reduction while oscillating, and recovery afterwards.
+const GUARD_DECAY: f64 = 0.98;
+const GUARD_RECOVERY: f64 = 1.0005;
+/// Smallest gain factor of the oscillation guard.
+const GUARD_MIN: f64 = 0.05;
 /// The motion direction is used only while the depth correction is below this share of
 /// the displacement.
 const DEPTH_TRUST: f64 = 0.3;
@@ -329,6 +338,8 @@ pub struct SlaveController {
     sp1: f64,
     sp2: f64,
     track_speed: f64,
+    swing: f64,
+    gain_guard: f64,
     e_prev: f64,
     // Estimator.
     c_env: f64,
@@ -375,6 +386,8 @@ impl SlaveController {
             sp1: 0.0,
             sp2: 0.0,
             track_speed: 0.0,
+            swing: 0.0,
+            gain_guard: 1.0,
             e_prev: 0.0,
             c_env,
             c_tot: c_env,
@@ -854,6 +867,18 @@ impl SlaveController {
 
         // Implicit force law (incremental form: bumpless when c changes).
         let e = self.sp2 - f_n;
+        // Oscillation guard: a force error that swings from cycle to cycle far beyond the
+        // sensor noise means a resonance inside the loop (e.g. the tool's mass between the
+        // arm and a stiff surface): back the loop gains off until it calms down, then let
+        // them recover slowly.
+        let swing = (e - self.e_prev).abs();
+        self.swing += (swing - self.swing) * SWING_FILTER;
+        if self.swing > SWING_LIMIT_N {
+            self.gain_guard = (self.gain_guard * GUARD_DECAY).max(GUARD_MIN);
+        } else {
+            self.gain_guard = (self.gain_guard * GUARD_RECOVERY).min(1.0);
+        }
+        let gain_scale = gain_scale * self.gain_guard;
         let mut d_depth = c
             * (self.p.feedforward_gain * d_sp
                 + gain_scale * (self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt));
