@@ -124,6 +124,34 @@ fn very_soft_surface_meets_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
+/// Known miss, kept visible: tracking along y at 10 mm/s on aluminium goes unstable after
+/// about 90 mm of travel and the true force then exceeds the force limit (see
+/// docs/slave-results.md, "Known limits"). Run with `cargo test -- --ignored`.
+#[test]
+#[ignore = "known miss: unstable when tracking along y at 10 mm/s (docs/slave-results.md)"]
+fn tracking_along_y_on_aluminium_meets_targets() {
+    let mut all = Vec::new();
+    for scale in ["0.7", "1.3"] {
+        let set = format!("plant.stiffness_scale={scale}");
+        let (cfg, s) = run(
+            "fig7d.toml",
+            &[
+                "track.direction=[0.0, 1.0, 0.0]",
+                "surface.contact_point_mm=[0.0, -30.0, -250.0]",
+                &set,
+            ],
+        );
+        all.extend(misses(&format!("y tracking ×{scale}"), &cfg, &s));
+        if s.max_force_n > cfg.controller.force_limit_n {
+            all.push(format!(
+                "y tracking ×{scale}: max force {:.0} N above the limit",
+                s.max_force_n
+            ));
+        }
+    }
+    assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
+}
+
 /// The targets are not met by accident: a controller whose compliance is badly wrong (no
 /// arm model, estimator off, environment assumed 3 N/mm on steel) or whose loop is far too
 /// slow visibly misses them, so the checks above can fail.
