@@ -1,1 +1,73 @@
-//! Master/slave links for h4-teleop. Not yet implemented: see the open transport issues.
+//! Master ↔ slave links for h4-teleop.
+//!
+//! One interface, [`Link`], with several implementations: [`inproc`] (two ends in one
+//! process, for tests and the lockstep simulation), `iceoryx2` (shared memory on one host)
+//! and `zenoh` (between hosts). [`impair::Impaired`] wraps any link and injects delay,
+//! jitter, loss, duplication, reordering and blackouts; [`gate::Gate`] is the check every
+//! receiver puts in front of its control loop.
+//!
+//! Publishing and receiving never block and allocate nothing per message.
+
+pub mod gate;
+pub mod impair;
+pub mod inproc;
+
+use h4_shared::wire::{Command, Feedback, WireMessage};
+
+/// Why a link operation failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum LinkError {
+    /// The other end is gone for good (in-process link dropped).
+    #[error("the link is closed")]
+    Closed,
+    /// The transport refused the message or failed to deliver it to the wire.
+    #[error("{transport}: send failed")]
+    SendFailed {
+        /// Which transport.
+        transport: &'static str,
+    },
+    /// The transport failed while receiving.
+    #[error("{transport}: receive failed")]
+    ReceiveFailed {
+        /// Which transport.
+        transport: &'static str,
+    },
+    /// Received bytes could not be decoded (counted and dropped; never delivered).
+    #[error("undecodable message: {0}")]
+    Decode(h4_shared::wire::WireError),
+}
+
+/// One end of a master ↔ slave link: it publishes `Out` and receives `In`.
+pub trait Link<Out: WireMessage, In: WireMessage> {
+    /// Publishes a message; never blocks (a full queue drops the oldest message).
+    fn publish(&mut self, msg: &Out) -> Result<(), LinkError>;
+
+    /// The next message that has arrived, or `None`; never blocks.
+    fn try_recv(&mut self) -> Result<Option<In>, LinkError>;
+
+    /// Drains everything that has arrived and returns the newest, or `None`.
+    fn recv_latest(&mut self) -> Result<Option<In>, LinkError> {
+        let mut latest = None;
+        while let Some(msg) = self.try_recv()? {
+            latest = Some(msg);
+        }
+        Ok(latest)
+    }
+}
+
+/// The master's end: publishes commands, receives feedback.
+pub trait MasterLink: Link<Command, Feedback> {}
+impl<T: Link<Command, Feedback>> MasterLink for T {}
+
+/// The slave's end: publishes feedback, receives commands.
+pub trait SlaveLink: Link<Feedback, Command> {}
+impl<T: Link<Feedback, Command>> SlaveLink for T {}
+
+impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In> for Box<L> {
+    fn publish(&mut self, msg: &Out) -> Result<(), LinkError> {
+        (**self).publish(msg)
+    }
+    fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
+        (**self).try_recv()
+    }
+}
