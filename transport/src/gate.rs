@@ -109,8 +109,10 @@ impl<M: WireMessage> Gate<M> {
                 got: msg.arm_id(),
             });
         }
-        if let Some(last) = self.last_seq {
-            if msg.seq() <= last {
+        if let Some(last) = self.last_seq
+            && msg.seq() <= last
+        {
+            {
                 let silent = self
                     .silence_ns(now_ns)
                     .is_some_and(|s| s > self.restart_silence_ns);
