@@ -1,0 +1,280 @@
+//! The link conformance suite, written once and run for every transport.
+//!
+//! A transport provides a [`Transport`] (how to open an isolated network with one master and
+//! one slave end per arm) and invokes [`conformance_suite!`], which expands to one `#[test]`
+//! per behaviour. Every wait is a deadline loop ([`WATCHDOG`]): a hung transport fails the test
+//! instead of hanging it, and no test asserts how long anything took.
+#![allow(clippy::unwrap_used, clippy::expect_used, dead_code)]
+
+use std::thread;
+use std::time::{Duration, Instant};
+
+use h4_shared::wire::{Command, Feedback, PROTOCOL_VERSION, SlaveState, WireMessage};
+use h4_transport::Link;
+use h4_transport::gate::Gate;
+
+/// Longest any single wait may take before the test fails (the host stalls for up to ~70 ms
+/// at times; Zenoh's first round trip takes ~50 ms).
+pub const WATCHDOG: Duration = Duration::from_secs(10);
+
+/// How a transport under test is set up.
+pub trait Transport {
+    /// The master's end.
+    type Master: Link<Command, Feedback>;
+    /// The slave's end.
+    type Slave: Link<Feedback, Command>;
+
+    /// A fresh network, isolated from every other test, with a connected (master, slave) pair
+    /// for each arm in `arms`, all on the same transport instance.
+    fn open(arms: &[u16]) -> Vec<(Self::Master, Self::Slave)>;
+
+    /// Commands the slave end refused before delivery (e.g. undecodable bytes).
+    fn refused_by_slave_end(_slave: &Self::Slave) -> u64 {
+        0
+    }
+}
+
+/// A valid command.
+pub fn command(arm_id: u16, seq: u64) -> Command {
+    Command {
+        seq,
+        send_time_ns: 1_000 + seq,
+        pose: [1.5, -2.25, 40.0 + seq as f64, 0.125],
+        velocity: [0.5, 0.0, -1.0, 0.01],
+        force_setpoint_n: 3.5,
+        energy_in_j: 0.25,
+        energy_out_j: 0.125,
+        protocol_version: PROTOCOL_VERSION,
+        arm_id,
+        mode: 0,
+        reserved: 0,
+        flags: 0,
+    }
+}
+
+/// A valid feedback message.
+pub fn feedback(arm_id: u16, seq: u64) -> Feedback {
+    Feedback {
+        seq,
+        send_time_ns: 2_000 + seq,
+        echo_seq: seq.saturating_sub(1),
+        echo_send_time_ns: 999,
+        pose: [1.0, 2.0, 3.0 + seq as f64, 0.5],
+        wrench_measured: [0.1, -0.2, 5.0, 0.0],
+        wrench_desired: [0.0, 0.0, 5.0, 0.0],
+        energy_in_j: 1.0,
+        energy_out_j: 0.5,
+        protocol_version: PROTOCOL_VERSION,
+        arm_id,
+        state: SlaveState::Idle as u8,
+        reserved: 0,
+        fault_flags: 0,
+    }
+}
+
+/// Polls `link` until `done` holds for a received message (returning it); fails at the watchdog.
+pub fn recv_until<Out: WireMessage, In: WireMessage + std::fmt::Debug>(
+    link: &mut impl Link<Out, In>,
+    what: &str,
+    mut done: impl FnMut(&In) -> bool,
+) -> In {
+    let deadline = Instant::now() + WATCHDOG;
+    loop {
+        while let Some(msg) = link.try_recv().expect("try_recv") {
+            if done(&msg) {
+                return msg;
+            }
+        }
+        assert!(Instant::now() < deadline, "watchdog: {what} never arrived");
+        thread::sleep(Duration::from_micros(200));
+    }
+}
+
+/// Exchanges warm-up messages (seq numbers below 10) until both directions deliver, then
+/// drains both ends. Transports that connect asynchronously lose what is sent before.
+pub fn connect<M: Link<Command, Feedback>, S: Link<Feedback, Command>>(
+    master: &mut M,
+    slave: &mut S,
+    arm_id: u16,
+) {
+    let deadline = Instant::now() + WATCHDOG;
+    let (mut to_slave, mut to_master) = (false, false);
+    let mut seq = 0;
+    while !(to_slave && to_master) {
+        assert!(Instant::now() < deadline, "watchdog: the link never connected");
+        seq = (seq % 9) + 1;
+        master.publish(&command(arm_id, seq)).expect("publish");
+        slave.publish(&feedback(arm_id, seq)).expect("publish");
+        thread::sleep(Duration::from_millis(2));
+        to_slave |= slave.recv_latest().expect("recv").is_some();
+        to_master |= master.recv_latest().expect("recv").is_some();
+    }
+    // Whatever was in flight arrives in order before the next message; settle, then drain.
+    thread::sleep(Duration::from_millis(20));
+    while slave.try_recv().expect("recv").is_some() {}
+    while master.try_recv().expect("recv").is_some() {}
+}
+
+/// One connected (master, slave) pair for `arm_id`.
+pub fn connected_pair<T: Transport>(arm_id: u16) -> (T::Master, T::Slave) {
+    let mut pairs = T::open(&[arm_id]);
+    let (mut master, mut slave) = pairs.pop().expect("one pair");
+    connect(&mut master, &mut slave, arm_id);
+    (master, slave)
+}
+
+/// Both message kinds arrive unchanged.
+pub fn round_trip_both_kinds<T: Transport>() {
+    let (mut master, mut slave) = connected_pair::<T>(3);
+    let sent = command(3, 42);
+    master.publish(&sent).expect("publish");
+    let got = recv_until(&mut slave, "command 42", |c| c.seq == 42);
+    assert_eq!(got, sent);
+    let mut reply = feedback(3, 7);
+    reply.echo_seq = got.seq;
+    reply.echo_send_time_ns = got.send_time_ns;
+    slave.publish(&reply).expect("publish");
+    let back = recv_until(&mut master, "feedback 7", |f| f.seq == 7);
+    assert_eq!(back, reply);
+}
+
+/// `recv_latest` drains what arrived and returns the newest.
+pub fn newest_wins<T: Transport>() {
+    let (mut master, mut slave) = connected_pair::<T>(3);
+    for seq in 10..=20 {
+        master.publish(&command(3, seq)).expect("publish");
+    }
+    let deadline = Instant::now() + WATCHDOG;
+    let mut newest = 0;
+    while newest < 20 {
+        assert!(Instant::now() < deadline, "watchdog: seq 20 never arrived");
+        if let Some(c) = slave.recv_latest().expect("recv") {
+            assert!(c.seq > newest, "recv_latest went back: {} after {newest}", c.seq);
+            newest = c.seq;
+        }
+        thread::sleep(Duration::from_micros(200));
+    }
+    assert_eq!(slave.try_recv().expect("recv"), None, "recv_latest left messages behind");
+    assert_eq!(slave.recv_latest().expect("recv"), None);
+}
+
+/// Receiving from an end with nothing pending returns `None` at once.
+pub fn empty_receive_is_non_blocking<T: Transport>() {
+    let (mut master, mut slave) = connected_pair::<T>(3);
+    for _ in 0..100 {
+        assert_eq!(slave.try_recv().expect("recv"), None);
+        assert_eq!(slave.recv_latest().expect("recv"), None);
+        assert_eq!(master.try_recv().expect("recv"), None);
+        assert_eq!(master.recv_latest().expect("recv"), None);
+    }
+}
+
+/// A NaN, a wrong protocol version, a duplicate and a reordered (older) message never get past
+/// the link and the gate; the valid ones do, and every rejection is counted once.
+pub fn gate_rejects_bad_duplicate_and_reordered<T: Transport>() {
+    let (mut master, mut slave) = connected_pair::<T>(3);
+    let mut nan = command(3, 101);
+    nan.pose[2] = f64::NAN;
+    let mut wrong_version = command(3, 102);
+    wrong_version.protocol_version = PROTOCOL_VERSION + 1;
+    let sequence = [
+        command(3, 100),
+        nan,
+        wrong_version,
+        command(3, 100), // duplicate
+        command(3, 99),  // reordered, older
+        command(3, 103),
+    ];
+    for c in &sequence {
+        master.publish(c).expect("publish");
+    }
+    let mut gate = Gate::<Command>::new(3, 1_000_000_000);
+    let mut accepted = Vec::new();
+    let mut received = 0;
+    let deadline = Instant::now() + WATCHDOG;
+    while accepted.last() != Some(&103) {
+        assert!(Instant::now() < deadline, "watchdog: seq 103 never accepted");
+        while let Some(c) = slave.try_recv().expect("recv") {
+            received += 1;
+            if let Ok(ok) = gate.accept(&c, 0) {
+                accepted.push(ok.seq);
+            }
+        }
+        thread::sleep(Duration::from_micros(200));
+    }
+    assert_eq!(accepted, vec![100, 103]);
+    let c = gate.counters;
+    let refused_by_link = T::refused_by_slave_end(&slave);
+    assert_eq!(
+        refused_by_link + c.malformed + c.wrong_version,
+        2,
+        "NaN and version: link refused {refused_by_link}, gate {c:?}"
+    );
+    assert_eq!(c.rejected() - c.malformed - c.wrong_version, 2, "{c:?}");
+    assert_eq!(received + refused_by_link, sequence.len() as u64);
+}
+
+/// Two arms on the same transport instance never see each other's messages.
+pub fn arms_do_not_interfere<T: Transport>() {
+    let mut pairs = T::open(&[1, 2]);
+    for (i, (master, slave)) in pairs.iter_mut().enumerate() {
+        connect(master, slave, i as u16 + 1);
+    }
+    for round in 0..20u64 {
+        for (i, (master, slave)) in pairs.iter_mut().enumerate() {
+            let arm = i as u16 + 1;
+            master.publish(&command(arm, 100 + round)).expect("publish");
+            slave.publish(&feedback(arm, 100 + round)).expect("publish");
+        }
+    }
+    for (i, (master, slave)) in pairs.iter_mut().enumerate() {
+        let arm = i as u16 + 1;
+        let last = recv_until(slave, "last command", |c| {
+            assert_eq!(c.arm_id, arm, "arm {arm}'s slave got a command for arm {}", c.arm_id);
+            c.seq == 119
+        });
+        assert_eq!(last.arm_id, arm);
+        recv_until(master, "last feedback", |f| {
+            assert_eq!(f.arm_id, arm, "arm {arm}'s master got feedback of arm {}", f.arm_id);
+            f.seq == 119
+        });
+    }
+    // Anything still in flight must also be for the right arm.
+    thread::sleep(Duration::from_millis(50));
+    for (i, (master, slave)) in pairs.iter_mut().enumerate() {
+        let arm = i as u16 + 1;
+        while let Some(c) = slave.try_recv().expect("recv") {
+            assert_eq!(c.arm_id, arm);
+        }
+        while let Some(f) = master.try_recv().expect("recv") {
+            assert_eq!(f.arm_id, arm);
+        }
+    }
+}
+
+/// One `#[test]` per behaviour for the [`Transport`] `$t`.
+#[macro_export]
+macro_rules! conformance_suite {
+    ($t:ty) => {
+        #[test]
+        fn round_trip_both_kinds() {
+            common::suite::round_trip_both_kinds::<$t>();
+        }
+        #[test]
+        fn newest_wins() {
+            common::suite::newest_wins::<$t>();
+        }
+        #[test]
+        fn empty_receive_is_non_blocking() {
+            common::suite::empty_receive_is_non_blocking::<$t>();
+        }
+        #[test]
+        fn gate_rejects_bad_duplicate_and_reordered() {
+            common::suite::gate_rejects_bad_duplicate_and_reordered::<$t>();
+        }
+        #[test]
+        fn arms_do_not_interfere() {
+            common::suite::arms_do_not_interfere::<$t>();
+        }
+    };
+}
