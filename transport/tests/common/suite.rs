@@ -101,7 +101,10 @@ pub fn connect<M: Link<Command, Feedback>, S: Link<Feedback, Command>>(
     let (mut to_slave, mut to_master) = (false, false);
     let mut seq = 0;
     while !(to_slave && to_master) {
-        assert!(Instant::now() < deadline, "watchdog: the link never connected");
+        assert!(
+            Instant::now() < deadline,
+            "watchdog: the link never connected"
+        );
         seq = (seq % 9) + 1;
         master.publish(&command(arm_id, seq)).expect("publish");
         slave.publish(&feedback(arm_id, seq)).expect("publish");
@@ -149,12 +152,20 @@ pub fn newest_wins<T: Transport>() {
     while newest < 20 {
         assert!(Instant::now() < deadline, "watchdog: seq 20 never arrived");
         if let Some(c) = slave.recv_latest().expect("recv") {
-            assert!(c.seq > newest, "recv_latest went back: {} after {newest}", c.seq);
+            assert!(
+                c.seq > newest,
+                "recv_latest went back: {} after {newest}",
+                c.seq
+            );
             newest = c.seq;
         }
         thread::sleep(Duration::from_micros(200));
     }
-    assert_eq!(slave.try_recv().expect("recv"), None, "recv_latest left messages behind");
+    assert_eq!(
+        slave.try_recv().expect("recv"),
+        None,
+        "recv_latest left messages behind"
+    );
     assert_eq!(slave.recv_latest().expect("recv"), None);
 }
 
@@ -193,7 +204,10 @@ pub fn gate_rejects_bad_duplicate_and_reordered<T: Transport>() {
     let mut received = 0;
     let deadline = Instant::now() + WATCHDOG;
     while accepted.last() != Some(&103) {
-        assert!(Instant::now() < deadline, "watchdog: seq 103 never accepted");
+        assert!(
+            Instant::now() < deadline,
+            "watchdog: seq 103 never accepted"
+        );
         while let Some(c) = slave.try_recv().expect("recv") {
             received += 1;
             if let Ok(ok) = gate.accept(&c, 0) {
@@ -230,12 +244,20 @@ pub fn arms_do_not_interfere<T: Transport>() {
     for (i, (master, slave)) in pairs.iter_mut().enumerate() {
         let arm = i as u16 + 1;
         let last = recv_until(slave, "last command", |c| {
-            assert_eq!(c.arm_id, arm, "arm {arm}'s slave got a command for arm {}", c.arm_id);
+            assert_eq!(
+                c.arm_id, arm,
+                "arm {arm}'s slave got a command for arm {}",
+                c.arm_id
+            );
             c.seq == 119
         });
         assert_eq!(last.arm_id, arm);
         recv_until(master, "last feedback", |f| {
-            assert_eq!(f.arm_id, arm, "arm {arm}'s master got feedback of arm {}", f.arm_id);
+            assert_eq!(
+                f.arm_id, arm,
+                "arm {arm}'s master got feedback of arm {}",
+                f.arm_id
+            );
             f.seq == 119
         });
     }
