@@ -10,6 +10,8 @@
 
 pub mod gate;
 pub mod impair;
+#[cfg(feature = "iceoryx2")]
+pub mod iceoryx2;
 pub mod inproc;
 
 use h4_shared::wire::{Command, Feedback, WireMessage};

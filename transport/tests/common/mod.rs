@@ -2,6 +2,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 #![allow(dead_code)]
 
+#[macro_use]
 pub mod suite;
 
 use std::sync::atomic::{AtomicU32, Ordering};

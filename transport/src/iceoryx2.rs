@@ -1,0 +1,205 @@
+//! The iceoryx2 link: shared-memory publish-subscribe on one host. The `#[repr(C)]`
+//! [`Command`] and [`Feedback`] are written straight into shared memory (zero-copy, no
+//! encoding); the receiver still validates every message through its [`crate::gate::Gate`].
+//!
+//! Services are `<prefix>/<arm_id>/command` and `<prefix>/<arm_id>/feedback` (prefix `h4`),
+//! so several arms share a host. Receiving is a non-blocking poll, done once per control
+//! cycle: on the project's VMs waking a process on the other vCPU costs 35–110 µs, so
+//! polling from the paced loop beats an event wake-up (see `docs/transport.md`).
+//!
+//! Resources left by a killed process are removed when the next node is created (iceoryx2
+//! cleans up dead nodes on creation), and services are opened with `open_or_create`, so a
+//! restarted process re-pairs by itself.
+#![allow(unsafe_code)]
+
+use std::sync::Once;
+
+use h4_shared::wire::{Command, Feedback, WireMessage};
+use ::iceoryx2::port::publisher::Publisher;
+use ::iceoryx2::port::subscriber::Subscriber;
+use ::iceoryx2::prelude::*;
+
+use crate::{Link, LinkError};
+
+/// A message as it lies in shared memory: the wire struct itself.
+#[derive(Clone, Copy, Debug)]
+#[repr(transparent)]
+pub struct Shm<M>(pub M);
+
+// SAFETY: `Command` and `Feedback` are `#[repr(C)]`, `Copy`, hold only integers and floats
+// (no pointers, no heap, no `Drop`), and have no implicit padding (checked at compile time in
+// `h4_shared::wire`). The type names carry the protocol version so processes built with
+// another layout cannot open the same service.
+unsafe impl ZeroCopySend for Shm<Command> {
+    unsafe fn type_name() -> &'static str {
+        "h4_teleop::wire::Command.v1"
+    }
+}
+
+// SAFETY: as for `Shm<Command>`.
+unsafe impl ZeroCopySend for Shm<Feedback> {
+    unsafe fn type_name() -> &'static str {
+        "h4_teleop::wire::Feedback.v1"
+    }
+}
+
+/// Why the iceoryx2 link could not be opened.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2: {what}: {detail}")]
+pub struct Iceoryx2Error {
+    /// The step that failed.
+    pub what: &'static str,
+    /// iceoryx2's message.
+    pub detail: String,
+}
+
+fn err(what: &'static str) -> impl FnOnce(&dyn std::fmt::Debug) -> Iceoryx2Error {
+    move |e| Iceoryx2Error {
+        what,
+        detail: format!("{e:?}"),
+    }
+}
+
+/// Where the link lives.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Iceoryx2Options {
+    /// Service name prefix (default `h4`).
+    pub prefix: String,
+    /// Arm id, part of the service names.
+    pub arm_id: u16,
+    /// Messages a subscriber buffers before the oldest are overwritten.
+    pub buffer: usize,
+}
+
+impl Iceoryx2Options {
+    /// Defaults for `arm_id`.
+    pub fn new(arm_id: u16) -> Self {
+        Iceoryx2Options {
+            prefix: "h4".to_string(),
+            arm_id,
+            buffer: 16,
+        }
+    }
+}
+
+/// One end of the iceoryx2 link.
+pub struct Iceoryx2Link<Out, In>
+where
+    Shm<Out>: ZeroCopySend,
+    Shm<In>: ZeroCopySend,
+    Out: std::fmt::Debug + 'static,
+    In: std::fmt::Debug + 'static,
+{
+    publisher: Publisher<ipc::Service, Shm<Out>, ()>,
+    subscriber: Subscriber<ipc::Service, Shm<In>, ()>,
+    // Dropped last: ports belong to the node.
+    _node: Node<ipc::Service>,
+}
+
+impl<Out, In> std::fmt::Debug for Iceoryx2Link<Out, In>
+where
+    Shm<Out>: ZeroCopySend,
+    Shm<In>: ZeroCopySend,
+    Out: std::fmt::Debug + 'static,
+    In: std::fmt::Debug + 'static,
+{
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Iceoryx2Link").finish_non_exhaustive()
+    }
+}
+
+static QUIET: Once = Once::new();
+
+fn open<Out, In>(opts: &Iceoryx2Options, out_topic: &str, in_topic: &str) -> Result<Iceoryx2Link<Out, In>, Iceoryx2Error>
+where
+    Shm<Out>: ZeroCopySend,
+    Shm<In>: ZeroCopySend,
+    Out: std::fmt::Debug + 'static,
+    In: std::fmt::Debug + 'static,
+{
+    // iceoryx2 warns on every start that no config file was loaded; keep errors only
+    // unless the user asks for more with IOX2_LOG_LEVEL.
+    QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
+    let node = NodeBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| err("node")(&e))?;
+    let service = |topic: &str| -> Result<ServiceName, Iceoryx2Error> {
+        let name = format!("{}/{}/{}", opts.prefix, opts.arm_id, topic);
+        ServiceName::new(&name).map_err(|e| err("service name")(&e))
+    };
+    let out_service = node
+        .service_builder(&service(out_topic)?)
+        .publish_subscribe::<Shm<Out>>()
+        .history_size(1)
+        .subscriber_max_buffer_size(opts.buffer.max(1))
+        .enable_safe_overflow(true)
+        .max_publishers(4)
+        .max_subscribers(4)
+        .max_nodes(8)
+        .open_or_create()
+        .map_err(|e| err("open or create the outgoing service")(&e))?;
+    let in_service = node
+        .service_builder(&service(in_topic)?)
+        .publish_subscribe::<Shm<In>>()
+        .history_size(1)
+        .subscriber_max_buffer_size(opts.buffer.max(1))
+        .enable_safe_overflow(true)
+        .max_publishers(4)
+        .max_subscribers(4)
+        .max_nodes(8)
+        .open_or_create()
+        .map_err(|e| err("open or create the incoming service")(&e))?;
+    let publisher = out_service
+        .publisher_builder()
+        .create()
+        .map_err(|e| err("publisher")(&e))?;
+    let subscriber = in_service
+        .subscriber_builder()
+        .buffer_size(opts.buffer.max(1))
+        .create()
+        .map_err(|e| err("subscriber")(&e))?;
+    Ok(Iceoryx2Link {
+        publisher,
+        subscriber,
+        _node: node,
+    })
+}
+
+/// The master's end: publishes commands, receives feedback.
+pub fn master(opts: &Iceoryx2Options) -> Result<Iceoryx2Link<Command, Feedback>, Iceoryx2Error> {
+    open(opts, "command", "feedback")
+}
+
+/// The slave's end: publishes feedback, receives commands.
+pub fn slave(opts: &Iceoryx2Options) -> Result<Iceoryx2Link<Feedback, Command>, Iceoryx2Error> {
+    open(opts, "feedback", "command")
+}
+
+impl<Out, In> Link<Out, In> for Iceoryx2Link<Out, In>
+where
+    Out: WireMessage + std::fmt::Debug,
+    In: WireMessage + std::fmt::Debug,
+    Shm<Out>: ZeroCopySend,
+    Shm<In>: ZeroCopySend,
+{
+    fn publish(&mut self, msg: &Out) -> Result<(), LinkError> {
+        let failed = LinkError::SendFailed {
+            transport: "iceoryx2",
+        };
+        let sample = self.publisher.loan_uninit().map_err(|_| failed)?;
+        let sample = sample.write_payload(Shm(*msg));
+        sample.send().map_err(|_| failed)?;
+        Ok(())
+    }
+
+    fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(sample.payload().0)),
+            Ok(None) => Ok(None),
+            Err(_) => Err(LinkError::ReceiveFailed {
+                transport: "iceoryx2",
+            }),
+        }
+    }
+}
