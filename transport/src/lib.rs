@@ -9,10 +9,12 @@
 //! Publishing and receiving never block and allocate nothing per message.
 
 pub mod gate;
-pub mod impair;
 #[cfg(feature = "iceoryx2")]
 pub mod iceoryx2;
+pub mod impair;
 pub mod inproc;
+#[cfg(feature = "zenoh")]
+pub mod zenoh;
 
 use h4_shared::wire::{Command, Feedback, WireMessage};
 

@@ -1,0 +1,130 @@
+//! The link conformance suite (`tests/common`) over Zenoh (peer mode, TCP loopback, a free port
+//! per test), plus what only the byte path has: raw payloads that do not decode are counted and never
+//! delivered, and a client-mode end works like a peer.
+#![cfg(feature = "zenoh")]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+#[macro_use]
+mod common;
+
+use std::time::{Duration, Instant};
+
+use ::zenoh::Wait;
+use common::suite::{Transport, WATCHDOG, command, connect, recv_until};
+use h4_shared::wire::{Command, WireMessage};
+use h4_transport::Link;
+use h4_transport::zenoh::{MasterZenohLink, SlaveZenohLink, ZenohConfig, ZenohMode, key_expr};
+
+/// Zenoh peers: the first slave listens on a fresh loopback port, every other end connects
+/// to it (one Zenoh network per test, all arms on it).
+struct ZenohPeers;
+
+impl Transport for ZenohPeers {
+    type Master = MasterZenohLink;
+    type Slave = SlaveZenohLink;
+
+    fn open(arms: &[u16]) -> Vec<(MasterZenohLink, SlaveZenohLink)> {
+        let port = common::free_port();
+        let mut pairs = Vec::new();
+        for (i, &arm) in arms.iter().enumerate() {
+            let slave_cfg = if i == 0 {
+                ZenohConfig::listen_on_loopback(port)
+            } else {
+                ZenohConfig::connect_to_loopback(port)
+            };
+            let slave = SlaveZenohLink::open(arm, &slave_cfg).expect("slave end");
+            let master = MasterZenohLink::open(arm, &ZenohConfig::connect_to_loopback(port))
+                .expect("master end");
+            pairs.push((master, slave));
+        }
+        pairs
+    }
+
+    fn refused_by_slave_end(slave: &SlaveZenohLink) -> u64 {
+        slave.undecodable()
+    }
+}
+
+conformance_suite!(ZenohPeers);
+
+#[test]
+fn undecodable_payloads_are_counted_never_delivered() {
+    let port = common::free_port();
+    let mut slave = SlaveZenohLink::open(3, &ZenohConfig::listen_on_loopback(port)).unwrap();
+    let raw = ::zenoh::open(ZenohConfig::connect_to_loopback(port).to_zenoh().unwrap())
+        .wait()
+        .unwrap();
+    let publisher = raw
+        .declare_publisher(key_expr(3, Command::NAME))
+        .wait()
+        .unwrap();
+
+    let encode = |c: &Command| {
+        let mut bytes = vec![0u8; Command::WIRE_SIZE];
+        c.encode_into(&mut bytes).unwrap();
+        bytes
+    };
+    // Wait until the raw publisher reaches the slave.
+    let deadline = Instant::now() + WATCHDOG;
+    loop {
+        publisher.put(encode(&command(3, 1))).wait().unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+        if slave.recv_latest().unwrap().is_some() {
+            break;
+        }
+        assert!(Instant::now() < deadline, "watchdog: never connected");
+    }
+    std::thread::sleep(Duration::from_millis(20));
+    while slave.try_recv().unwrap().is_some() {}
+    assert_eq!(slave.undecodable(), 0);
+
+    let good = encode(&command(3, 50));
+    // A NaN in pose[0]: the body starts after the 8-byte header with seq and send time.
+    let mut nan = good.clone();
+    nan[24..32].copy_from_slice(&f64::NAN.to_le_bytes());
+    // Another protocol version in the header (bytes 2..4).
+    let mut version = good.clone();
+    version[2..4].copy_from_slice(&99u16.to_le_bytes());
+    let short = good[..good.len() - 1].to_vec();
+    let garbage = vec![0xA5u8; Command::WIRE_SIZE];
+    for bad in [nan, version, short, garbage] {
+        publisher.put(bad).wait().unwrap();
+    }
+    publisher.put(good).wait().unwrap();
+    let got = recv_until(&mut slave, "the valid command", |c| c.seq == 50);
+    assert_eq!(got, command(3, 50));
+    let deadline = Instant::now() + WATCHDOG;
+    while slave.undecodable() < 4 {
+        assert!(
+            Instant::now() < deadline,
+            "watchdog: {}",
+            slave.undecodable()
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(slave.undecodable(), 4);
+    assert!(slave.last_decode_error().is_some());
+    assert_eq!(slave.try_recv().unwrap(), None);
+}
+
+#[test]
+fn client_mode_end_talks_to_a_listening_peer() {
+    let port = common::free_port();
+    let mut slave = SlaveZenohLink::open(5, &ZenohConfig::listen_on_loopback(port)).unwrap();
+    let client = ZenohConfig {
+        mode: ZenohMode::Client,
+        ..ZenohConfig::connect_to_loopback(port)
+    };
+    let mut master = MasterZenohLink::open(5, &client).unwrap();
+    connect(&mut master, &mut slave, 5);
+    master.publish(&command(5, 77)).unwrap();
+    let got = recv_until(&mut slave, "command 77", |c| c.seq == 77);
+    assert_eq!(got, command(5, 77));
+}
+
+#[test]
+fn second_listener_on_a_taken_port_is_an_error() {
+    let port = common::free_port();
+    let _first = SlaveZenohLink::open(1, &ZenohConfig::listen_on_loopback(port)).unwrap();
+    assert!(SlaveZenohLink::open(1, &ZenohConfig::listen_on_loopback(port)).is_err());
+}
