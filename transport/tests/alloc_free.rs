@@ -179,3 +179,53 @@ fn impairment_allocates_nothing_per_message() {
     let g = gate.counters;
     assert!(g.accepted > CYCLES / 4 && g.stale > 0, "{g:?}");
 }
+
+/// Our iceoryx2 link adds no allocation, and receiving allocates nothing once connected;
+/// iceoryx2 0.10 itself allocates exactly one small block per published sample
+/// (`Publisher::loan_uninit` creates an `Arc` of the sample's shared state; `send_copy` goes
+/// through the same path). Pinned here so a change (a regression, or an iceoryx2 release
+/// that drops it) is noticed.
+#[cfg(feature = "iceoryx2")]
+#[test]
+fn iceoryx2_link_allocates_only_iceoryx2s_one_block_per_publish() {
+    use h4_transport::iceoryx2::{self, Iceoryx2Options};
+
+    let opts = Iceoryx2Options {
+        prefix: format!("h4_alloc_free_{}", std::process::id()),
+        ..Iceoryx2Options::new(2)
+    };
+    let mut master = iceoryx2::master(&opts).unwrap();
+    let mut slave = iceoryx2::slave(&opts).unwrap();
+    let mut gate = Gate::<Command>::new(2, 50_000_000);
+    // Warm-up: both publishers send once, so both subscribers are connected.
+    for seq in 1..=3 {
+        master.publish(&command(seq)).unwrap();
+        slave.publish(&feedback(seq)).unwrap();
+        let _ = slave.recv_latest().unwrap();
+        let _ = master.recv_latest().unwrap();
+    }
+
+    let (mut in_publish, mut in_receive, mut received) = (0u64, 0u64, 0u64);
+    for seq in 10..10 + CYCLES {
+        in_publish += allocations_in(|| master.publish(&command(seq)).unwrap());
+        in_receive += allocations_in(|| {
+            while let Some(c) = slave.try_recv().unwrap() {
+                if gate.accept(&c, seq * PERIOD_NS).is_ok() {
+                    received += 1;
+                }
+            }
+        });
+        in_publish += allocations_in(|| slave.publish(&feedback(seq)).unwrap());
+        in_receive += allocations_in(|| {
+            let _ = master.recv_latest().unwrap();
+        });
+    }
+    assert_eq!(in_receive, 0, "allocations receiving in {CYCLES} cycles");
+    assert_eq!(
+        in_publish,
+        2 * CYCLES,
+        "allocations publishing {} samples",
+        2 * CYCLES
+    );
+    assert_eq!(received, CYCLES);
+}
