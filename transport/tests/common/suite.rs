@@ -274,6 +274,44 @@ pub fn arms_do_not_interfere<T: Transport>() {
     }
 }
 
+/// While commands flow the slave's gate reports the master alive; once the master's end is
+/// dropped it stops being alive (no phantom or replayed deliveries keep it so), and receiving
+/// after the drop neither blocks nor fails.
+pub fn liveness_lost_after_peer_drop<T: Transport>() {
+    const TIMEOUT_NS: u64 = 50_000_000;
+    let (mut master, mut slave) = connected_pair::<T>(3);
+    let start = Instant::now();
+    let now_ns = || start.elapsed().as_nanos() as u64;
+    let mut gate = Gate::<Command>::new(3, 1_000_000_000);
+    let deadline = Instant::now() + WATCHDOG;
+    let mut seq = 100;
+    while !gate.alive(now_ns(), TIMEOUT_NS) {
+        assert!(
+            Instant::now() < deadline,
+            "watchdog: the master never became alive"
+        );
+        seq += 1;
+        master.publish(&command(3, seq)).expect("publish");
+        thread::sleep(Duration::from_millis(1));
+        while let Some(c) = slave.try_recv().expect("recv") {
+            let _ = gate.accept(&c, now_ns());
+        }
+    }
+    drop(master);
+    let deadline = Instant::now() + WATCHDOG;
+    while gate.alive(now_ns(), TIMEOUT_NS) {
+        assert!(
+            Instant::now() < deadline,
+            "watchdog: the master still alive after its end was dropped"
+        );
+        thread::sleep(Duration::from_millis(1));
+        while let Some(c) = slave.try_recv().expect("recv after the peer dropped") {
+            let _ = gate.accept(&c, now_ns());
+        }
+    }
+    assert_eq!(gate.counters.stale, 0, "{:?}", gate.counters);
+}
+
 /// One `#[test]` per behaviour for the [`Transport`] `$t`.
 #[macro_export]
 macro_rules! conformance_suite {
@@ -297,6 +335,10 @@ macro_rules! conformance_suite {
         #[test]
         fn arms_do_not_interfere() {
             common::suite::arms_do_not_interfere::<$t>();
+        }
+        #[test]
+        fn liveness_lost_after_peer_drop() {
+            common::suite::liveness_lost_after_peer_drop::<$t>();
         }
     };
 }
