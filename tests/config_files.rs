@@ -28,7 +28,10 @@ fn shipped_arm_configs_parse() {
 fn bad_arm_configs_are_named() {
     let path = config_dir().join("arms/prototype.toml");
     let err = config::load::<ArmConfig>(&path, &["workspace.theta_max_rad=2".into()]).unwrap_err();
-    assert!(matches!(err, ConfigError::OutOfRange { ref field, .. } if field == "workspace.theta_max_rad"), "{err}");
+    assert!(
+        matches!(err, ConfigError::OutOfRange { ref field, .. } if field == "workspace.theta_max_rad"),
+        "{err}"
+    );
     let err = config::load::<ArmConfig>(&path, &["workspace.bogus=1".into()]).unwrap_err();
     assert!(err.to_string().contains("bogus"), "{err}");
     let err = config::load::<ArmConfig>(&config_dir().join("arms/missing.toml"), &[]).unwrap_err();

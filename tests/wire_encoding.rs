@@ -3,7 +3,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use h4_shared::wire::{
-    CMD_FLAG_CLUTCH, Command, FAULT_FLAGS_KNOWN, Feedback, Mode, PROTOCOL_VERSION, SlaveState, WireError, WireMessage,
+    CMD_FLAG_CLUTCH, Command, FAULT_FLAGS_KNOWN, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
+    WireError, WireMessage,
 };
 use proptest::prelude::*;
 
