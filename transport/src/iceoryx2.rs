@@ -14,10 +14,10 @@
 
 use std::sync::Once;
 
-use h4_shared::wire::{Command, Feedback, WireMessage};
 use ::iceoryx2::port::publisher::Publisher;
 use ::iceoryx2::port::subscriber::Subscriber;
 use ::iceoryx2::prelude::*;
+use h4_shared::wire::{Command, Feedback, WireMessage};
 
 use crate::{Link, LinkError};
 
@@ -110,7 +110,11 @@ where
 
 static QUIET: Once = Once::new();
 
-fn open<Out, In>(opts: &Iceoryx2Options, out_topic: &str, in_topic: &str) -> Result<Iceoryx2Link<Out, In>, Iceoryx2Error>
+fn open<Out, In>(
+    opts: &Iceoryx2Options,
+    out_topic: &str,
+    in_topic: &str,
+) -> Result<Iceoryx2Link<Out, In>, Iceoryx2Error>
 where
     Shm<Out>: ZeroCopySend,
     Shm<In>: ZeroCopySend,
