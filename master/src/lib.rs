@@ -1,1 +1,17 @@
-//! The h4-teleop master. Not yet implemented: see the open master issue.
+//! The h4-teleop master: the operator's haptic arm, the bilateral coupling with
+//! time-domain passivity control, and the whole-session simulation.
+//!
+//! * [`device`]: [`device::HapticDevice`] (what a real driver implements) and
+//!   [`device::SimMasterArm`], a simulated H-4 family master arm.
+//! * [`operator`]: the simulated hand following a scripted intent, or replaying a trajectory.
+//! * [`coupling`]: [`coupling::MasterCoupling`], the master's pure 1 kHz step
+//!   (position–force and force-guided coupling, scaling, clutch, workspace mapping,
+//!   saturation, feedback-loss fade).
+//! * [`passivity`]: time-domain passivity observers and controllers for both ports.
+//! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
+
+pub mod coupling;
+pub mod device;
+pub mod operator;
+pub mod passivity;
+pub mod session;

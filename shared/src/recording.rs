@@ -295,3 +295,70 @@ mod tests {
         ));
     }
 }
+
+/// A recording written by its own thread: a control loop hands it one `Copy` record per cycle
+/// through a bounded queue (no allocation, no blocking; a full queue drops the record and
+/// counts it), and the thread does the JSON encoding and the file writes.
+pub struct BackgroundRecorder<T: Send + 'static> {
+    tx: Option<std::sync::mpsc::SyncSender<(u64, T)>>,
+    handle: Option<std::thread::JoinHandle<Result<(), String>>>,
+    dropped: u64,
+}
+
+impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
+    /// Starts a recorder writing one channel to `path`; with `None`, records are discarded.
+    pub fn start(
+        path: Option<&Path>,
+        topic: &str,
+        schema_name: &str,
+        json_schema: &str,
+    ) -> Result<Self, RecordingError> {
+        let Some(path) = path else {
+            return Ok(BackgroundRecorder {
+                tx: None,
+                handle: None,
+                dropped: 0,
+            });
+        };
+        let mut rec = Recorder::create(path)?;
+        let channel = rec.add_channel(topic, schema_name, json_schema)?;
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(u64, T)>(8192);
+        let handle = std::thread::spawn(move || -> Result<(), String> {
+            for (time_ns, item) in rx {
+                rec.write(channel, time_ns, &item)
+                    .map_err(|e| e.to_string())?;
+            }
+            rec.finish().map_err(|e| e.to_string())
+        });
+        Ok(BackgroundRecorder {
+            tx: Some(tx),
+            handle: Some(handle),
+            dropped: 0,
+        })
+    }
+
+    /// Queues one record stamped `time_ns`; never blocks.
+    pub fn push(&mut self, time_ns: u64, item: T) {
+        if let Some(tx) = &self.tx
+            && tx.try_send((time_ns, item)).is_err()
+        {
+            self.dropped += 1;
+        }
+    }
+
+    /// Records dropped because the writer fell behind.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// Closes the queue, waits for the writer and closes the file.
+    pub fn finish(mut self) -> Result<(), String> {
+        self.tx = None;
+        match self.handle.take() {
+            Some(h) => h
+                .join()
+                .map_err(|_| "recording thread panicked".to_string())?,
+            None => Ok(()),
+        }
+    }
+}

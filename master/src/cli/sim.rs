@@ -1,0 +1,49 @@
+//! `h4-master sim <session.toml> [--set key=value]... [--summary out.json] [--record out.mcap]`
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use h4_master::session;
+use h4_shared::recording::Recorder;
+
+/// Simulate a whole teleoperation session on the simulated clock.
+#[derive(clap::Args)]
+pub struct SimArgs {
+    /// The session file (TOML; fields in docs/sessions.md).
+    session: PathBuf,
+    /// Override a field: `--set link.delay_ms=50` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Write the summary (JSON) here; it is always printed on stdout.
+    #[arg(long, value_name = "FILE")]
+    summary: Option<PathBuf>,
+    /// Record every cycle of both sides and the link's events (MCAP).
+    #[arg(long, value_name = "FILE")]
+    record: Option<PathBuf>,
+}
+
+impl SimArgs {
+    /// Runs the session; exit code 0 if the detector says stable, 1 if not.
+    pub fn run(self) -> Result<ExitCode, String> {
+        let cfg = session::load(&self.session, &self.set).map_err(|e| e.to_string())?;
+        let mut recorder = match &self.record {
+            Some(p) => Some(Recorder::create(p).map_err(|e| e.to_string())?),
+            None => None,
+        };
+        let summary = session::run(&cfg, recorder.as_mut()).map_err(|e| e.to_string())?;
+        if let Some(r) = recorder {
+            r.finish().map_err(|e| e.to_string())?;
+        }
+        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
+        println!("{json}");
+        if let Some(p) = &self.summary {
+            std::fs::write(p, format!("{json}\n"))
+                .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+        }
+        Ok(if summary.stable {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        })
+    }
+}

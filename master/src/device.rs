@@ -1,0 +1,249 @@
+//! The operator's haptic device ([`HapticDevice`]), and a simulated H-4 family master arm
+//! behind it ([`SimMasterArm`]).
+//!
+//! The simulated master is a smaller H-4 arm (its own [`H4Params`]) used as a desktop haptic
+//! device: four carriages with mass and Coulomb + viscous friction drive the handle (the
+//! platform, with its own mass and rotational inertia) through the legs. A wrench written to
+//! the device is produced by the four motors as `τ = J⁻ᵀ F` (so the handle feels `Jᵀ τ = F`);
+//! when one motor would exceed its force limit, the whole wrench is scaled down (its
+//! direction kept, which keeps the saturation passive). The dynamics are integrated in the
+//! task space, `M(x) ẍ = F_hand + Jᵀ(τ − τ_friction) − b ẋ` with `M = M_platform + Jᵀ M_c J`,
+//! at `substeps` per 1 ms step. Units: mm, rad, N, N·mm, kg, s.
+
+use h4_shared::kinematics::{H4Params, KinError, Pose};
+use nalgebra::{Matrix4, Vector4};
+use serde::{Deserialize, Serialize};
+
+/// One reading of the device.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct DeviceState {
+    /// Time of the reading, ns.
+    pub time_ns: u64,
+    /// Handle pose `[x_mm, y_mm, z_mm, theta_rad]`, device frame.
+    pub pose: [f64; 4],
+    /// Handle velocity `[mm/s, mm/s, mm/s, rad/s]`.
+    pub velocity: [f64; 4],
+    /// The clutch button is held.
+    pub clutch: bool,
+}
+
+/// What the master needs of a haptic device: a real driver implements this.
+pub trait HapticDevice {
+    /// The latest handle pose, velocity and buttons.
+    fn read(&mut self) -> DeviceState;
+    /// The wrench `[Fx_n, Fy_n, Fz_n, My_n_mm]` to apply to the operator's hand from now on.
+    /// Returns the wrench actually commanded after the device's own force limits.
+    fn write_wrench(&mut self, wrench: &[f64; 4]) -> [f64; 4];
+}
+
+/// Parameters of the simulated master arm.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MasterArmConfig {
+    /// Geometry of the master arm (an H-4 family arm), mm.
+    pub geometry: H4Params,
+    /// Handle pose at start `[x_mm, y_mm, z_mm, theta_rad]`.
+    pub home_pose: [f64; 4],
+    /// Moving mass of each carriage, kg.
+    pub carriage_mass_kg: f64,
+    /// Mass of the platform with the handle, kg.
+    pub handle_mass_kg: f64,
+    /// Rotational inertia of the platform about y, kg·mm².
+    pub handle_inertia_kg_mm2: f64,
+    /// Coulomb friction of each carriage, N.
+    pub coulomb_friction_n: f64,
+    /// Viscous friction of each carriage, N·s/mm.
+    pub viscous_friction_n_s_per_mm: f64,
+    /// Speed below which Coulomb friction is regularised (linear), mm/s.
+    pub friction_velocity_mm_per_s: f64,
+    /// Largest force of each motor, N.
+    pub motor_force_max_n: f64,
+    /// Integration substeps per 1 ms step.
+    pub substeps: u32,
+}
+
+impl Default for MasterArmConfig {
+    fn default() -> Self {
+        MasterArmConfig {
+            geometry: H4Params::ALT,
+            home_pose: [0.0, 0.0, -220.0, 0.0],
+            carriage_mass_kg: 0.15,
+            handle_mass_kg: 0.2,
+            handle_inertia_kg_mm2: 200.0,
+            coulomb_friction_n: 0.2,
+            viscous_friction_n_s_per_mm: 0.002,
+            friction_velocity_mm_per_s: 2.0,
+            motor_force_max_n: 12.0,
+            substeps: 10,
+        }
+    }
+}
+
+/// The simulated master arm.
+#[derive(Clone, Debug)]
+pub struct SimMasterArm {
+    cfg: MasterArmConfig,
+    time_ns: u64,
+    pose: Pose,
+    vel: Pose,
+    jac: Matrix4<f64>,
+    motor_n: Vector4<f64>,
+    hand_wrench: Vector4<f64>,
+    clutch: bool,
+    kinematics_faults: u64,
+}
+
+impl SimMasterArm {
+    /// A master arm at rest at its home pose.
+    pub fn new(cfg: MasterArmConfig) -> Result<Self, KinError> {
+        cfg.geometry.validate()?;
+        let pose = Pose::from(cfg.home_pose);
+        let jac = cfg.geometry.jacobian(&pose)?;
+        cfg.geometry.ik_checked(&pose)?;
+        Ok(SimMasterArm {
+            cfg,
+            time_ns: 0,
+            pose,
+            vel: Pose::zeros(),
+            jac,
+            motor_n: Vector4::zeros(),
+            hand_wrench: Vector4::zeros(),
+            clutch: false,
+            kinematics_faults: 0,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MasterArmConfig {
+        &self.cfg
+    }
+
+    /// The operator's hand: the wrench it applies to the handle and whether it holds the
+    /// clutch button.
+    pub fn set_hand(&mut self, wrench: [f64; 4], clutch: bool) {
+        if wrench.iter().all(|w| w.is_finite()) {
+            self.hand_wrench = Vector4::from(wrench);
+        }
+        self.clutch = clutch;
+    }
+
+    /// The motors' forces, N.
+    pub fn motor_forces_n(&self) -> [f64; 4] {
+        [
+            self.motor_n[0],
+            self.motor_n[1],
+            self.motor_n[2],
+            self.motor_n[3],
+        ]
+    }
+
+    /// Re-linearisations that failed (the pose left the kinematics' domain).
+    pub fn kinematics_faults(&self) -> u64 {
+        self.kinematics_faults
+    }
+
+    /// Advances the physics by `dt_ns`.
+    pub fn advance(&mut self, dt_ns: u64) {
+        if let Ok(j) = self.cfg.geometry.jacobian(&self.pose) {
+            self.jac = j;
+        } else {
+            self.kinematics_faults += 1;
+        }
+        let j = self.jac;
+        let c = &self.cfg;
+        let mc = c.carriage_mass_kg * 1e-3;
+        let mp = c.handle_mass_kg * 1e-3;
+        let ip = c.handle_inertia_kg_mm2 * 1e-3;
+        let mass = Matrix4::from_diagonal(&Vector4::new(mp, mp, mp, ip)) + j.transpose() * j * mc;
+        let Some(inv_mass) = mass.try_inverse() else {
+            self.kinematics_faults += 1;
+            return;
+        };
+        let motor = j.transpose() * self.motor_n;
+        let n = c.substeps.max(1);
+        let dt = dt_ns as f64 * 1e-9 / f64::from(n);
+        let inv_v0 = 1.0 / c.friction_velocity_mm_per_s.max(1e-6);
+        for _ in 0..n {
+            let ld = j * self.vel;
+            let fr = ld.map(|v| {
+                c.coulomb_friction_n * (v * inv_v0).clamp(-1.0, 1.0)
+                    + c.viscous_friction_n_s_per_mm * v
+            });
+            let gen_f = self.hand_wrench + motor - j.transpose() * fr;
+            self.vel += inv_mass * gen_f * dt;
+            self.pose += self.vel * dt;
+        }
+        self.time_ns += dt_ns;
+    }
+}
+
+impl HapticDevice for SimMasterArm {
+    fn read(&mut self) -> DeviceState {
+        DeviceState {
+            time_ns: self.time_ns,
+            pose: [self.pose[0], self.pose[1], self.pose[2], self.pose[3]],
+            velocity: [self.vel[0], self.vel[1], self.vel[2], self.vel[3]],
+            clutch: self.clutch,
+        }
+    }
+
+    fn write_wrench(&mut self, wrench: &[f64; 4]) -> [f64; 4] {
+        if !wrench.iter().all(|w| w.is_finite()) {
+            self.motor_n = Vector4::zeros();
+            return [0.0; 4];
+        }
+        let Ok(inv) = self.cfg.geometry.jacobian_inverse(&self.pose) else {
+            self.motor_n = Vector4::zeros();
+            return [0.0; 4];
+        };
+        let f = Vector4::from(*wrench);
+        let tau = inv.transpose() * f;
+        let peak = tau.amax();
+        let scale = if peak > self.cfg.motor_force_max_n {
+            self.cfg.motor_force_max_n / peak
+        } else {
+            1.0
+        };
+        self.motor_n = tau * scale;
+        let out = f * scale;
+        [out[0], out[1], out[2], out[3]]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rendered_force_moves_a_free_handle_and_saturates_keeping_direction() {
+        let mut arm = SimMasterArm::new(MasterArmConfig::default()).unwrap();
+        let out = arm.write_wrench(&[0.0, 0.0, 5.0, 0.0]);
+        assert_eq!(out, [0.0, 0.0, 5.0, 0.0]);
+        for _ in 0..50 {
+            arm.advance(1_000_000);
+        }
+        let s = arm.read();
+        assert!(s.velocity[2] > 10.0, "{s:?}");
+        assert!(s.pose[0].abs() < 1e-6, "{s:?}");
+        let big = arm.write_wrench(&[300.0, 0.0, 600.0, 0.0]);
+        assert!(
+            big[2] < 600.0 && (big[0] / big[2] - 0.5).abs() < 1e-9,
+            "{big:?}"
+        );
+        assert!(arm.motor_forces_n().iter().all(|t| t.abs() <= 12.0 + 1e-9));
+    }
+
+    #[test]
+    fn friction_stops_the_handle() {
+        let mut arm = SimMasterArm::new(MasterArmConfig::default()).unwrap();
+        arm.set_hand([0.0, 0.0, 3.0, 0.0], false);
+        for _ in 0..20 {
+            arm.advance(1_000_000);
+        }
+        arm.set_hand([0.0; 4], false);
+        for _ in 0..500 {
+            arm.advance(1_000_000);
+        }
+        assert!(arm.read().velocity[2].abs() < 0.5, "{:?}", arm.read());
+    }
+}

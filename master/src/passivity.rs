@@ -1,0 +1,307 @@
+//! Time-domain passivity (Ryu–Hannaford observers and controllers, in the two-port form
+//! for delayed links of Ryu, Artigas and Preusche), reusable on both ports.
+//!
+//! Each port counts the energy that enters the link at its side (`E_in`) and the energy the
+//! link delivers at its side (`E_out`), from its *own* force and velocity, and sends both,
+//! cumulative, with every message. The link is passive if, for each direction, the energy
+//! delivered at the far end never exceeds the energy that entered at the near end:
+//!
+//! * master side (force rendered to the operator): `E_out_master(t) ≤ κ · E_in_slave(t − T)`;
+//! * slave side (motion commanded to the arm): `E_out_slave(t) ≤ E_in_master(t − T) / κ`.
+//!
+//! `κ = scale.force / scale.motion` converts slave energy to master energy (motion and force
+//! scaling change the power by that factor). Since the energies are cumulative and only grow,
+//! the latest *received* value is always a lower bound of the true one: whatever delay,
+//! jitter or loss, using it can only make the controller more conservative.
+//!
+//! * [`ImpedancePort`] (master): the input is the measured handle velocity, the output a
+//!   force; its controller adds a damping force `−α v` that dissipates exactly the deficit.
+//! * [`AdmittancePort`] (slave): the input is the measured contact force, the output a
+//!   commanded motion; its controller adds a velocity `β F` (backing away from the force)
+//!   that dissipates exactly the deficit, and an energy-bounded drift compensation pulls
+//!   the commanded position back towards the master's when the observer has energy to spare.
+//!
+//! Units: N, mm/s, s; energies in J (N·mm × 1e-3).
+
+use serde::Serialize;
+
+const J_PER_N_MM: f64 = 1e-3;
+
+/// Cumulative energy flows at one port, J.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PortEnergy {
+    /// Energy that has entered the link at this port.
+    pub in_j: f64,
+    /// Energy the link has delivered at this port.
+    pub out_j: f64,
+    /// Energy the passivity controller dissipated at this port.
+    pub dissipated_j: f64,
+}
+
+impl PortEnergy {
+    fn add_power(&mut self, power_out_n_mm_per_s: f64, dt_s: f64) {
+        let e = power_out_n_mm_per_s * dt_s * J_PER_N_MM;
+        if e >= 0.0 {
+            self.out_j += e;
+        } else {
+            self.in_j -= e;
+        }
+    }
+}
+
+fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// The master's port: observer and (force-side) passivity controller.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ImpedancePort {
+    /// Cumulative flows at this port.
+    pub energy: PortEnergy,
+    remote_in_j: f64,
+    /// Largest damping the controller may add, N·s/mm (bounds the force of one cycle).
+    pub max_damping_n_s_per_mm: f64,
+}
+
+/// What the master's port did this cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ImpedanceStep {
+    /// The force to render after the controller, N.
+    pub force_n: [f64; 3],
+    /// Damping the controller added, N·s/mm.
+    pub damping_n_s_per_mm: f64,
+    /// Observer after this cycle: `κ E_in_remote − E_out_local`, J.
+    pub observed_j: f64,
+}
+
+impl ImpedancePort {
+    /// A port whose controller adds at most `max_damping_n_s_per_mm`.
+    pub fn new(max_damping_n_s_per_mm: f64) -> Self {
+        ImpedancePort {
+            max_damping_n_s_per_mm,
+            ..ImpedancePort::default()
+        }
+    }
+
+    /// Takes the far end's cumulative input energy, already converted to this port's units
+    /// (J). Older (smaller) values than one already seen are ignored.
+    pub fn receive_remote_in(&mut self, remote_in_j: f64) {
+        if remote_in_j.is_finite() && remote_in_j > self.remote_in_j {
+            self.remote_in_j = remote_in_j;
+        }
+    }
+
+    /// The observer: energy available for output at this port, J (negative: the link has
+    /// generated energy).
+    pub fn observed_j(&self) -> f64 {
+        self.remote_in_j - self.energy.out_j
+    }
+
+    /// One cycle: `force_n` is the force the link wants rendered, `velocity_mm_per_s` the
+    /// measured handle velocity. With `control` the force is corrected so that the observer
+    /// stays ≥ 0 whenever the bounded damping suffices; without, it is only observed.
+    pub fn step(
+        &mut self,
+        force_n: [f64; 3],
+        velocity_mm_per_s: [f64; 3],
+        dt_s: f64,
+        control: bool,
+    ) -> ImpedanceStep {
+        let p0 = dot3(&force_n, &velocity_mm_per_s);
+        let v2 = dot3(&velocity_mm_per_s, &velocity_mm_per_s);
+        let mut force = force_n;
+        let mut alpha = 0.0;
+        if control && p0 > 0.0 && v2 > 1e-12 {
+            let w = self.observed_j() - p0 * dt_s * J_PER_N_MM;
+            if w < 0.0 {
+                alpha = (-w / (J_PER_N_MM * dt_s * v2)).min(self.max_damping_n_s_per_mm);
+                for (f, v) in force.iter_mut().zip(velocity_mm_per_s.iter()) {
+                    *f -= alpha * v;
+                }
+                self.energy.dissipated_j += alpha * v2 * dt_s * J_PER_N_MM;
+            }
+        }
+        ImpedanceStep {
+            force_n: force,
+            damping_n_s_per_mm: alpha,
+            observed_j: self.observed_j() - dot3(&force, &velocity_mm_per_s).max(0.0) * dt_s * 1e-3,
+        }
+    }
+
+    /// Books the force actually rendered (after saturation) against the measured velocity.
+    pub fn commit(&mut self, rendered_n: [f64; 3], velocity_mm_per_s: [f64; 3], dt_s: f64) {
+        self.energy
+            .add_power(dot3(&rendered_n, &velocity_mm_per_s), dt_s);
+    }
+}
+
+/// The slave's port: observer, (velocity-side) passivity controller and energy-bounded
+/// position-drift compensation.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct AdmittancePort {
+    /// Cumulative flows at this port.
+    pub energy: PortEnergy,
+    remote_in_j: f64,
+    /// Commanded position minus the desired one, mm (the drift the controller caused).
+    pub drift_mm: [f64; 3],
+    /// Drift compensation gain, 1/s (how fast the drift is closed when energy allows).
+    pub drift_gain_per_s: f64,
+    /// Share of the observer's surplus the drift compensation may spend per cycle (0 to 1).
+    pub drift_energy_share: f64,
+    /// Largest backing-off speed the controller may command, mm/s.
+    pub max_correction_mm_per_s: f64,
+}
+
+/// What the slave's port did this cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct AdmittanceStep {
+    /// The commanded velocity after the controller, mm/s.
+    pub velocity_mm_per_s: [f64; 3],
+    /// Admittance the controller added, mm/(N·s).
+    pub admittance_mm_per_n_s: f64,
+    /// Observer after this cycle, J.
+    pub observed_j: f64,
+}
+
+impl AdmittancePort {
+    /// A port with the given drift compensation and correction bound.
+    pub fn new(
+        drift_gain_per_s: f64,
+        drift_energy_share: f64,
+        max_correction_mm_per_s: f64,
+    ) -> Self {
+        AdmittancePort {
+            drift_gain_per_s,
+            drift_energy_share,
+            max_correction_mm_per_s,
+            ..AdmittancePort::default()
+        }
+    }
+
+    /// Takes the far end's cumulative input energy in this port's units, J.
+    pub fn receive_remote_in(&mut self, remote_in_j: f64) {
+        if remote_in_j.is_finite() && remote_in_j > self.remote_in_j {
+            self.remote_in_j = remote_in_j;
+        }
+    }
+
+    /// The observer, J.
+    pub fn observed_j(&self) -> f64 {
+        self.remote_in_j - self.energy.out_j
+    }
+
+    /// One cycle: `desired_mm_per_s` is the velocity the link asks for (the change of the
+    /// desired position), `force_n` the measured contact force on the tool (the force the
+    /// environment exerts). Returns the velocity to command; the commanded position is the
+    /// desired one plus [`AdmittancePort::drift_mm`].
+    pub fn step(
+        &mut self,
+        desired_mm_per_s: [f64; 3],
+        force_n: [f64; 3],
+        dt_s: f64,
+        control: bool,
+    ) -> AdmittanceStep {
+        let mut v = desired_mm_per_s;
+        let f2 = dot3(&force_n, &force_n);
+        // Power out of the link at this port: the commanded motion against the contact force.
+        let power = |v: &[f64; 3]| -dot3(&force_n, v);
+        let mut beta = 0.0;
+        if control {
+            // Drift compensation, paid for only from the observer's surplus.
+            let dn2 = dot3(&self.drift_mm, &self.drift_mm);
+            if dn2 > 1e-12 {
+                let mut vdc = [0.0; 3];
+                for (c, d) in vdc.iter_mut().zip(self.drift_mm.iter()) {
+                    *c = -self.drift_gain_per_s * d;
+                }
+                let budget_n_mm = (self.observed_j() - power(&v).max(0.0) * dt_s * J_PER_N_MM)
+                    .max(0.0)
+                    * self.drift_energy_share
+                    / J_PER_N_MM;
+                let extra = (power(&vdc) * dt_s).max(0.0);
+                let share = if extra > budget_n_mm {
+                    budget_n_mm / extra
+                } else {
+                    1.0
+                };
+                for (vi, c) in v.iter_mut().zip(vdc.iter()) {
+                    *vi += share * c;
+                }
+            }
+            let p0 = power(&v);
+            if p0 > 0.0 && f2 > 1e-12 {
+                let w = self.observed_j() - p0 * dt_s * J_PER_N_MM;
+                if w < 0.0 {
+                    beta = (-w / (J_PER_N_MM * dt_s * f2))
+                        .min(self.max_correction_mm_per_s / f2.sqrt());
+                    for (vi, f) in v.iter_mut().zip(force_n.iter()) {
+                        *vi += beta * f;
+                    }
+                    self.energy.dissipated_j += beta * f2 * dt_s * J_PER_N_MM;
+                }
+            }
+        }
+        for i in 0..3 {
+            self.drift_mm[i] += (v[i] - desired_mm_per_s[i]) * dt_s;
+        }
+        self.energy.add_power(power(&v), dt_s);
+        AdmittanceStep {
+            velocity_mm_per_s: v,
+            admittance_mm_per_n_s: beta,
+            observed_j: self.observed_j(),
+        }
+    }
+
+    /// Forgets the drift (after a re-anchoring that absorbs it).
+    pub fn clear_drift(&mut self) {
+        self.drift_mm = [0.0; 3];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A link that returns more energy than it received is caught and corrected: the
+    /// master's output never exceeds what the slave put in.
+    #[test]
+    fn impedance_port_never_outputs_more_than_received() {
+        let mut port = ImpedancePort::new(1e9);
+        port.receive_remote_in(0.001);
+        let dt = 0.001;
+        for _ in 0..1000 {
+            let s = port.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
+            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+        }
+        assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
+        assert!(port.energy.dissipated_j > 0.0);
+        // Without control the same input drives the observer far below zero.
+        let mut off = ImpedancePort::new(1e9);
+        off.receive_remote_in(0.001);
+        for _ in 0..1000 {
+            let s = off.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, false);
+            off.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+        }
+        assert!(off.observed_j() < -0.04, "{}", off.observed_j());
+    }
+
+    #[test]
+    fn admittance_port_backs_off_and_compensates_drift_with_budget() {
+        let mut port = AdmittancePort::new(2.0, 0.5, 1e6);
+        let dt = 0.001;
+        // Pushing into a force with no energy received: the controller stops the motion.
+        for _ in 0..100 {
+            port.step([0.0, 0.0, -5.0], [0.0, 0.0, 20.0], dt, true);
+        }
+        assert!(port.observed_j() >= -1e-12);
+        assert!(port.drift_mm[2] > 0.4, "{:?}", port.drift_mm);
+        let drift = port.drift_mm[2];
+        // Energy arrives: the drift closes.
+        port.receive_remote_in(10.0);
+        for _ in 0..3000 {
+            port.step([0.0; 3], [0.0, 0.0, 20.0], dt, true);
+        }
+        assert!(port.drift_mm[2].abs() < 0.01 * drift, "{:?}", port.drift_mm);
+        assert!(port.observed_j() >= 0.0);
+    }
+}

@@ -1,0 +1,1449 @@
+//! A whole teleoperation session on the simulated clock: the operator's hand, the master arm
+//! and its coupling, an impaired in-process link in each direction, the slave's passivity
+//! port, the slave controller and the simulated H-4 arm, stepped in lockstep at 1 kHz. The
+//! two sides share nothing but the link. A summary judges the run (with the stability
+//! detector), and an MCAP recording can hold every cycle of both sides and the link's events.
+//!
+//! Every field of a session file is documented in `docs/sessions.md`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use h4_shared::clock::{Clock, SimClock};
+use h4_shared::config::{ArmConfig, ConfigError, Validate, check_range};
+use h4_shared::kinematics::Pose;
+use h4_shared::recording::{ChannelId, Recorder, RecordingError};
+use h4_shared::rng::Rng;
+use h4_shared::wire::{Command, Feedback, Mode, PROTOCOL_VERSION, SlaveState};
+use h4_slave::controller::{
+    ControllerInput, ControllerOutput, ControllerParams, SlaveCommand, SlaveController, Status,
+};
+use h4_slave::plant::{
+    ArmDriver, Material, MaterialPreset, PlantConfig, SensorConfig, SimArm, SimError, Surface,
+    SurfaceShape,
+};
+use h4_transport::Link;
+use h4_transport::gate::Gate;
+use h4_transport::impair::{Impaired, ImpairmentConfig, LinkEvent};
+use h4_transport::inproc::{self, InprocEnd};
+use serde::{Deserialize, Serialize};
+
+use crate::coupling::{CouplingMode, CouplingParams, MasterCoupling, MasterStep};
+use crate::device::{HapticDevice, MasterArmConfig, SimMasterArm};
+use crate::operator::{HandConfig, IntentError, IntentSegment, Operator, Script};
+use crate::passivity::{AdmittancePort, AdmittanceStep};
+
+const CYCLE_NS: u64 = 1_000_000;
+const DT_S: f64 = 1e-3;
+
+/// The surface the slave touches.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvironmentConfig {
+    /// `resin` (200 N/mm), `steel` (2000 N/mm) or `aluminium` (1000 N/mm).
+    pub material: MaterialPreset,
+    /// Overrides the material's contact stiffness, N/mm (0 = the material's).
+    pub stiffness_n_per_mm: f64,
+    /// Overrides the material's contact damping ratio (negative = the material's).
+    pub damping_ratio: f64,
+    /// Overrides the material's friction coefficient (negative = the material's).
+    pub friction_coefficient: f64,
+    /// A point of the (plane) surface, slave frame, mm.
+    pub contact_point_mm: [f64; 3],
+    /// Tilt of the surface normal about y, degrees.
+    pub tilt_deg: f64,
+    /// The slave starts this far above the contact point, mm.
+    pub gap_mm: f64,
+}
+
+impl Default for EnvironmentConfig {
+    fn default() -> Self {
+        EnvironmentConfig {
+            material: MaterialPreset::Resin,
+            stiffness_n_per_mm: 0.0,
+            damping_ratio: -1.0,
+            friction_coefficient: -1.0,
+            contact_point_mm: [0.0, 0.0, -250.0],
+            tilt_deg: 0.0,
+            gap_mm: 5.0,
+        }
+    }
+}
+
+impl EnvironmentConfig {
+    /// The surface.
+    pub fn surface(&self) -> Surface {
+        let m = self.material.material();
+        let material = Material {
+            stiffness_n_per_mm: if self.stiffness_n_per_mm > 0.0 {
+                self.stiffness_n_per_mm
+            } else {
+                m.stiffness_n_per_mm
+            },
+            damping_ratio: if self.damping_ratio >= 0.0 {
+                self.damping_ratio
+            } else {
+                m.damping_ratio
+            },
+            friction_coefficient: if self.friction_coefficient >= 0.0 {
+                self.friction_coefficient
+            } else {
+                m.friction_coefficient
+            },
+        };
+        let t = self.tilt_deg.to_radians();
+        Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: self.contact_point_mm,
+                normal: [t.sin(), 0.0, t.cos()],
+            },
+            material,
+        }
+    }
+}
+
+/// Passivity control.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PassivityConfig {
+    /// Passivity controllers on both ports (`false`: observers only).
+    pub enabled: bool,
+    /// Largest damping the master's controller adds, N·s/mm.
+    pub max_damping_n_s_per_mm: f64,
+    /// Largest backing-off speed the slave's controller commands, mm/s.
+    pub max_correction_mm_per_s: f64,
+    /// Drift compensation gain, 1/s.
+    pub drift_gain_per_s: f64,
+    /// Share of the slave observer's surplus the drift compensation may spend per cycle.
+    pub drift_energy_share: f64,
+}
+
+impl Default for PassivityConfig {
+    fn default() -> Self {
+        PassivityConfig {
+            enabled: true,
+            max_damping_n_s_per_mm: 2.0,
+            max_correction_mm_per_s: 200.0,
+            drift_gain_per_s: 2.0,
+            drift_energy_share: 0.2,
+        }
+    }
+}
+
+/// The coupling.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CouplingConfig {
+    /// `position-force` or `force-guided`.
+    pub mode: CouplingMode,
+    /// Largest force rendered to the operator, N.
+    pub force_limit_n: f64,
+    /// Feedback silence after which the rendered force fades, ms.
+    pub feedback_timeout_ms: f64,
+    /// Duration of the fade, ms.
+    pub fade_ms: f64,
+    /// Force-guided: stiffness of the virtual spring the operator pushes, N/mm.
+    pub guide_stiffness_n_per_mm: f64,
+    /// Force-guided: largest contact-force set-point, N.
+    pub guide_setpoint_max_n: f64,
+    /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
+    pub guide_approach_depth_mm: f64,
+}
+
+impl Default for CouplingConfig {
+    fn default() -> Self {
+        CouplingConfig {
+            mode: CouplingMode::PositionForce,
+            force_limit_n: 30.0,
+            feedback_timeout_ms: 100.0,
+            fade_ms: 50.0,
+            guide_stiffness_n_per_mm: 1.0,
+            guide_setpoint_max_n: 50.0,
+            guide_approach_depth_mm: 20.0,
+        }
+    }
+}
+
+/// Motion and force scaling.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScaleConfig {
+    /// Slave translation per master translation.
+    pub motion: f64,
+    /// Master force per slave force.
+    pub force: f64,
+}
+
+impl Default for ScaleConfig {
+    fn default() -> Self {
+        ScaleConfig {
+            motion: 1.0,
+            force: 0.5,
+        }
+    }
+}
+
+/// The operator.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OperatorConfig {
+    /// The hand.
+    pub hand: HandConfig,
+    /// The scripted intent (ignored when `replay_file` is set).
+    pub intent: Vec<IntentSegment>,
+    /// A recorded master trajectory to replay instead (JSON lines), relative to the
+    /// session file.
+    pub replay_file: Option<PathBuf>,
+}
+
+impl Default for OperatorConfig {
+    fn default() -> Self {
+        OperatorConfig {
+            hand: HandConfig::default(),
+            intent: Vec::new(),
+            replay_file: None,
+        }
+    }
+}
+
+/// The slave side.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SlaveConfig {
+    /// The slave arm.
+    pub arm: ArmConfig,
+    /// The simulated arm.
+    pub plant: PlantConfig,
+    /// The force sensor.
+    pub sensor: SensorConfig,
+    /// The slave controller.
+    pub controller: ControllerParams,
+    /// Command silence after which the slave holds, ms.
+    pub command_timeout_ms: f64,
+}
+
+impl Default for SlaveConfig {
+    fn default() -> Self {
+        SlaveConfig {
+            arm: ArmConfig::default(),
+            plant: PlantConfig::default(),
+            sensor: SensorConfig::default(),
+            controller: ControllerParams::default(),
+            command_timeout_ms: 500.0,
+        }
+    }
+}
+
+/// The stability detector.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    /// Contact force above which the tool counts as in contact, N.
+    pub contact_threshold_n: f64,
+    /// Time constant of the moving mean the oscillation is measured around, s.
+    pub mean_time_constant_s: f64,
+    /// Contact time skipped after each touch before the early window, s.
+    pub settle_s: f64,
+    /// Length of the early and late windows of contact, s.
+    pub window_s: f64,
+    /// Late-contact oscillation (RMS around the moving mean) above which the run is unstable, N.
+    pub oscillation_limit_n: f64,
+    /// Oscillation growth (late over early) above which the run is unstable.
+    pub growth_limit: f64,
+    /// Floor of the early oscillation in the growth ratio, N (sensor noise).
+    pub oscillation_floor_n: f64,
+    /// Observer energy below −this is unstable, J.
+    pub energy_tolerance_j: f64,
+    /// Contact force above which the run is unstable, N.
+    pub force_limit_n: f64,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        DetectorConfig {
+            contact_threshold_n: 0.5,
+            mean_time_constant_s: 0.1,
+            settle_s: 0.5,
+            window_s: 2.0,
+            oscillation_limit_n: 1.5,
+            growth_limit: 3.0,
+            oscillation_floor_n: 0.2,
+            energy_tolerance_j: 0.01,
+            force_limit_n: 100.0,
+        }
+    }
+}
+
+/// One session, as read from a TOML file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SessionConfig {
+    /// Free-text name.
+    #[serde(default)]
+    pub name: String,
+    /// Seed of every random draw (sensor noise, link impairment).
+    pub seed: u64,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// Impairment of each direction of the link (`link.seed` is mixed with `seed`).
+    #[serde(default)]
+    pub link: ImpairmentConfig,
+    /// The surface.
+    #[serde(default)]
+    pub environment: EnvironmentConfig,
+    /// Passivity control.
+    #[serde(default)]
+    pub passivity: PassivityConfig,
+    /// The coupling.
+    #[serde(default)]
+    pub coupling: CouplingConfig,
+    /// Scaling.
+    #[serde(default)]
+    pub scale: ScaleConfig,
+    /// The master arm.
+    #[serde(default)]
+    pub master: MasterArmConfig,
+    /// The operator.
+    #[serde(default)]
+    pub operator: OperatorConfig,
+    /// The slave.
+    #[serde(default)]
+    pub slave: SlaveConfig,
+    /// The stability detector.
+    #[serde(default)]
+    pub detector: DetectorConfig,
+}
+
+impl Validate for SessionConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        check_range("duration_s", self.duration_s, 0.01, 3600.0, "s")?;
+        self.link.validate_at("link.")?;
+        let e = &self.environment;
+        if e.stiffness_n_per_mm != 0.0 {
+            check_range(
+                "environment.stiffness_n_per_mm",
+                e.stiffness_n_per_mm,
+                0.1,
+                1e5,
+                "N/mm (0 = the material's)",
+            )?;
+        }
+        check_range(
+            "environment.damping_ratio",
+            e.damping_ratio,
+            -1.0,
+            2.0,
+            "(negative = the material's)",
+        )?;
+        check_range(
+            "environment.friction_coefficient",
+            e.friction_coefficient,
+            -1.0,
+            2.0,
+            "(negative = the material's)",
+        )?;
+        for (i, v) in e.contact_point_mm.iter().enumerate() {
+            check_range(
+                &format!("environment.contact_point_mm[{i}]"),
+                *v,
+                -1e3,
+                1e3,
+                "mm",
+            )?;
+        }
+        check_range("environment.tilt_deg", e.tilt_deg, -45.0, 45.0, "deg")?;
+        check_range("environment.gap_mm", e.gap_mm, 0.0, 100.0, "mm")?;
+        let p = &self.passivity;
+        check_range(
+            "passivity.max_damping_n_s_per_mm",
+            p.max_damping_n_s_per_mm,
+            0.0,
+            1e3,
+            "N·s/mm",
+        )?;
+        check_range(
+            "passivity.max_correction_mm_per_s",
+            p.max_correction_mm_per_s,
+            0.0,
+            1e4,
+            "mm/s",
+        )?;
+        check_range(
+            "passivity.drift_gain_per_s",
+            p.drift_gain_per_s,
+            0.0,
+            100.0,
+            "1/s",
+        )?;
+        check_range(
+            "passivity.drift_energy_share",
+            p.drift_energy_share,
+            0.0,
+            1.0,
+            "",
+        )?;
+        let c = &self.coupling;
+        check_range("coupling.force_limit_n", c.force_limit_n, 0.0, 200.0, "N")?;
+        check_range(
+            "coupling.feedback_timeout_ms",
+            c.feedback_timeout_ms,
+            1.0,
+            1e5,
+            "ms",
+        )?;
+        check_range("coupling.fade_ms", c.fade_ms, 1.0, 1e4, "ms")?;
+        check_range(
+            "coupling.guide_stiffness_n_per_mm",
+            c.guide_stiffness_n_per_mm,
+            0.01,
+            100.0,
+            "N/mm",
+        )?;
+        check_range(
+            "coupling.guide_setpoint_max_n",
+            c.guide_setpoint_max_n,
+            0.0,
+            self.slave.controller.force_limit_n,
+            "N (up to slave.controller.force_limit_n)",
+        )?;
+        check_range(
+            "coupling.guide_approach_depth_mm",
+            c.guide_approach_depth_mm,
+            0.0,
+            100.0,
+            "mm",
+        )?;
+        check_range("scale.motion", self.scale.motion, 0.01, 100.0, "")?;
+        check_range("scale.force", self.scale.force, 0.01, 100.0, "")?;
+        let m = &self.master;
+        m.geometry.validate().map_err(|e| ConfigError::OutOfRange {
+            field: "master.geometry".into(),
+            value: String::new(),
+            allowed: e.to_string(),
+        })?;
+        for (i, v) in m.home_pose.iter().enumerate() {
+            check_range(&format!("master.home_pose[{i}]"), *v, -1e3, 1e3, "mm / rad")?;
+        }
+        check_range(
+            "master.carriage_mass_kg",
+            m.carriage_mass_kg,
+            0.001,
+            100.0,
+            "kg",
+        )?;
+        check_range(
+            "master.handle_mass_kg",
+            m.handle_mass_kg,
+            0.001,
+            100.0,
+            "kg",
+        )?;
+        check_range(
+            "master.handle_inertia_kg_mm2",
+            m.handle_inertia_kg_mm2,
+            0.1,
+            1e6,
+            "kg·mm²",
+        )?;
+        check_range(
+            "master.coulomb_friction_n",
+            m.coulomb_friction_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            "master.viscous_friction_n_s_per_mm",
+            m.viscous_friction_n_s_per_mm,
+            0.0,
+            10.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            "master.friction_velocity_mm_per_s",
+            m.friction_velocity_mm_per_s,
+            0.01,
+            100.0,
+            "mm/s",
+        )?;
+        check_range(
+            "master.motor_force_max_n",
+            m.motor_force_max_n,
+            0.0,
+            1e3,
+            "N",
+        )?;
+        check_range("master.substeps", f64::from(m.substeps), 1.0, 1000.0, "")?;
+        let h = &self.operator.hand;
+        check_range(
+            "operator.hand.hand_mass_kg",
+            h.hand_mass_kg,
+            0.01,
+            10.0,
+            "kg",
+        )?;
+        check_range(
+            "operator.hand.arm_stiffness_n_per_mm",
+            h.arm_stiffness_n_per_mm,
+            0.0,
+            100.0,
+            "N/mm",
+        )?;
+        check_range(
+            "operator.hand.arm_damping_n_s_per_mm",
+            h.arm_damping_n_s_per_mm,
+            0.0,
+            10.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            "operator.hand.grip_stiffness_n_per_mm",
+            h.grip_stiffness_n_per_mm,
+            0.01,
+            20.0,
+            "N/mm",
+        )?;
+        check_range(
+            "operator.hand.grip_damping_n_s_per_mm",
+            h.grip_damping_n_s_per_mm,
+            0.0,
+            10.0,
+            "N·s/mm",
+        )?;
+        if self.operator.replay_file.is_none() {
+            Script::Segments(self.operator.intent.clone())
+                .validate()
+                .map_err(|e| ConfigError::OutOfRange {
+                    field: "operator.intent".into(),
+                    value: String::new(),
+                    allowed: e.to_string(),
+                })?;
+        }
+        self.slave.arm.validate_at("slave.arm.")?;
+        check_range(
+            "slave.command_timeout_ms",
+            self.slave.command_timeout_ms,
+            1.0,
+            1e5,
+            "ms",
+        )?;
+        let sc = &self.slave.controller;
+        check_range(
+            "slave.controller.force_limit_n",
+            sc.force_limit_n,
+            1.0,
+            1000.0,
+            "N",
+        )?;
+        check_range(
+            "slave.controller.max_speed_mm_per_s",
+            sc.max_speed_mm_per_s,
+            1.0,
+            1000.0,
+            "mm/s",
+        )?;
+        check_range(
+            "slave.plant.servo_rate_hz",
+            self.slave.plant.servo_rate_hz,
+            1000.0,
+            1e5,
+            "Hz",
+        )?;
+        check_range(
+            "slave.sensor.sample_rate_hz",
+            self.slave.sensor.sample_rate_hz,
+            100.0,
+            1e5,
+            "Hz",
+        )?;
+        let d = &self.detector;
+        check_range(
+            "detector.contact_threshold_n",
+            d.contact_threshold_n,
+            0.01,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            "detector.mean_time_constant_s",
+            d.mean_time_constant_s,
+            0.001,
+            10.0,
+            "s",
+        )?;
+        check_range("detector.settle_s", d.settle_s, 0.0, 100.0, "s")?;
+        check_range("detector.window_s", d.window_s, 0.05, 100.0, "s")?;
+        check_range(
+            "detector.oscillation_limit_n",
+            d.oscillation_limit_n,
+            0.0,
+            1e3,
+            "N",
+        )?;
+        check_range("detector.growth_limit", d.growth_limit, 0.0, 1e3, "")?;
+        check_range(
+            "detector.oscillation_floor_n",
+            d.oscillation_floor_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            "detector.energy_tolerance_j",
+            d.energy_tolerance_j,
+            0.0,
+            1e3,
+            "J",
+        )?;
+        check_range("detector.force_limit_n", d.force_limit_n, 0.0, 1e4, "N")?;
+        Ok(())
+    }
+}
+
+/// Why a session could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    /// The configuration is not usable.
+    #[error("{0}")]
+    Config(#[from] ConfigError),
+    /// The operator's script or replay file.
+    #[error("{0}")]
+    Intent(#[from] IntentError),
+    /// The simulated slave could not be built.
+    #[error("slave simulation: {0}")]
+    Sim(#[from] SimError),
+    /// The master arm could not be built.
+    #[error("master arm: {0}")]
+    Master(h4_shared::KinError),
+    /// The recording failed.
+    #[error("{0}")]
+    Recording(#[from] RecordingError),
+    /// The link failed.
+    #[error("link: {0}")]
+    Link(#[from] h4_transport::LinkError),
+}
+
+/// Loads a session file with `--set` overrides; a relative `operator.replay_file` is
+/// resolved against the session file's directory.
+pub fn load(path: &Path, overrides: &[String]) -> Result<SessionConfig, SessionError> {
+    let mut cfg: SessionConfig = h4_shared::config::load(path, overrides)?;
+    if let Some(rf) = &cfg.operator.replay_file
+        && rf.is_relative()
+        && let Some(dir) = path.parent()
+    {
+        cfg.operator.replay_file = Some(dir.join(rf));
+    }
+    Ok(cfg)
+}
+
+/// The result of one session.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    /// The session's name.
+    pub name: String,
+    /// The detector's verdict: no growing or sustained oscillation in contact, observers
+    /// within tolerance, forces within limits, nothing diverged.
+    pub stable: bool,
+    /// Why the detector said unstable (empty when stable).
+    pub unstable_reasons: Vec<String>,
+    /// Lowest energy of the passivity observers (master and slave ports), J.
+    pub energy_min_j: f64,
+    /// Largest contact force at the slave (simulation truth), N.
+    pub max_force_n: f64,
+    /// Largest force rendered to the operator, N.
+    pub max_master_force_n: f64,
+    /// Contact-force oscillation late in contact over early (RMS around the moving mean);
+    /// < 1 means decaying.
+    pub oscillation_growth: f64,
+    /// Contact-force oscillation early in contact, N RMS.
+    pub oscillation_early_n: f64,
+    /// Contact-force oscillation late in contact, N RMS.
+    pub oscillation_late_n: f64,
+    /// Position drift the slave's passivity controller left (commanded minus desired slave
+    /// position), mean over the last 0.5 s of contact, mm.
+    pub position_drift_mm: f64,
+    /// Largest position drift during the run, mm.
+    pub position_drift_max_mm: f64,
+    /// |F_master / scale.force − F_slave| over |F_slave|, steady contact, %.
+    pub force_transparency_err_pct: f64,
+    /// RMS of |slave measured − slave desired position| in free space, mm.
+    pub position_tracking_err_mm: f64,
+    /// Energy dissipated by both passivity controllers, J.
+    pub passivity_dissipated_j: f64,
+    /// Messages lost in both directions (loss, blackouts, overflow).
+    pub packets_lost: u64,
+    /// Messages the receive gates rejected (duplicates, reordered).
+    pub packets_rejected: u64,
+    /// Mean round-trip time measured by the master from the echoed send times, ms.
+    pub rtt_mean_ms: f64,
+    /// Time in contact, s.
+    pub contact_time_s: f64,
+    /// Cycles whose command the slave controller rejected.
+    pub slave_rejected_cycles: u64,
+    /// Control cycles run (1 ms each, both sides).
+    pub cycles: u64,
+    /// Simulated time, s.
+    pub sim_time_s: f64,
+    /// Wall-clock time of the simulation, s (the only field that is not deterministic).
+    pub wall_time_s: f64,
+}
+
+#[derive(Serialize)]
+struct MasterMsg {
+    pose: [f64; 4],
+    velocity: [f64; 4],
+    hand_wrench: [f64; 4],
+    intent_target_mm: [f64; 3],
+    clutch: bool,
+    link_force_n: [f64; 3],
+    rendered_wrench: [f64; 4],
+    damping_n_s_per_mm: f64,
+    observed_j: f64,
+    fade: f64,
+    slave_target: [f64; 4],
+    setpoint_n: f64,
+    energy_in_j: f64,
+    energy_out_j: f64,
+    dissipated_j: f64,
+}
+
+#[derive(Serialize)]
+struct SlaveMsg {
+    desired_mm: [f64; 3],
+    commanded_pose: [f64; 4],
+    measured_pose: [f64; 4],
+    true_pose: [f64; 4],
+    wrench_measured: [f64; 4],
+    true_force_n: [f64; 3],
+    status: u8,
+    admittance_mm_per_n_s: f64,
+    observed_j: f64,
+    drift_mm: [f64; 3],
+    energy_in_j: f64,
+    energy_out_j: f64,
+    dissipated_j: f64,
+}
+
+#[derive(Serialize)]
+struct LinkMsg {
+    direction: &'static str,
+    event: LinkEvent,
+}
+
+const MASTER_SCHEMA: &str = r#"{"type":"object","title":"h4.MasterCycle","properties":{
+"pose":{"type":"array","items":{"type":"number"},"description":"handle [x,y,z,theta] mm, rad"},
+"velocity":{"type":"array","items":{"type":"number"}},
+"hand_wrench":{"type":"array","items":{"type":"number"},"description":"grip force on the handle, N, N·mm"},
+"intent_target_mm":{"type":"array","items":{"type":"number"}},
+"clutch":{"type":"boolean"},
+"link_force_n":{"type":"array","items":{"type":"number"},"description":"scale.force × slave force, before the passivity controller"},
+"rendered_wrench":{"type":"array","items":{"type":"number"},"description":"applied by the device, N, N·mm"},
+"damping_n_s_per_mm":{"type":"number"},
+"observed_j":{"type":"number"},
+"fade":{"type":"number"},
+"slave_target":{"type":"array","items":{"type":"number"}},
+"setpoint_n":{"type":"number"},
+"energy_in_j":{"type":"number"},"energy_out_j":{"type":"number"},"dissipated_j":{"type":"number"}}}"#;
+
+const SLAVE_SCHEMA: &str = r#"{"type":"object","title":"h4.SlaveCycle","properties":{
+"desired_mm":{"type":"array","items":{"type":"number"},"description":"position the link asks for"},
+"commanded_pose":{"type":"array","items":{"type":"number"},"description":"after the passivity controller"},
+"measured_pose":{"type":"array","items":{"type":"number"}},
+"true_pose":{"type":"array","items":{"type":"number"}},
+"wrench_measured":{"type":"array","items":{"type":"number"}},
+"true_force_n":{"type":"array","items":{"type":"number"}},
+"status":{"type":"integer"},
+"admittance_mm_per_n_s":{"type":"number"},
+"observed_j":{"type":"number"},
+"drift_mm":{"type":"array","items":{"type":"number"}},
+"energy_in_j":{"type":"number"},"energy_out_j":{"type":"number"},"dissipated_j":{"type":"number"}}}"#;
+
+const LINK_SCHEMA: &str = r#"{"type":"object","title":"h4.LinkEvent","properties":{
+"direction":{"type":"string"},
+"event":{"type":"object","properties":{"time_ns":{"type":"integer"},"seq":{"type":"integer"},"kind":{"type":"string"}}}}}"#;
+
+struct Channels {
+    master: ChannelId,
+    slave: ChannelId,
+    link: ChannelId,
+}
+
+type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
+type SlaveEnd = Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>;
+
+/// The slave side of the session: gate, passivity port, controller, arm.
+pub struct SlaveSide {
+    gate: Gate<Command>,
+    /// The slave's passivity port.
+    pub port: AdmittancePort,
+    ctrl: SlaveController,
+    /// The simulated arm.
+    pub arm: SimArm,
+    kappa: f64,
+    passivity: bool,
+    timeout_ns: u64,
+    latest: Option<Command>,
+    desired: [f64; 3],
+    desired_theta: f64,
+    started: bool,
+    last_out: Option<ControllerOutput>,
+    seq: u64,
+    last_step: AdmittanceStep,
+    last_velocity_desired: [f64; 3],
+}
+
+/// What the slave side did this cycle.
+#[derive(Clone, Copy, Debug)]
+pub struct SlaveCycle {
+    /// The controller's output.
+    pub out: ControllerOutput,
+    /// The port's step.
+    pub port: AdmittanceStep,
+    /// The desired position the link asked for, mm.
+    pub desired_mm: [f64; 3],
+    /// The mode acted on.
+    pub mode: Mode,
+}
+
+impl SlaveSide {
+    /// One slave cycle at `now_ns`: receive, passivity port, controller, arm command.
+    pub fn step<L: Link<Feedback, Command>>(
+        &mut self,
+        link: &mut L,
+        now_ns: u64,
+    ) -> Result<SlaveCycle, SessionError> {
+        let reading = self.arm.read();
+        while let Some(cmd) = link.try_recv()? {
+            if let Ok(c) = self.gate.accept(&cmd, now_ns) {
+                self.port.receive_remote_in(c.energy_in_j / self.kappa);
+                self.latest = Some(c);
+            }
+        }
+        let alive = self.gate.alive(now_ns, self.timeout_ns);
+        let (mode, clutch, setpoint, cmd_vel) = match (&self.latest, alive) {
+            (Some(c), true) => (
+                c.mode().unwrap_or(Mode::Hold),
+                c.clutch(),
+                c.force_setpoint_n,
+                c.velocity,
+            ),
+            _ => (Mode::Hold, false, 0.0, [0.0; 4]),
+        };
+        let mut v_d = [0.0; 3];
+        if let Some(c) = &self.latest
+            && alive
+            && !clutch
+            && mode != Mode::Hold
+        {
+            if !self.started {
+                self.desired = [c.pose[0], c.pose[1], c.pose[2]];
+                self.started = true;
+            }
+            for (i, v) in v_d.iter_mut().enumerate() {
+                *v = (c.pose[i] - self.desired[i]) / DT_S;
+                self.desired[i] = c.pose[i];
+            }
+            self.desired_theta = c.pose[3];
+        }
+        let force = self.last_out.map_or([0.0; 3], |o| {
+            [
+                o.wrench_measured[0],
+                o.wrench_measured[1],
+                o.wrench_measured[2],
+            ]
+        });
+        let control = self.passivity && mode == Mode::Position;
+        let ps = self.port.step(v_d, force, DT_S, control);
+        self.last_step = ps;
+        self.last_velocity_desired = v_d;
+        let pose = [
+            self.desired[0] + self.port.drift_mm[0],
+            self.desired[1] + self.port.drift_mm[1],
+            self.desired[2] + self.port.drift_mm[2],
+            self.desired_theta,
+        ];
+        let max_v = self.ctrl.params().max_speed_mm_per_s * 0.9;
+        let mut vel = [cmd_vel[0], cmd_vel[1], cmd_vel[2]];
+        if mode == Mode::Position {
+            vel = ps.velocity_mm_per_s;
+        }
+        let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
+        if speed > max_v {
+            for v in vel.iter_mut() {
+                *v *= max_v / speed;
+            }
+        }
+        let input = ControllerInput {
+            actuators_mm: reading.actuators_mm,
+            wrench: reading.wrench,
+            command: SlaveCommand {
+                mode,
+                pose,
+                velocity: [vel[0], vel[1], vel[2], 0.0],
+                force_setpoint_n: setpoint.clamp(0.0, self.ctrl.params().force_limit_n),
+                clutch,
+            },
+        };
+        let out = self.ctrl.step(&input, DT_S);
+        self.arm.command(&out.actuators_cmd_mm);
+        self.last_out = Some(out);
+        self.seq += 1;
+        let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));
+        let fb = Feedback {
+            seq: self.seq,
+            send_time_ns: now_ns,
+            echo_seq,
+            echo_send_time_ns: echo_t,
+            pose: out.measured_pose,
+            wrench_measured: out.wrench_measured,
+            wrench_desired: out.wrench_desired,
+            energy_in_j: self.port.energy.in_j,
+            energy_out_j: self.port.energy.out_j,
+            protocol_version: PROTOCOL_VERSION,
+            arm_id: 0,
+            state: if self.latest.is_some() {
+                SlaveState::Active as u8
+            } else {
+                SlaveState::Idle as u8
+            },
+            reserved: 0,
+            fault_flags: 0,
+        };
+        if fb.validate().is_ok() {
+            link.publish(&fb)?;
+        }
+        Ok(SlaveCycle {
+            out,
+            port: ps,
+            desired_mm: self.desired,
+            mode,
+        })
+    }
+}
+
+/// The master side of the session: device, operator, gate, coupling.
+pub struct MasterSide {
+    /// The simulated master arm.
+    pub device: SimMasterArm,
+    /// The operator.
+    pub operator: Operator,
+    gate: Gate<Feedback>,
+    /// The coupling.
+    pub coupling: MasterCoupling,
+    rtt_sum_ms: f64,
+    rtt_n: u64,
+}
+
+/// What the master side did this cycle.
+#[derive(Clone, Copy, Debug)]
+pub struct MasterCycle {
+    /// The coupling's step.
+    pub step: MasterStep,
+    /// The wrench the device applied.
+    pub rendered: [f64; 4],
+    /// Device state.
+    pub device: crate::device::DeviceState,
+    /// The hand.
+    pub hand: crate::operator::HandOutput,
+}
+
+impl MasterSide {
+    /// One master cycle at `now_ns`.
+    pub fn step<L: Link<Command, Feedback>>(
+        &mut self,
+        link: &mut L,
+        now_ns: u64,
+    ) -> Result<MasterCycle, SessionError> {
+        let before = self.device.read();
+        let hand = self
+            .operator
+            .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, DT_S);
+        self.device.set_hand(hand.wrench, hand.clutch);
+        let dev = self.device.read();
+        while let Some(fb) = link.try_recv()? {
+            if let Ok(f) = self.gate.accept(&fb, now_ns) {
+                self.coupling.receive(&f, now_ns);
+                if f.echo_send_time_ns > 0 {
+                    self.rtt_sum_ms += now_ns.saturating_sub(f.echo_send_time_ns) as f64 * 1e-6;
+                    self.rtt_n += 1;
+                }
+            }
+        }
+        let step = self.coupling.step(&dev, now_ns, DT_S);
+        let rendered = self.device.write_wrench(&step.wrench);
+        let cmd = self.coupling.finish(&rendered, &dev, now_ns, DT_S);
+        link.publish(&cmd)?;
+        Ok(MasterCycle {
+            step,
+            rendered,
+            device: dev,
+            hand,
+        })
+    }
+}
+
+/// A session ready to run: both sides and the link.
+pub struct Session {
+    cfg: SessionConfig,
+    clock: SimClock,
+    /// The master side.
+    pub master: MasterSide,
+    /// The slave side.
+    pub slave: SlaveSide,
+    master_end: MasterEnd,
+    slave_end: SlaveEnd,
+}
+
+fn norm3(v: &[f64]) -> f64 {
+    v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
+}
+
+impl Session {
+    /// Builds a session from a validated configuration.
+    pub fn new(cfg: &SessionConfig) -> Result<Self, SessionError> {
+        cfg.validate()?;
+        let script = match &cfg.operator.replay_file {
+            Some(path) => Script::load_replay(path)?,
+            None => Script::Segments(cfg.operator.intent.clone()),
+        };
+        script.validate()?;
+        let clock = SimClock::new();
+        let (m_end, s_end) = inproc::pair(1024);
+        let mut rng = Rng::fork(cfg.seed, cfg.link.seed);
+        let mut down = cfg.link;
+        down.seed = rng.next_u64();
+        let mut up = cfg.link;
+        up.seed = rng.next_u64();
+        let master_end = Impaired::new(m_end, clock.clone(), down, CYCLE_NS)?;
+        let slave_end = Impaired::new(s_end, clock.clone(), up, CYCLE_NS)?;
+
+        let env = &cfg.environment;
+        let ws = cfg.slave.arm.workspace();
+        let assumed = cfg.slave.arm.stiffness().map_err(SimError::from)?;
+        let p = env.contact_point_mm;
+        let slave_home = [p[0], p[1], p[2] + env.gap_mm, 0.0];
+        let arm = SimArm::new(
+            ws.params,
+            cfg.slave.arm.actuator_stiffness_n_per_mm,
+            cfg.slave.plant,
+            cfg.slave.sensor,
+            env.surface(),
+            Pose::from(slave_home),
+            cfg.seed,
+        )?;
+        let ctrl = SlaveController::new(ws, assumed, cfg.slave.controller);
+        let kappa = cfg.scale.force / cfg.scale.motion;
+        let pc = &cfg.passivity;
+        let slave = SlaveSide {
+            gate: Gate::new(0, 1_000_000_000),
+            port: AdmittancePort::new(
+                pc.drift_gain_per_s,
+                pc.drift_energy_share,
+                pc.max_correction_mm_per_s,
+            ),
+            ctrl,
+            arm,
+            kappa,
+            passivity: pc.enabled,
+            timeout_ns: (cfg.slave.command_timeout_ms * 1e6) as u64,
+            latest: None,
+            desired: [slave_home[0], slave_home[1], slave_home[2]],
+            desired_theta: 0.0,
+            started: false,
+            last_out: None,
+            seq: 0,
+            last_step: AdmittanceStep::default(),
+            last_velocity_desired: [0.0; 3],
+        };
+        let device = SimMasterArm::new(cfg.master).map_err(SessionError::Master)?;
+        let operator = Operator::new(cfg.operator.hand, script, cfg.master.home_pose);
+        let coupling = MasterCoupling::new(CouplingParams {
+            mode: cfg.coupling.mode,
+            motion_scale: cfg.scale.motion,
+            force_scale: cfg.scale.force,
+            slave_workspace: ws,
+            slave_anchor: slave_home,
+            force_limit_n: cfg.coupling.force_limit_n,
+            slave_speed_limit_mm_per_s: cfg.slave.controller.max_speed_mm_per_s * 0.9,
+            feedback_timeout_ms: cfg.coupling.feedback_timeout_ms,
+            fade_ms: cfg.coupling.fade_ms,
+            passivity: pc.enabled,
+            max_damping_n_s_per_mm: pc.max_damping_n_s_per_mm,
+            guide_stiffness_n_per_mm: cfg.coupling.guide_stiffness_n_per_mm,
+            guide_setpoint_max_n: cfg.coupling.guide_setpoint_max_n,
+            guide_approach_depth_mm: cfg.coupling.guide_approach_depth_mm,
+            arm_id: 0,
+        });
+        let master = MasterSide {
+            device,
+            operator,
+            gate: Gate::new(0, 1_000_000_000),
+            coupling,
+            rtt_sum_ms: 0.0,
+            rtt_n: 0,
+        };
+        Ok(Session {
+            cfg: cfg.clone(),
+            clock,
+            master,
+            slave,
+            master_end,
+            slave_end,
+        })
+    }
+
+    /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms.
+    pub fn cycle(&mut self) -> Result<(MasterCycle, SlaveCycle), SessionError> {
+        let now = self.clock.now_ns();
+        let m = self.master.step(&mut self.master_end, now)?;
+        let s = self.slave.step(&mut self.slave_end, now)?;
+        self.master.device.advance(CYCLE_NS);
+        self.slave.arm.advance(CYCLE_NS);
+        self.clock.advance_ns(CYCLE_NS);
+        Ok((m, s))
+    }
+
+    /// Runs the whole session; with a recorder every cycle of both sides and every link
+    /// event is recorded.
+    pub fn run(mut self, mut recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+        let cfg = self.cfg.clone();
+        let channels = match recorder.as_deref_mut() {
+            Some(r) => Some(Channels {
+                master: r.add_channel("/master/cycle", "h4.MasterCycle", MASTER_SCHEMA)?,
+                slave: r.add_channel("/slave/cycle", "h4.SlaveCycle", SLAVE_SCHEMA)?,
+                link: r.add_channel("/link/events", "h4.LinkEvent", LINK_SCHEMA)?,
+            }),
+            None => None,
+        };
+        let cycles = (cfg.duration_s * 1000.0).round() as u64;
+        let det = cfg.detector;
+        let force_scale = cfg.scale.force;
+        let mut ev = Evaluator::new(det, cycles as usize);
+        let wall = Instant::now();
+        for _ in 0..cycles {
+            let t_ns = self.clock.now_ns();
+            let (m, s) = self.cycle()?;
+            let true_w = self.slave.arm.true_contact_wrench();
+            let true_f = [true_w[0], true_w[1], true_w[2]];
+            let intent = m.hand.intent;
+            let meas = s.out.measured_pose;
+            ev.push(Sample {
+                true_force_n: norm3(&true_f),
+                master_force_n: norm3(&m.rendered),
+                transparency_abs_n: {
+                    let mut d = [0.0; 3];
+                    for (i, di) in d.iter_mut().enumerate() {
+                        *di = m.rendered[i] / force_scale - s.out.wrench_measured[i];
+                    }
+                    norm3(&d)
+                },
+                slave_force_n: norm3(&s.out.wrench_measured),
+                steady: intent.steady && !intent.clutch && !m.device.clutch,
+                observed_min_j: m.step.observed_j.min(s.port.observed_j),
+                drift_mm: norm3(&self.slave.port.drift_mm),
+                tracking_err_mm: norm3(&[
+                    meas[0] - s.desired_mm[0],
+                    meas[1] - s.desired_mm[1],
+                    meas[2] - s.desired_mm[2],
+                ]),
+                free_motion: s.mode == Mode::Position,
+                rejected: s.out.status == Status::Rejected,
+                finite: m.device.pose.iter().all(|v| v.is_finite())
+                    && meas.iter().all(|v| v.is_finite()),
+            });
+            if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
+                let t = t_ns + CYCLE_NS;
+                let me = self.master.coupling.port.energy;
+                r.write(
+                    ch.master,
+                    t,
+                    &MasterMsg {
+                        pose: m.device.pose,
+                        velocity: m.device.velocity,
+                        hand_wrench: m.hand.wrench,
+                        intent_target_mm: intent.target_mm,
+                        clutch: m.device.clutch,
+                        link_force_n: m.step.link_force_n,
+                        rendered_wrench: m.rendered,
+                        damping_n_s_per_mm: m.step.damping_n_s_per_mm,
+                        observed_j: m.step.observed_j,
+                        fade: m.step.fade,
+                        slave_target: m.step.slave_target,
+                        setpoint_n: m.step.setpoint_n,
+                        energy_in_j: me.in_j,
+                        energy_out_j: me.out_j,
+                        dissipated_j: me.dissipated_j,
+                    },
+                )?;
+                let se = self.slave.port.energy;
+                let tp = self.slave.arm.true_pose();
+                r.write(
+                    ch.slave,
+                    t,
+                    &SlaveMsg {
+                        desired_mm: s.desired_mm,
+                        commanded_pose: s.out.commanded_pose,
+                        measured_pose: meas,
+                        true_pose: [tp[0], tp[1], tp[2], tp[3]],
+                        wrench_measured: s.out.wrench_measured,
+                        true_force_n: true_f,
+                        status: s.out.status.code(),
+                        admittance_mm_per_n_s: s.port.admittance_mm_per_n_s,
+                        observed_j: s.port.observed_j,
+                        drift_mm: self.slave.port.drift_mm,
+                        energy_in_j: se.in_j,
+                        energy_out_j: se.out_j,
+                        dissipated_j: se.dissipated_j,
+                    },
+                )?;
+                let mut result = Ok(());
+                let link_ch = ch.link;
+                self.master_end.drain_events(|e| {
+                    if result.is_ok() {
+                        result = r.write(
+                            link_ch,
+                            e.time_ns.max(1),
+                            &LinkMsg {
+                                direction: "command",
+                                event: *e,
+                            },
+                        );
+                    }
+                });
+                result?;
+                let mut result = Ok(());
+                self.slave_end.drain_events(|e| {
+                    if result.is_ok() {
+                        result = r.write(
+                            link_ch,
+                            e.time_ns.max(1),
+                            &LinkMsg {
+                                direction: "feedback",
+                                event: *e,
+                            },
+                        );
+                    }
+                });
+                result?;
+            }
+        }
+        let wall_time_s = wall.elapsed().as_secs_f64();
+        let dissipated =
+            self.master.coupling.port.energy.dissipated_j + self.slave.port.energy.dissipated_j;
+        let lost = self.master_end.counters.dropped() + self.slave_end.counters.dropped();
+        let rejected = self.master.gate.counters.rejected() + self.slave.gate.counters.rejected();
+        let rtt = if self.master.rtt_n > 0 {
+            self.master.rtt_sum_ms / self.master.rtt_n as f64
+        } else {
+            f64::NAN
+        };
+        Ok(ev.finish(
+            cfg.name.clone(),
+            dissipated,
+            lost,
+            rejected,
+            rtt,
+            cycles,
+            wall_time_s,
+        ))
+    }
+}
+
+/// Runs a session from its configuration.
+pub fn run(cfg: &SessionConfig, recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+    Session::new(cfg)?.run(recorder)
+}
+
+struct Sample {
+    true_force_n: f64,
+    master_force_n: f64,
+    transparency_abs_n: f64,
+    slave_force_n: f64,
+    steady: bool,
+    observed_min_j: f64,
+    drift_mm: f64,
+    tracking_err_mm: f64,
+    free_motion: bool,
+    rejected: bool,
+    finite: bool,
+}
+
+/// Summary statistics, accumulated per cycle (the per-cycle buffers are allocated once).
+struct Evaluator {
+    det: DetectorConfig,
+    contact_residual: Vec<f64>,
+    contact_drift: Vec<f64>,
+    mean: f64,
+    in_contact_prev: bool,
+    since_touch_s: f64,
+    steady_s: f64,
+    energy_min: f64,
+    max_force: f64,
+    max_master: f64,
+    trans_abs: f64,
+    trans_ref: f64,
+    track_sq: f64,
+    track_n: u64,
+    drift_max: f64,
+    rejected: u64,
+    diverged: bool,
+}
+
+impl Evaluator {
+    fn new(det: DetectorConfig, cycles: usize) -> Self {
+        Evaluator {
+            det,
+            contact_residual: Vec::with_capacity(cycles),
+            contact_drift: Vec::with_capacity(cycles),
+            mean: 0.0,
+            in_contact_prev: false,
+            since_touch_s: 0.0,
+            steady_s: 0.0,
+            energy_min: 0.0,
+            max_force: 0.0,
+            max_master: 0.0,
+            trans_abs: 0.0,
+            trans_ref: 0.0,
+            track_sq: 0.0,
+            track_n: 0,
+            drift_max: 0.0,
+            rejected: 0,
+            diverged: false,
+        }
+    }
+
+    fn push(&mut self, s: Sample) {
+        let d = &self.det;
+        if !s.finite || !s.true_force_n.is_finite() {
+            self.diverged = true;
+            return;
+        }
+        self.energy_min = self.energy_min.min(s.observed_min_j);
+        self.max_force = self.max_force.max(s.true_force_n);
+        self.max_master = self.max_master.max(s.master_force_n);
+        self.drift_max = self.drift_max.max(s.drift_mm);
+        if s.rejected {
+            self.rejected += 1;
+        }
+        let in_contact = s.true_force_n > d.contact_threshold_n;
+        let a = (DT_S / d.mean_time_constant_s).min(1.0);
+        if in_contact {
+            if !self.in_contact_prev {
+                self.since_touch_s = 0.0;
+                self.mean = s.true_force_n;
+            }
+            self.since_touch_s += DT_S;
+            self.mean += (s.true_force_n - self.mean) * a;
+            if self.since_touch_s >= d.settle_s {
+                self.contact_residual.push(s.true_force_n - self.mean);
+                self.contact_drift.push(s.drift_mm);
+            }
+        } else {
+            self.mean = 0.0;
+            if s.free_motion && s.steady {
+                self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
+                self.track_n += 1;
+            }
+        }
+        self.in_contact_prev = in_contact;
+        self.steady_s = if s.steady { self.steady_s + DT_S } else { 0.0 };
+        if in_contact && self.steady_s >= 1.0 {
+            self.trans_abs += s.transparency_abs_n;
+            self.trans_ref += s.slave_force_n;
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        self,
+        name: String,
+        dissipated_j: f64,
+        packets_lost: u64,
+        packets_rejected: u64,
+        rtt_mean_ms: f64,
+        cycles: u64,
+        wall_time_s: f64,
+    ) -> Summary {
+        let d = self.det;
+        let win = (d.window_s / DT_S).round() as usize;
+        let n = self.contact_residual.len();
+        let rms = |s: &[f64]| {
+            if s.is_empty() {
+                0.0
+            } else {
+                (s.iter().map(|x| x * x).sum::<f64>() / s.len() as f64).sqrt()
+            }
+        };
+        let early = rms(&self.contact_residual[..win.min(n)]);
+        let late = rms(&self.contact_residual[n.saturating_sub(win)..]);
+        let growth = late / early.max(d.oscillation_floor_n);
+        let half_s = 500usize;
+        let drift_tail = &self.contact_drift[n.saturating_sub(half_s)..];
+        let drift = if drift_tail.is_empty() {
+            0.0
+        } else {
+            drift_tail.iter().sum::<f64>() / drift_tail.len() as f64
+        };
+        let mut reasons = Vec::new();
+        if self.diverged {
+            reasons.push("diverged".to_string());
+        }
+        if late > d.oscillation_limit_n {
+            reasons.push(format!(
+                "oscillation: late contact-force oscillation {late:.2} N RMS > {} N",
+                d.oscillation_limit_n
+            ));
+        }
+        if growth > d.growth_limit {
+            reasons.push(format!(
+                "growth: oscillation grew {growth:.2}x > {}x",
+                d.growth_limit
+            ));
+        }
+        if self.energy_min < -d.energy_tolerance_j {
+            reasons.push(format!(
+                "energy: observer reached {:.4} J < -{} J",
+                self.energy_min, d.energy_tolerance_j
+            ));
+        }
+        if self.max_force > d.force_limit_n {
+            reasons.push(format!(
+                "force: contact force {:.1} N > {} N",
+                self.max_force, d.force_limit_n
+            ));
+        }
+        let sim_time_s = cycles as f64 * DT_S;
+        Summary {
+            name,
+            stable: reasons.is_empty(),
+            unstable_reasons: reasons,
+            energy_min_j: self.energy_min,
+            max_force_n: self.max_force,
+            max_master_force_n: self.max_master,
+            oscillation_growth: growth,
+            oscillation_early_n: early,
+            oscillation_late_n: late,
+            position_drift_mm: drift,
+            position_drift_max_mm: self.drift_max,
+            force_transparency_err_pct: if self.trans_ref > 0.0 {
+                100.0 * self.trans_abs / self.trans_ref
+            } else {
+                f64::NAN
+            },
+            position_tracking_err_mm: if self.track_n > 0 {
+                (self.track_sq / self.track_n as f64).sqrt()
+            } else {
+                f64::NAN
+            },
+            passivity_dissipated_j: dissipated_j,
+            packets_lost,
+            packets_rejected,
+            rtt_mean_ms,
+            contact_time_s: n as f64 * DT_S,
+            slave_rejected_cycles: self.rejected,
+            cycles,
+            sim_time_s,
+            wall_time_s,
+        }
+    }
+}
