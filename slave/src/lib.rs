@@ -7,9 +7,11 @@
 //! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
 //!   implicit force control with online environment-stiffness estimation, safe stop).
 //! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
+//! * [`server`]: `h4-slave run`, the slave as a real-time process on a link.
 
 pub mod controller;
 pub mod experiment;
 pub mod filter;
 pub mod kin_tool;
 pub mod plant;
+pub mod server;

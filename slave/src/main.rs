@@ -24,6 +24,9 @@ enum Command {
     /// Runs one autonomous force-tracking experiment on the simulated clock and prints its
     /// summary as JSON (fields in docs/slave-experiments.md).
     Experiment(ExperimentArgs),
+    /// Runs the slave process: the 1 kHz force loop on the simulated arm, commanded by a
+    /// master over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
+    Run(h4_slave::server::cli::RunArgs),
 }
 
 #[derive(Debug, Args)]
@@ -95,6 +98,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Kin(args) => args.run(),
         Command::Experiment(args) => args.run(),
+        Command::Run(args) => args.run(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
