@@ -84,6 +84,9 @@ pub struct ControllerParams {
     pub estimator_excitation_n: f64,
     /// Time constant of the contact-normal filter, s.
     pub normal_time_constant_s: f64,
+    /// Time constant of the (critically damped, 2nd order) low-pass filter on the
+    /// compensation of the arm's tangential deflection, s (0.001 to 1).
+    pub deflection_comp_time_constant_s: f64,
     /// Cut-off of the filter applied to the measured position so it lines up with the
     /// force sensor's filtered signal, Hz (set it to the sensor filter's cut-off).
     pub sensor_filter_cutoff_hz: f64,
@@ -121,6 +124,7 @@ impl Default for ControllerParams {
             estimator_window_cycles: 10,
             estimator_excitation_n: 0.4,
             normal_time_constant_s: 0.1,
+            deflection_comp_time_constant_s: 0.03,
             sensor_filter_cutoff_hz: 80.0,
             tare_cycles: 100,
             safe_stop_ramp_s: 0.2,
@@ -326,6 +330,7 @@ pub struct SlaveController {
     // Command state.
     x_cmd: Pose,
     comp: Pose,
+    comp_mid: Pose,
     v_ref: Pose,
     l_cmd: [f64; 4],
     // Contact state.
@@ -375,6 +380,7 @@ impl SlaveController {
             bias: Vector4::zeros(),
             x_cmd: Pose::zeros(),
             comp: Pose::zeros(),
+            comp_mid: Pose::zeros(),
             v_ref: Pose::zeros(),
             l_cmd: [0.0; 4],
             in_contact: false,
@@ -506,6 +512,7 @@ impl SlaveController {
         // Out of force control the deflection compensation fades out (no jump).
         if !(self.in_contact && cmd.mode == Mode::ForceGuided) {
             self.comp *= COMP_FADE;
+            self.comp_mid *= COMP_FADE;
         }
 
         // Compliance of the arm at the measured pose (assumed actuator stiffness).
@@ -863,7 +870,14 @@ impl SlaveController {
             }
             None => Pose::zeros(),
         };
-        self.comp = comp_target;
+        // Low-pass (critically damped, 2nd order): the compensation is for the quasi-static
+        // deflection. Fed through at full bandwidth, the measured force's ripple would drive
+        // the arm's lightly damped tangential modes, which off the centre line push back on
+        // the normal force through the coupling of Λ (a closed loop that went unstable when
+        // tracking along y at 10 mm/s).
+        let a_comp = (dt / self.p.deflection_comp_time_constant_s.max(dt)).min(1.0);
+        self.comp_mid += (comp_target - self.comp_mid) * a_comp;
+        self.comp += (self.comp_mid - self.comp) * a_comp;
 
         // Implicit force law (incremental form: bumpless when c changes).
         let e = self.sp2 - f_n;
