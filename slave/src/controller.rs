@@ -296,6 +296,14 @@ const DEPTH_TRUST: f64 = 0.3;
 const STEADY_FORCE_CHANGE_N: f64 = 0.5;
 /// Cycles right after touching during which the normal follows the force's direction.
 const ONSET_CYCLES: u32 = 20;
+/// Force guard: ratio of an oscillation's peak to its mean cycle-to-cycle swing as the
+/// filtered sensor shows it (a sine of amplitude A near 100 Hz swings ≈ 0.4 A per 1 ms,
+/// and the 80 Hz filter shows ≈ 0.55 A of it).
+const GUARD_PEAK_PER_SWING: f64 = 5.0;
+/// Force guard: the arm may be this much stiffer than assumed.
+const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
+/// Force guard: compliance along the normal when Λ(x) cannot be evaluated, mm/N.
+const GUARD_FALLBACK_COMPLIANCE_MM_PER_N: f64 = 1e-3;
 /// The force loop's integral gain stays this factor below the contact resonance, rad/s.
 const RESONANCE_MARGIN: f64 = 4.0;
 /// Time constant of the normal estimate right after touching (force direction), s.
@@ -523,6 +531,16 @@ impl SlaveController {
         };
         let lambda: Option<Matrix3<f64>> =
             full_lambda.map(|m| m.fixed_view::<3, 3>(0, 0).into_owned());
+        // The force guard needs the arm's compliance even without the model.
+        let guard_lambda: Option<Matrix3<f64>> = match lambda {
+            Some(l) => Some(l),
+            None => self
+                .ws
+                .params
+                .compliance(&pose_fk, &self.stiffness)
+                .ok()
+                .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned()),
+        };
         let measured_pose = match &full_lambda {
             Some(full) => pose_fk + full * wrench,
             None => pose_fk,
@@ -898,8 +916,11 @@ impl SlaveController {
                 + gain_scale * (self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt));
         self.e_prev = e;
         let mut status = status;
-        if f_n > self.p.force_limit_n {
-            d_depth = -c * (f_n - self.p.force_limit_n);
+        // The force the sensor does not show yet: a resonance's peaks are filtered down
+        // (an oscillation's amplitude is a few times its mean cycle-to-cycle swing).
+        let f_peak = f_n + GUARD_PEAK_PER_SWING * self.swing;
+        if f_peak > self.p.force_limit_n {
+            d_depth = -c.max(1e-6) * (f_peak - self.p.force_limit_n);
             status = Status::ForceLimited;
         }
         let dmax = self.p.max_speed_mm_per_s * dt;
@@ -923,6 +944,9 @@ impl SlaveController {
         for i in 0..3 {
             next[i] += mv[i];
         }
+        if self.force_guard(&mut next, xf, f_peak, guard_lambda.as_ref(), dmax) {
+            status = Status::ForceLimited;
+        }
 
         // Contact loss.
         if f_n < self.p.contact_lost_n && eff.force_setpoint_n > self.p.contact_lost_n {
@@ -942,6 +966,42 @@ impl SlaveController {
             status = Status::SafeStop;
         }
         self.commit(next, pose_fk, measured_pose, wrench, c, status)
+    }
+
+    /// Force guard, a safety limiter independent of the force law (and of whether the Λ
+    /// model is used): the command may lead the encoders' position (filtered like the
+    /// sensor, so that both lag alike) into the surface only by as much as would keep the
+    /// force under the limit if the surface were rigid, the arm
+    /// [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed and the tool's mass
+    /// rang to twice the static force (a lightly damped step response). Returns whether
+    /// it clipped the command.
+    fn force_guard(
+        &self,
+        next: &mut Pose,
+        xf: [f64; 3],
+        f_peak: f64,
+        lambda: Option<&Matrix3<f64>>,
+        dmax: f64,
+    ) -> bool {
+        let n = self.normal;
+        let c_rigid = match lambda {
+            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
+        } / GUARD_ARM_STIFFNESS_MARGIN;
+        let headroom = self.p.force_limit_n - f_peak;
+        let allowed = 0.5 * headroom * c_rigid;
+        let pending = (0..3)
+            .map(|i| n[i] * (xf[i] - (next[i] + self.comp[i])))
+            .sum::<f64>();
+        if pending > allowed {
+            let back = (pending - allowed).min(dmax);
+            for i in 0..3 {
+                next[i] += n[i] * back;
+            }
+            true
+        } else {
+            false
+        }
     }
 
     fn arm_compliance(&self, lambda: Option<&Matrix3<f64>>) -> f64 {
