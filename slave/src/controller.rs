@@ -84,8 +84,9 @@ pub struct ControllerParams {
     pub estimator_excitation_n: f64,
     /// Time constant of the contact-normal filter, s.
     pub normal_time_constant_s: f64,
-    /// Time constant of the (critically damped, 2nd order) low-pass filter on the
-    /// compensation of the arm's tangential deflection, s (0.001 to 1).
+    /// Time constant of the low-pass filter on the difference between the measured force
+    /// and the prefiltered set-point in the compensation of the arm's tangential
+    /// deflection, s (0.001 to 1).
     pub deflection_comp_time_constant_s: f64,
     /// Cut-off of the filter applied to the measured position so it lines up with the
     /// force sensor's filtered signal, Hz (set it to the sensor filter's cut-off).
@@ -283,7 +284,7 @@ const WINDOW_MAX: usize = 64;
 /// Smoothing of the cycle-to-cycle force-error swing (per cycle).
 const SWING_FILTER: f64 = 0.05;
 /// Mean cycle-to-cycle swing of the force error that counts as oscillation, N.
-const SWING_LIMIT_N: f64 = 0.6;
+const SWING_LIMIT_N: f64 = 0.2;
 /// Per-cycle gain reduction while oscillating, and recovery afterwards.
 const GUARD_DECAY: f64 = 0.98;
 const GUARD_RECOVERY: f64 = 1.0005;
@@ -338,7 +339,7 @@ pub struct SlaveController {
     // Command state.
     x_cmd: Pose,
     comp: Pose,
-    comp_mid: Pose,
+    comp_err: f64,
     v_ref: Pose,
     l_cmd: [f64; 4],
     // Contact state.
@@ -388,7 +389,7 @@ impl SlaveController {
             bias: Vector4::zeros(),
             x_cmd: Pose::zeros(),
             comp: Pose::zeros(),
-            comp_mid: Pose::zeros(),
+            comp_err: 0.0,
             v_ref: Pose::zeros(),
             l_cmd: [0.0; 4],
             in_contact: false,
@@ -520,7 +521,6 @@ impl SlaveController {
         // Out of force control the deflection compensation fades out (no jump).
         if !(self.in_contact && cmd.mode == Mode::ForceGuided) {
             self.comp *= COMP_FADE;
-            self.comp_mid *= COMP_FADE;
         }
 
         // Compliance of the arm at the measured pose (assumed actuator stiffness).
@@ -716,6 +716,7 @@ impl SlaveController {
                 self.normal = f3 / f_mag;
                 self.sp1 = f_mag;
                 self.sp2 = f_mag;
+                self.comp_err = 0.0;
                 self.e_prev = 0.0;
                 self.contact_cycles = 0;
                 self.track_speed = 0.0;
@@ -877,25 +878,28 @@ impl SlaveController {
         // rotation), so the tool stays on its path and does not drag friction sideways.
         // The normal part is left to the force loop (compensating it would close a positive
         // feedback loop through the contact).
-        let comp_target = match &full_lambda {
+        // The force the compensation is for: the prefiltered set-point (smooth, no sensor
+        // lag), corrected by the low-passed difference to the measured force. Fed the
+        // measured force directly, its ripple (and its lag) would drive the arm's lightly
+        // damped tangential modes, which off the centre line push back on the normal force
+        // through the coupling of Λ (a closed loop that went unstable when tracking along
+        // y at 10 mm/s); the set-point also leads the deflection at touch-down instead of
+        // trailing it, so the tool does not slide sideways (and tilt the force by friction)
+        // while the force builds up.
+        let a_comp = (dt / self.p.deflection_comp_time_constant_s.max(dt)).min(1.0);
+        self.comp_err += ((f_n - self.sp2) - self.comp_err) * a_comp;
+        let f_comp = self.sp2 + self.comp_err;
+        self.comp = match &full_lambda {
             Some(full) => {
                 // The normal force's deflection only: friction's share is left alone, so
                 // the compensation cannot drag the tool and feed friction back into itself.
-                let d = full * Vector4::new(n[0] * f_n, n[1] * f_n, n[2] * f_n, 0.0);
+                let d = full * Vector4::new(n[0] * f_comp, n[1] * f_comp, n[2] * f_comp, 0.0);
                 let d3 = Vector3::new(d[0], d[1], d[2]);
                 let dt3 = d3 - n * d3.dot(&n);
                 Pose::new(-dt3[0], -dt3[1], -dt3[2], -d[3])
             }
             None => Pose::zeros(),
         };
-        // Low-pass (critically damped, 2nd order): the compensation is for the quasi-static
-        // deflection. Fed through at full bandwidth, the measured force's ripple would drive
-        // the arm's lightly damped tangential modes, which off the centre line push back on
-        // the normal force through the coupling of Λ (a closed loop that went unstable when
-        // tracking along y at 10 mm/s).
-        let a_comp = (dt / self.p.deflection_comp_time_constant_s.max(dt)).min(1.0);
-        self.comp_mid += (comp_target - self.comp_mid) * a_comp;
-        self.comp += (self.comp_mid - self.comp) * a_comp;
 
         // Implicit force law (incremental form: bumpless when c changes).
         let e = self.sp2 - f_n;

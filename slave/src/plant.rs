@@ -653,12 +653,16 @@ impl SimArm {
                     vs[1] - nrm[1] * vsn,
                     vs[2] - nrm[2] * vsn,
                 ];
-                let s_free = (vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]).sqrt();
+                let s2 = vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2];
                 let reach = mu * dv_n;
-                let removed = if s_free - reach >= reg {
-                    reach / s_free.max(1e-300)
+                let edge = reg + reach;
+                // Sliding on (|v_t| − reach ≥ v₀): `reach` of the speed goes; below, the
+                // damper regime. (reach / |v_t|² × |v_t|: the division and the square root
+                // run side by side, off each other's latency.)
+                let removed = if s2 >= edge * edge {
+                    (reach / s2) * s2.sqrt()
                 } else {
-                    reach / (reg + reach)
+                    reach / edge
                 };
                 for a in 0..3 {
                     let dv_t = vt[a] * removed;
