@@ -307,6 +307,9 @@ const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
 const GUARD_FALLBACK_COMPLIANCE_MM_PER_N: f64 = 1e-3;
 /// The force loop's integral gain stays this factor below the contact resonance, rad/s.
 const RESONANCE_MARGIN: f64 = 4.0;
+/// Time constant of the normal estimate at a standstill under a steady force (force
+/// direction), s.
+const STANDSTILL_NORMAL_TIME_CONSTANT_S: f64 = 0.1;
 /// Time constant of the normal estimate right after touching (force direction), s.
 const ONSET_NORMAL_TIME_CONSTANT_S: f64 = 0.01;
 /// Per-cycle fade of the deflection compensation outside force control.
@@ -800,14 +803,23 @@ impl SlaveController {
             Some(f3 - tm * f3.dot(&tm))
         } else if self.contact_cycles < ONSET_CYCLES {
             Some(f3)
+        } else if speed == 0.0 && steady && self.contact_cycles as usize >= WINDOW_MAX {
+            // At a standstill under a steady force the normal is only known to lie in the
+            // friction cone around the force; the force's direction is the best guess (the
+            // cone's centre), and it turns to the true normal as a tilted touch-down's
+            // friction relaxes. Slowly: the friction left over is not a measurement.
+            Some(f3)
         } else {
             None
         };
+        let standstill = !moving && self.contact_cycles >= ONSET_CYCLES;
         if let Some(v) = n_raw {
             let vn = v.norm();
             if vn > self.p.contact_lost_n.max(0.1) {
                 let tau = if moving {
                     self.p.normal_time_constant_s
+                } else if standstill {
+                    STANDSTILL_NORMAL_TIME_CONSTANT_S
                 } else {
                     ONSET_NORMAL_TIME_CONSTANT_S
                 };

@@ -92,13 +92,15 @@ fn paper_experiments_meet_targets_with_stiffness_30_percent_off() {
 }
 
 #[test]
-fn untuned_planes_cylinders_spheres_and_stiff_surfaces_meet_targets() {
-    let cases: [&[&str]; 5] = [
+fn untuned_planes_cylinders_spheres_stiff_soft_and_dry_surfaces_meet_targets() {
+    let cases: [&[&str]; 7] = [
         &["surface.tilt_deg=20"],
         &["surface.tilt_deg=-20"],
         &["surface.shape=cylinder", "surface.radius_mm=100"],
         &["surface.shape=sphere", "surface.radius_mm=100"],
         &["surface.stiffness_n_per_mm=2000"],
+        &["surface.stiffness_n_per_mm=50"],
+        &["surface.friction_coefficient=0.3"],
     ];
     let mut all = Vec::new();
     for base in ["fig6b.toml", "fig7d.toml"] {
