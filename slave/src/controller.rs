@@ -283,8 +283,10 @@ pub struct ControllerOutput {
 const WINDOW_MAX: usize = 64;
 /// Smoothing of the cycle-to-cycle force-error swing (per cycle).
 const SWING_FILTER: f64 = 0.05;
-/// Mean cycle-to-cycle swing of the force error that counts as oscillation, N.
-const SWING_LIMIT_N: f64 = 0.2;
+/// Mean second difference of the force error (per cycle) that counts as oscillation, N
+/// (≈ 0.2 × the amplitude the sensor shows of a 90 Hz oscillation; filtered noise gives
+/// ≈ 0.01).
+const SWING2_LIMIT_N: f64 = 0.1;
 /// Per-cycle gain reduction while oscillating, and recovery afterwards.
 const GUARD_DECAY: f64 = 0.98;
 const GUARD_RECOVERY: f64 = 1.0005;
@@ -303,6 +305,10 @@ const ONSET_CYCLES: u32 = 20;
 const GUARD_PEAK_PER_SWING: f64 = 5.0;
 /// Force guard: the arm may be this much stiffer than assumed.
 const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
+/// Force guard: estimator updates on this contact before its figure is used.
+const GUARD_TRUST_UPDATES: u32 = 10;
+/// Force guard: share of the measured compliance it counts on.
+const GUARD_MEASURED_COMPLIANCE_SHARE: f64 = 0.5;
 /// Force guard: compliance along the normal when Λ(x) cannot be evaluated, mm/N.
 const GUARD_FALLBACK_COMPLIANCE_MM_PER_N: f64 = 1e-3;
 /// The force loop's integral gain stays this factor below the contact resonance, rad/s.
@@ -356,12 +362,15 @@ pub struct SlaveController {
     sp2: f64,
     track_speed: f64,
     swing: f64,
+    swing2: f64,
+    de_prev: f64,
     gain_guard: f64,
     e_prev: f64,
     // Estimator.
     c_env: f64,
     c_tot: f64,
     p_rls: f64,
+    est_updates: u32,
     pos_filters: [Butterworth2; 3],
     hist_x: [[f64; 3]; WINDOW_MAX],
     hist_f: [Vector3<f64>; WINDOW_MAX],
@@ -405,11 +414,14 @@ impl SlaveController {
             sp2: 0.0,
             track_speed: 0.0,
             swing: 0.0,
+            swing2: 0.0,
+            de_prev: 0.0,
             gain_guard: 1.0,
             e_prev: 0.0,
             c_env,
             c_tot: c_env,
             p_rls: 100.0,
+            est_updates: 0,
             pos_filters: [pf; 3],
             hist_x: [[0.0; 3]; WINDOW_MAX],
             hist_f: [Vector3::zeros(); WINDOW_MAX],
@@ -721,9 +733,11 @@ impl SlaveController {
                 self.sp2 = f_mag;
                 self.comp_err = 0.0;
                 self.e_prev = 0.0;
+                self.de_prev = 0.0;
                 self.contact_cycles = 0;
                 self.track_speed = 0.0;
                 self.p_rls = 100.0;
+                self.est_updates = 0;
                 self.c_tot = self.arm_compliance(lambda.as_ref()) + self.c_env;
                 status = Status::Contact;
             } else {
@@ -881,6 +895,7 @@ impl SlaveController {
                 let c_min = 1.0 / self.p.env_stiffness_max_n_per_mm.max(1e-6);
                 let c_max = 1.0 / self.p.env_stiffness_min_n_per_mm.max(1e-6);
                 self.c_env = (self.c_tot - c_arm).clamp(c_min, c_max);
+                self.est_updates = self.est_updates.saturating_add(1);
             }
         }
         let c = c_arm + self.c_env;
@@ -919,9 +934,14 @@ impl SlaveController {
         // sensor noise means a resonance inside the loop (e.g. the tool's mass between the
         // arm and a stiff surface): back the loop gains off until it calms down, then let
         // them recover slowly.
-        let swing = (e - self.e_prev).abs();
-        self.swing += (swing - self.swing) * SWING_FILTER;
-        if self.swing > SWING_LIMIT_N {
+        // The detector uses the error's second difference, which a ramp (a soft surface's
+        // fast, legitimate force rise) leaves alone; the first difference's swing is kept
+        // for the force guard's estimate of an oscillation's peak.
+        let de = e - self.e_prev;
+        self.swing += (de.abs() - self.swing) * SWING_FILTER;
+        self.swing2 += ((de - self.de_prev).abs() - self.swing2) * SWING_FILTER;
+        self.de_prev = de;
+        if self.swing2 > SWING2_LIMIT_N {
             self.gain_guard = (self.gain_guard * GUARD_DECAY).max(GUARD_MIN);
         } else {
             self.gain_guard = (self.gain_guard * GUARD_RECOVERY).min(1.0);
@@ -960,7 +980,23 @@ impl SlaveController {
         for i in 0..3 {
             next[i] += mv[i];
         }
-        if self.force_guard(&mut next, xf, f_peak, guard_lambda.as_ref(), dmax) {
+        // Once the estimator has measured this contact, the guard may count on half its
+        // compliance (the contact up to twice as stiff as measured) instead of a rigid one.
+        let c_measured = if self.p.estimate_env_stiffness && self.est_updates >= GUARD_TRUST_UPDATES
+        {
+            GUARD_MEASURED_COMPLIANCE_SHARE
+                * (self.arm_compliance(guard_lambda.as_ref()) + self.c_env)
+        } else {
+            0.0
+        };
+        if self.force_guard(
+            &mut next,
+            xf,
+            f_peak,
+            guard_lambda.as_ref(),
+            c_measured,
+            dmax,
+        ) {
             status = Status::ForceLimited;
         }
 
@@ -997,13 +1033,15 @@ impl SlaveController {
         xf: [f64; 3],
         f_peak: f64,
         lambda: Option<&Matrix3<f64>>,
+        c_measured: f64,
         dmax: f64,
     ) -> bool {
         let n = self.normal;
-        let c_rigid = match lambda {
+        let c_rigid = (match lambda {
             Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
             None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
-        } / GUARD_ARM_STIFFNESS_MARGIN;
+        } / GUARD_ARM_STIFFNESS_MARGIN)
+            .max(c_measured);
         let headroom = self.p.force_limit_n - f_peak;
         let allowed = 0.5 * headroom * c_rigid;
         let pending = (0..3)

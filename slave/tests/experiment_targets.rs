@@ -118,16 +118,23 @@ fn untuned_planes_cylinders_spheres_stiff_soft_and_dry_surfaces_meet_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
-/// Known miss, kept visible: on a 5 N/mm surface the loop is stable but misses the
-/// targets (see docs/slave-results.md). Run with `cargo test -- --ignored`.
+/// Known miss, kept visible: on 20 and 5 N/mm surfaces the loop is stable and the force
+/// limit holds, but the first contact settles too slowly (20 N/mm on resin's base: 160–180
+/// ms against 150) and 5 N/mm misses overshoot and p99 (see docs/slave-results.md, "Known
+/// limits"). Run with `cargo test -- --ignored`.
 #[test]
-#[ignore = "known miss: 5 N/mm surfaces (docs/slave-results.md)"]
+#[ignore = "known miss: 5–20 N/mm surfaces (docs/slave-results.md)"]
 fn very_soft_surface_meets_targets() {
     let mut all = Vec::new();
-    for scale in ["0.7", "1.3"] {
-        let set = format!("plant.stiffness_scale={scale}");
-        let (cfg, s) = run("fig6b.toml", &["surface.stiffness_n_per_mm=5", &set]);
-        all.extend(misses(&format!("5 N/mm ×{scale}"), &cfg, &s));
+    for base in ["fig6b.toml", "fig7d.toml"] {
+        for k in ["20", "5"] {
+            for scale in ["0.7", "1.3"] {
+                let set = format!("plant.stiffness_scale={scale}");
+                let stiff = format!("surface.stiffness_n_per_mm={k}");
+                let (cfg, s) = run(base, &[&stiff, &set]);
+                all.extend(misses(&format!("{base} {k} N/mm ×{scale}"), &cfg, &s));
+            }
+        }
     }
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
