@@ -23,9 +23,73 @@
 //!
 //! Units: N, mm/s, s; energies in J (N·mm × 1e-3).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{ConfigError, check_range};
 
 const J_PER_N_MM: f64 = 1e-3;
+
+/// Passivity control settings (`passivity.*` in session files), the same on both sides.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PassivityParams {
+    /// Passivity controllers on both ports (`false`: observers only).
+    pub enabled: bool,
+    /// Largest damping the master's controller adds, N·s/mm.
+    pub max_damping_n_s_per_mm: f64,
+    /// Largest backing-off speed the slave's controller commands, mm/s.
+    pub max_correction_mm_per_s: f64,
+    /// Drift compensation gain, 1/s.
+    pub drift_gain_per_s: f64,
+    /// Share of the slave observer's surplus the drift compensation may spend per cycle.
+    pub drift_energy_share: f64,
+}
+
+impl Default for PassivityParams {
+    fn default() -> Self {
+        PassivityParams {
+            enabled: true,
+            max_damping_n_s_per_mm: 2.0,
+            max_correction_mm_per_s: 200.0,
+            drift_gain_per_s: 2.0,
+            drift_energy_share: 0.2,
+        }
+    }
+}
+
+impl PassivityParams {
+    /// Checks every field; errors name the key with `prefix` (e.g. `"passivity."`).
+    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        check_range(
+            &format!("{prefix}max_damping_n_s_per_mm"),
+            self.max_damping_n_s_per_mm,
+            0.0,
+            1e3,
+            "N·s/mm",
+        )?;
+        check_range(
+            &format!("{prefix}max_correction_mm_per_s"),
+            self.max_correction_mm_per_s,
+            0.0,
+            1e4,
+            "mm/s",
+        )?;
+        check_range(
+            &format!("{prefix}drift_gain_per_s"),
+            self.drift_gain_per_s,
+            0.0,
+            100.0,
+            "1/s",
+        )?;
+        check_range(
+            &format!("{prefix}drift_energy_share"),
+            self.drift_energy_share,
+            0.0,
+            1.0,
+            "",
+        )
+    }
+}
 
 /// Cumulative energy flows at one port, J.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -249,6 +313,13 @@ impl AdmittancePort {
             velocity_mm_per_s: v,
             admittance_mm_per_n_s: beta,
             observed_j: self.observed_j(),
+        }
+    }
+
+    /// Sets the drift (a re-anchoring that turns a gap into drift to be closed passively).
+    pub fn set_drift(&mut self, drift_mm: [f64; 3]) {
+        if drift_mm.iter().all(|d| d.is_finite()) {
+            self.drift_mm = drift_mm;
         }
     }
 
