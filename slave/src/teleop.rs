@@ -204,11 +204,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         Ok(SlaveTeleop {
             gate: Gate::new(p.arm_id, (p.restart_silence_ms * 1e6) as u64),
             watchdog: Watchdog::new(watchdog_ns),
-            port: AdmittancePort::new(
-                p.passivity.drift_gain_per_s,
-                p.passivity.drift_energy_share,
-                p.passivity.max_correction_mm_per_s,
-            ),
+            port: AdmittancePort::from_params(&p.passivity),
             ctrl,
             arm,
             state: SlaveState::Idle,
@@ -410,6 +406,16 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             self.faults &= !FAULT_FORCE_LIMIT;
         }
         self.arm.command(&out.actuators_cmd_mm);
+        // The port books the motion actually commanded (the controller's rate limits and
+        // holds included) against the force the arm measured.
+        let moved = self.last_out.map_or([0.0; 3], |o| {
+            [
+                (out.commanded_pose[0] - o.commanded_pose[0]) / dt_s,
+                (out.commanded_pose[1] - o.commanded_pose[1]) / dt_s,
+                (out.commanded_pose[2] - o.commanded_pose[2]) / dt_s,
+            ]
+        });
+        self.port.commit(force, moved, dt_s);
         self.last_out = Some(out);
         self.seq += 1;
         let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));
