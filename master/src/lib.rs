@@ -14,4 +14,5 @@ pub mod coupling;
 pub mod device;
 pub mod operator;
 pub mod passivity;
+pub mod server;
 pub mod session;

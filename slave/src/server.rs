@@ -21,7 +21,7 @@ use h4_shared::wire::{
 };
 use h4_transport::Link;
 use h4_transport::gate::{Gate, GateCounters};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::controller::{ControllerInput, SlaveCommand, SlaveController, Status};
 use crate::experiment::ExperimentConfig;
@@ -64,7 +64,8 @@ impl Default for RunOptions {
 }
 
 /// What a slave run reports when it stops.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SlaveRunSummary {
     /// Loop cycles run.
     pub cycles: u64,
