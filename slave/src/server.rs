@@ -497,6 +497,13 @@ pub mod cli {
         {
             match self.transport {
                 TransportKind::Iceoryx2 => {
+                    match iox::remove_stale_nodes() {
+                        Ok(0) => {}
+                        Ok(n) => {
+                            eprintln!("iceoryx2: removed the resources of {n} dead process(es)")
+                        }
+                        Err(e) => eprintln!("warning: {e}"),
+                    }
                     let opts = Iceoryx2Options {
                         prefix: self.iceoryx2_prefix.clone(),
                         ..Iceoryx2Options::new(self.arm_id)

@@ -50,6 +50,10 @@ pub struct LoopbackArgs {
     /// The slave's command watchdog, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
+    /// Run both loops under SCHED_FIFO at this priority (1–99; needs root or CAP_SYS_NICE,
+    /// otherwise a warning and normal scheduling).
+    #[arg(long)]
+    pub fifo_priority: Option<i32>,
 }
 
 /// What `loopback` prints.
@@ -57,11 +61,15 @@ pub struct LoopbackArgs {
 pub struct LoopbackSummary {
     /// The session's name.
     pub name: String,
-    /// The verdict: forces within limits, no safe stop, no divergence, no rejected
-    /// commands or messages, both processes ended in order.
+    /// The verdict on the physics: every force finite, the slave's true contact force within
+    /// the session's detector.force_limit_n, the rendered force within coupling.force_limit_n,
+    /// and a round trip completed.
     pub stable: bool,
     /// Why not stable (empty when stable).
     pub unstable_reasons: Vec<String>,
+    /// Fault events that are not instability: the slave's watchdog tripped (safe state),
+    /// commands the controller rejected, messages the gates rejected, feedback losses.
+    pub faults: Vec<String>,
     /// Master loop cycles.
     pub cycles: u64,
     /// Deadline misses, both loops.
@@ -132,6 +140,9 @@ impl LoopbackArgs {
         if let Some(r) = &self.record {
             cmd.arg("--record").arg(slave_recording(r));
         }
+        if let Some(p) = self.fifo_priority {
+            cmd.arg("--fifo-priority").arg(p.to_string());
+        }
         let slave = cmd
             .spawn()
             .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
@@ -164,7 +175,7 @@ impl LoopbackArgs {
             wait_for_slave_s: 20.0,
             summary: None,
             record: self.record.clone(),
-            fifo_priority: None,
+            fifo_priority: self.fifo_priority,
             lock_memory: false,
         };
         let master = master_args.run_summary();
@@ -302,23 +313,30 @@ fn combine(cfg: &SessionConfig, m: MasterRunSummary, s: SlaveRunSummary) -> Loop
             m.max_rendered_force_n, cfg.coupling.force_limit_n
         ));
     }
+    let mut faults = Vec::new();
     if s.safe_stops > 0 {
-        reasons.push(format!(
+        faults.push(format!(
             "watchdog: the slave entered its safe state {} time(s)",
             s.safe_stops
         ));
     }
     if s.commands_rejected_by_controller > 0 {
-        reasons.push(format!(
+        faults.push(format!(
             "controller: {} command(s) rejected",
             s.commands_rejected_by_controller
         ));
     }
     if s.gate.rejected() > 0 || m.feedback_invalid > 0 {
-        reasons.push(format!(
+        faults.push(format!(
             "messages: {} command(s) and {} feedback message(s) rejected",
             s.gate.rejected(),
             m.feedback_invalid
+        ));
+    }
+    if m.feedback_losses > 0 {
+        faults.push(format!(
+            "feedback: lost {} time(s), restored {} time(s)",
+            m.feedback_losses, m.feedback_restored
         ));
     }
     if m.round_trip_samples == 0 {
@@ -328,6 +346,7 @@ fn combine(cfg: &SessionConfig, m: MasterRunSummary, s: SlaveRunSummary) -> Loop
         name: cfg.name.clone(),
         stable: reasons.is_empty(),
         unstable_reasons: reasons,
+        faults,
         cycles: m.cycles,
         deadline_misses: m.deadline_misses + s.deadline_misses,
         lateness_p99_us: m.lateness_p99_us.max(s.lateness_p99_us),
