@@ -251,6 +251,18 @@ pub fn run<L: Link<Command, Feedback>>(
     opts: &MasterRunOptions,
     link: L,
 ) -> Result<MasterRunSummary, MasterRunError> {
+    run_then(cfg, opts, link, || {})
+}
+
+/// [`run`], calling `at_loop_end` as soon as the loop has stopped (before the summary and
+/// the recording are finished): `loopback` stops the slave there, before its watchdog
+/// would notice the silence.
+pub fn run_then<L: Link<Command, Feedback>>(
+    cfg: &SessionConfig,
+    opts: &MasterRunOptions,
+    link: L,
+    at_loop_end: impl FnOnce(),
+) -> Result<MasterRunSummary, MasterRunError> {
     let mut side = master_side(cfg, opts.arm_id)?;
     let mut link = Watched {
         inner: link,
@@ -396,6 +408,7 @@ pub fn run<L: Link<Command, Feedback>>(
         s.final_rendered_force_n = force;
         s.final_fade = fade;
     }
+    at_loop_end();
     status_line.finish();
     s.deadline_misses = pacer.misses;
     let h = &pacer.lateness;

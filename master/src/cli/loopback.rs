@@ -146,6 +146,7 @@ impl LoopbackArgs {
         let slave = cmd
             .spawn()
             .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
+        let slave_pid = i32::try_from(slave.id()).map_err(|e| e.to_string())?;
         // If the slave dies, the master stops too (instead of waiting for its feedback).
         let slave = Arc::new(Mutex::new(slave));
         let done = Arc::new(AtomicBool::new(false));
@@ -178,7 +179,14 @@ impl LoopbackArgs {
             fifo_priority: self.fifo_priority,
             lock_memory: false,
         };
-        let master = master_args.run_summary();
+        // The slave is told to stop the moment the master's loop ends, before its watchdog
+        // sees the master's silence.
+        let master = master_args.run_summary_then(|| {
+            // SAFETY: plain syscall; the slave is our child, reaped only in `stop_child`.
+            unsafe {
+                libc::kill(slave_pid, libc::SIGTERM);
+            }
+        });
         done.store(true, Ordering::SeqCst);
         let _ = watcher.join();
         let stopped = match slave.lock() {
@@ -231,9 +239,6 @@ fn slave_recording(master: &Path) -> PathBuf {
 
 /// SIGTERM, then up to 10 s for an orderly stop; SIGKILL after that (an error).
 fn stop_child(child: &mut Child) -> Result<(), String> {
-    if let Ok(Some(status)) = child.try_wait() {
-        return Err(format!("the slave process ended early: {status}"));
-    }
     let pid = i32::try_from(child.id()).map_err(|e| e.to_string())?;
     // SAFETY: plain syscall; `pid` is our own child, not yet reaped.
     unsafe {
@@ -398,7 +403,9 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         "h4-master: building h4-slave ({profile} profile) next to {}",
         exe.display()
     );
-    let status = std::process::Command::new(cargo)
+    let mut build = std::process::Command::new(cargo);
+    without_cargo_run_env(&mut build);
+    let status = build
         .args([
             "build",
             "-p",
@@ -418,5 +425,25 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         Ok(sibling)
     } else {
         Err(hint)
+    }
+}
+
+/// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
+/// some build scripts rerun when they change, so a nested `cargo build` would rebuild
+/// half the dependency tree and leave it dirty for the next ordinary build.
+fn without_cargo_run_env(cmd: &mut std::process::Command) {
+    for (key, _) in std::env::vars_os() {
+        let Some(k) = key.to_str() else { continue };
+        if k.starts_with("CARGO_PKG_")
+            || k.starts_with("CARGO_MANIFEST_")
+            || k.starts_with("CARGO_CRATE_")
+            || k.starts_with("CARGO_BIN_")
+            || k == "CARGO_PRIMARY_PACKAGE"
+            || k == "CARGO_TARGET_TMPDIR"
+            || k == "CARGO_RUSTC_CURRENT_DIR"
+            || k == "OUT_DIR"
+        {
+            cmd.env_remove(k);
+        }
     }
 }

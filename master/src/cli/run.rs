@@ -44,6 +44,11 @@ pub struct RunArgs {
 impl RunArgs {
     /// Runs the master until stopped and returns its summary.
     pub fn run_summary(&self) -> Result<MasterRunSummary, String> {
+        self.run_summary_then(|| {})
+    }
+
+    /// [`RunArgs::run_summary`], calling `at_loop_end` as soon as the loop has stopped.
+    pub fn run_summary_then(&self, at_loop_end: impl FnOnce()) -> Result<MasterRunSummary, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.config, &self.set)
             .map_err(|e| format!("{}: {e}", self.config.display()))?;
@@ -57,7 +62,7 @@ impl RunArgs {
             record: self.record.clone(),
             ..MasterRunOptions::default()
         };
-        server::run(&cfg, &opts, link).map_err(|e| e.to_string())
+        server::run_then(&cfg, &opts, link, at_loop_end).map_err(|e| e.to_string())
     }
 
     /// Runs the master process; prints and writes the summary.
