@@ -184,7 +184,7 @@ impl Default for ScaleConfig {
 }
 
 /// The operator.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OperatorConfig {
     /// The hand.
@@ -194,16 +194,6 @@ pub struct OperatorConfig {
     /// A recorded master trajectory to replay instead (JSON lines), relative to the
     /// session file.
     pub replay_file: Option<PathBuf>,
-}
-
-impl Default for OperatorConfig {
-    fn default() -> Self {
-        OperatorConfig {
-            hand: HandConfig::default(),
-            intent: Vec::new(),
-            replay_file: None,
-        }
-    }
 }
 
 /// The slave side.

@@ -93,6 +93,9 @@ pub struct ControllerParams {
     pub safe_stop_ramp_s: f64,
     /// Safe stop: retraction along the contact normal, mm.
     pub safe_stop_retract_mm: f64,
+    /// Safe stop out of a position-mode contact: the farthest the arm backs away along the
+    /// measured force before giving up and holding, mm.
+    pub safe_stop_release_max_mm: f64,
 }
 
 impl Default for ControllerParams {
@@ -125,6 +128,7 @@ impl Default for ControllerParams {
             tare_cycles: 100,
             safe_stop_ramp_s: 0.2,
             safe_stop_retract_mm: 3.0,
+            safe_stop_release_max_mm: 50.0,
         }
     }
 }
@@ -306,8 +310,18 @@ const MOTION_FULL_MM: f64 = 0.1;
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum SafeStopPhase {
     Inactive,
-    RampDown { remaining_s: f64, from_n: f64 },
-    Retract { remaining_mm: f64 },
+    RampDown {
+        remaining_s: f64,
+        from_n: f64,
+    },
+    Retract {
+        remaining_mm: f64,
+    },
+    /// Pressed against something without force control (position mode): back away along
+    /// the measured force until it falls below the contact threshold.
+    Release {
+        moved_mm: f64,
+    },
     Done,
 }
 
@@ -432,7 +446,9 @@ impl SlaveController {
                     from_n: self.sp2,
                 }
             } else {
-                SafeStopPhase::Done
+                // Not in force control, but possibly pressed into a surface by a position
+                // command: released in `step`, where the measured force is known.
+                SafeStopPhase::Release { moved_mm: 0.0 }
             };
             self.v_ref = Pose::zeros();
         }
@@ -580,6 +596,35 @@ impl SlaveController {
                 };
                 self.in_contact = false;
                 return self.commit(next, pose_fk, measured_pose, wrench, 0.0, Status::SafeStop);
+            }
+            SafeStopPhase::Release { moved_mm } => {
+                let f_mag = f3.norm();
+                let mut next = self.x_cmd;
+                let status = if f_mag > self.p.contact_threshold_n
+                    && moved_mm < self.p.safe_stop_release_max_mm
+                {
+                    // Back away along the measured force, as fast as a retract.
+                    let step = self.p.approach_speed_mm_per_s * 2.0 * dt;
+                    self.normal = f3 / f_mag;
+                    for i in 0..3 {
+                        next[i] += self.normal[i] * step;
+                    }
+                    self.safe = SafeStopPhase::Release {
+                        moved_mm: moved_mm + step,
+                    };
+                    Status::SafeStop
+                } else if moved_mm > 0.0 {
+                    // Free: the usual retract along the last force direction, then hold.
+                    self.safe = SafeStopPhase::Retract {
+                        remaining_mm: self.p.safe_stop_retract_mm,
+                    };
+                    Status::SafeStop
+                } else {
+                    self.safe = SafeStopPhase::Done;
+                    Status::Holding
+                };
+                self.in_contact = false;
+                return self.commit(next, pose_fk, measured_pose, wrench, 0.0, status);
             }
             SafeStopPhase::Done => {
                 self.in_contact = false;

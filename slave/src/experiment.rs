@@ -562,6 +562,13 @@ impl Validate for ExperimentConfig {
             "mm",
         )?;
         check_range(
+            "controller.safe_stop_release_max_mm",
+            c.safe_stop_release_max_mm,
+            0.0,
+            500.0,
+            "mm",
+        )?;
+        check_range(
             "summary.transient_s",
             self.summary.transient_s,
             0.0,
