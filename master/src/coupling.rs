@@ -4,7 +4,7 @@
 //!
 //! * **Position–force**: the slave follows `slave_anchor + scale.motion · (x_master −
 //!   master_anchor)`; the master renders `scale.force · F_slave` through the master port's
-//!   passivity controller ([`crate::passivity::ImpedancePort`]).
+//!   passivity controller ([`h4_shared::passivity::ImpedancePort`]).
 //! * **Force-guided** (cutting): the master's motion along the surface moves the slave along
 //!   it; the operator sets the contact-force set-point by pushing the handle into a local
 //!   virtual spring along the contact normal (`guide_stiffness_n_per_mm`): the set-point is
@@ -23,7 +23,7 @@ use h4_shared::wire::{CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION
 use serde::{Deserialize, Serialize};
 
 use crate::device::DeviceState;
-use crate::passivity::ImpedancePort;
+use h4_shared::passivity::ImpedancePort;
 
 /// Coupling mode.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -338,8 +338,9 @@ impl MasterCoupling {
             pose: t,
             velocity: [self.velocity[0], self.velocity[1], self.velocity[2], 0.0],
             force_setpoint_n: self.last.setpoint_n,
-            energy_in_j: self.port.energy.in_j,
-            energy_out_j: self.port.energy.out_j,
+            // On the wire in slave units (the slave needs no scaling).
+            energy_in_j: self.port.energy.in_j / self.kappa(),
+            energy_out_j: self.port.energy.out_j / self.kappa(),
             protocol_version: PROTOCOL_VERSION,
             arm_id: self.p.arm_id,
             mode: mode as u8,

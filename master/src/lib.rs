@@ -7,12 +7,11 @@
 //! * [`coupling`]: [`coupling::MasterCoupling`], the master's pure 1 kHz step
 //!   (position–force and force-guided coupling, scaling, clutch, workspace mapping,
 //!   saturation, feedback-loss fade).
-//! * [`passivity`]: time-domain passivity observers and controllers for both ports.
+//! * passivity: `h4_shared::passivity` (both sides use it).
 //! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
 
 pub mod coupling;
 pub mod device;
 pub mod operator;
-pub mod passivity;
 pub mod server;
 pub mod session;

@@ -12,16 +12,15 @@ use std::time::Instant;
 use h4_shared::clock::{Clock, SimClock};
 use h4_shared::config::{ArmConfig, ConfigError, Validate, check_range};
 use h4_shared::kinematics::Pose;
+use h4_shared::passivity::PassivityParams;
 use h4_shared::recording::{ChannelId, Recorder, RecordingError};
 use h4_shared::rng::Rng;
-use h4_shared::wire::{Command, Feedback, Mode, PROTOCOL_VERSION, SlaveState};
-use h4_slave::controller::{
-    ControllerInput, ControllerOutput, ControllerParams, SlaveCommand, SlaveController, Status,
-};
+use h4_shared::wire::{Command, Feedback, Mode};
+use h4_slave::controller::{ControllerParams, SlaveController, Status};
 use h4_slave::plant::{
-    ArmDriver, Material, MaterialPreset, PlantConfig, SensorConfig, SimArm, SimError, Surface,
-    SurfaceShape,
+    Material, MaterialPreset, PlantConfig, SensorConfig, SimArm, SimError, Surface, SurfaceShape,
 };
+use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError, TeleopParams};
 use h4_transport::Link;
 use h4_transport::gate::Gate;
 use h4_transport::impair::{Impaired, ImpairmentConfig, LinkEvent};
@@ -31,7 +30,6 @@ use serde::{Deserialize, Serialize};
 use crate::coupling::{CouplingMode, CouplingParams, MasterCoupling, MasterStep};
 use crate::device::{HapticDevice, MasterArmConfig, SimMasterArm};
 use crate::operator::{HandConfig, IntentError, IntentSegment, Operator, Script};
-use crate::passivity::{AdmittancePort, AdmittanceStep};
 
 const CYCLE_NS: u64 = 1_000_000;
 const DT_S: f64 = 1e-3;
@@ -102,33 +100,8 @@ impl EnvironmentConfig {
     }
 }
 
-/// Passivity control.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PassivityConfig {
-    /// Passivity controllers on both ports (`false`: observers only).
-    pub enabled: bool,
-    /// Largest damping the master's controller adds, N·s/mm.
-    pub max_damping_n_s_per_mm: f64,
-    /// Largest backing-off speed the slave's controller commands, mm/s.
-    pub max_correction_mm_per_s: f64,
-    /// Drift compensation gain, 1/s.
-    pub drift_gain_per_s: f64,
-    /// Share of the slave observer's surplus the drift compensation may spend per cycle.
-    pub drift_energy_share: f64,
-}
-
-impl Default for PassivityConfig {
-    fn default() -> Self {
-        PassivityConfig {
-            enabled: true,
-            max_damping_n_s_per_mm: 2.0,
-            max_correction_mm_per_s: 200.0,
-            drift_gain_per_s: 2.0,
-            drift_energy_share: 0.2,
-        }
-    }
-}
+/// Passivity control (`passivity.*`): the same settings on both sides.
+pub type PassivityConfig = PassivityParams;
 
 /// The coupling.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -343,35 +316,7 @@ impl Validate for SessionConfig {
         }
         check_range("environment.tilt_deg", e.tilt_deg, -45.0, 45.0, "deg")?;
         check_range("environment.gap_mm", e.gap_mm, 0.0, 100.0, "mm")?;
-        let p = &self.passivity;
-        check_range(
-            "passivity.max_damping_n_s_per_mm",
-            p.max_damping_n_s_per_mm,
-            0.0,
-            1e3,
-            "N·s/mm",
-        )?;
-        check_range(
-            "passivity.max_correction_mm_per_s",
-            p.max_correction_mm_per_s,
-            0.0,
-            1e4,
-            "mm/s",
-        )?;
-        check_range(
-            "passivity.drift_gain_per_s",
-            p.drift_gain_per_s,
-            0.0,
-            100.0,
-            "1/s",
-        )?;
-        check_range(
-            "passivity.drift_energy_share",
-            p.drift_energy_share,
-            0.0,
-            1.0,
-            "",
-        )?;
+        self.passivity.validate_at("passivity.")?;
         let c = &self.coupling;
         check_range("coupling.force_limit_n", c.force_limit_n, 0.0, 200.0, "N")?;
         check_range(
@@ -608,6 +553,9 @@ pub enum SessionError {
     /// The recording failed.
     #[error("{0}")]
     Recording(#[from] RecordingError),
+    /// The slave's endpoint could not be built.
+    #[error("{0}")]
+    Teleop(#[from] TeleopError),
     /// The link failed.
     #[error("link: {0}")]
     Link(#[from] h4_transport::LinkError),
@@ -761,156 +709,6 @@ struct Channels {
 type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
 type SlaveEnd = Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>;
 
-/// The slave side of the session: gate, passivity port, controller, arm.
-pub struct SlaveSide {
-    gate: Gate<Command>,
-    /// The slave's passivity port.
-    pub port: AdmittancePort,
-    ctrl: SlaveController,
-    /// The simulated arm.
-    pub arm: SimArm,
-    kappa: f64,
-    passivity: bool,
-    timeout_ns: u64,
-    latest: Option<Command>,
-    desired: [f64; 3],
-    desired_theta: f64,
-    started: bool,
-    last_out: Option<ControllerOutput>,
-    seq: u64,
-    last_step: AdmittanceStep,
-    last_velocity_desired: [f64; 3],
-}
-
-/// What the slave side did this cycle.
-#[derive(Clone, Copy, Debug)]
-pub struct SlaveCycle {
-    /// The controller's output.
-    pub out: ControllerOutput,
-    /// The port's step.
-    pub port: AdmittanceStep,
-    /// The desired position the link asked for, mm.
-    pub desired_mm: [f64; 3],
-    /// The mode acted on.
-    pub mode: Mode,
-}
-
-impl SlaveSide {
-    /// One slave cycle at `now_ns`: receive, passivity port, controller, arm command.
-    pub fn step<L: Link<Feedback, Command>>(
-        &mut self,
-        link: &mut L,
-        now_ns: u64,
-    ) -> Result<SlaveCycle, SessionError> {
-        let reading = self.arm.read();
-        while let Some(cmd) = link.try_recv()? {
-            if let Ok(c) = self.gate.accept(&cmd, now_ns) {
-                self.port.receive_remote_in(c.energy_in_j / self.kappa);
-                self.latest = Some(c);
-            }
-        }
-        let alive = self.gate.alive(now_ns, self.timeout_ns);
-        let (mode, clutch, setpoint, cmd_vel) = match (&self.latest, alive) {
-            (Some(c), true) => (
-                c.mode().unwrap_or(Mode::Hold),
-                c.clutch(),
-                c.force_setpoint_n,
-                c.velocity,
-            ),
-            _ => (Mode::Hold, false, 0.0, [0.0; 4]),
-        };
-        let mut v_d = [0.0; 3];
-        if let Some(c) = &self.latest
-            && alive
-            && !clutch
-            && mode != Mode::Hold
-        {
-            if !self.started {
-                self.desired = [c.pose[0], c.pose[1], c.pose[2]];
-                self.started = true;
-            }
-            for (i, v) in v_d.iter_mut().enumerate() {
-                *v = (c.pose[i] - self.desired[i]) / DT_S;
-                self.desired[i] = c.pose[i];
-            }
-            self.desired_theta = c.pose[3];
-        }
-        let force = self.last_out.map_or([0.0; 3], |o| {
-            [
-                o.wrench_measured[0],
-                o.wrench_measured[1],
-                o.wrench_measured[2],
-            ]
-        });
-        let control = self.passivity && mode == Mode::Position;
-        let ps = self.port.step(v_d, force, DT_S, control);
-        self.last_step = ps;
-        self.last_velocity_desired = v_d;
-        let pose = [
-            self.desired[0] + self.port.drift_mm[0],
-            self.desired[1] + self.port.drift_mm[1],
-            self.desired[2] + self.port.drift_mm[2],
-            self.desired_theta,
-        ];
-        let max_v = self.ctrl.params().max_speed_mm_per_s * 0.9;
-        let mut vel = [cmd_vel[0], cmd_vel[1], cmd_vel[2]];
-        if mode == Mode::Position {
-            vel = ps.velocity_mm_per_s;
-        }
-        let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
-        if speed > max_v {
-            for v in vel.iter_mut() {
-                *v *= max_v / speed;
-            }
-        }
-        let input = ControllerInput {
-            actuators_mm: reading.actuators_mm,
-            wrench: reading.wrench,
-            command: SlaveCommand {
-                mode,
-                pose,
-                velocity: [vel[0], vel[1], vel[2], 0.0],
-                force_setpoint_n: setpoint.clamp(0.0, self.ctrl.params().force_limit_n),
-                clutch,
-            },
-        };
-        let out = self.ctrl.step(&input, DT_S);
-        self.arm.command(&out.actuators_cmd_mm);
-        self.last_out = Some(out);
-        self.seq += 1;
-        let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));
-        let fb = Feedback {
-            seq: self.seq,
-            send_time_ns: now_ns,
-            echo_seq,
-            echo_send_time_ns: echo_t,
-            pose: out.measured_pose,
-            wrench_measured: out.wrench_measured,
-            wrench_desired: out.wrench_desired,
-            energy_in_j: self.port.energy.in_j,
-            energy_out_j: self.port.energy.out_j,
-            protocol_version: PROTOCOL_VERSION,
-            arm_id: 0,
-            state: if self.latest.is_some() {
-                SlaveState::Active as u8
-            } else {
-                SlaveState::Idle as u8
-            },
-            reserved: 0,
-            fault_flags: 0,
-        };
-        if fb.validate().is_ok() {
-            link.publish(&fb)?;
-        }
-        Ok(SlaveCycle {
-            out,
-            port: ps,
-            desired_mm: self.desired,
-            mode,
-        })
-    }
-}
-
 /// The master side of the session: device, operator, gate, coupling.
 pub struct MasterSide {
     /// The simulated master arm.
@@ -979,7 +777,7 @@ pub struct Session {
     /// The master side.
     pub master: MasterSide,
     /// The slave side.
-    pub slave: SlaveSide,
+    pub slave: SlaveTeleop<SimArm>,
     master_end: MasterEnd,
     slave_end: SlaveEnd,
 }
@@ -1022,29 +820,19 @@ impl Session {
             cfg.seed,
         )?;
         let ctrl = SlaveController::new(ws, assumed, cfg.slave.controller);
-        let kappa = cfg.scale.force / cfg.scale.motion;
         let pc = &cfg.passivity;
-        let slave = SlaveSide {
-            gate: Gate::new(0, 1_000_000_000),
-            port: AdmittancePort::new(
-                pc.drift_gain_per_s,
-                pc.drift_energy_share,
-                pc.max_correction_mm_per_s,
-            ),
+        let slave = SlaveTeleop::new(
+            TeleopParams {
+                arm_id: 0,
+                watchdog_ms: cfg.slave.command_timeout_ms,
+                restart_silence_ms: 1000.0,
+                passivity: *pc,
+                speed_margin: 0.9,
+            },
             ctrl,
             arm,
-            kappa,
-            passivity: pc.enabled,
-            timeout_ns: (cfg.slave.command_timeout_ms * 1e6) as u64,
-            latest: None,
-            desired: [slave_home[0], slave_home[1], slave_home[2]],
-            desired_theta: 0.0,
-            started: false,
-            last_out: None,
-            seq: 0,
-            last_step: AdmittanceStep::default(),
-            last_velocity_desired: [0.0; 3],
-        };
+            CYCLE_NS,
+        )?;
         let device = SimMasterArm::new(cfg.master).map_err(SessionError::Master)?;
         let operator = Operator::new(cfg.operator.hand, script, cfg.master.home_pose);
         let coupling = MasterCoupling::new(CouplingParams {
@@ -1083,12 +871,12 @@ impl Session {
     }
 
     /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms.
-    pub fn cycle(&mut self) -> Result<(MasterCycle, SlaveCycle), SessionError> {
+    pub fn cycle(&mut self) -> Result<(MasterCycle, TeleopCycle), SessionError> {
         let now = self.clock.now_ns();
         let m = self.master.step(&mut self.master_end, now)?;
-        let s = self.slave.step(&mut self.slave_end, now)?;
+        let s = self.slave.step(&mut self.slave_end, now, DT_S);
         self.master.device.advance(CYCLE_NS);
-        self.slave.arm.advance(CYCLE_NS);
+        self.slave.arm_mut().advance(CYCLE_NS);
         self.clock.advance_ns(CYCLE_NS);
         Ok((m, s))
     }
@@ -1113,7 +901,7 @@ impl Session {
         for _ in 0..cycles {
             let t_ns = self.clock.now_ns();
             let (m, s) = self.cycle()?;
-            let true_w = self.slave.arm.true_contact_wrench();
+            let true_w = self.slave.arm().true_contact_wrench();
             let true_f = [true_w[0], true_w[1], true_w[2]];
             let intent = m.hand.intent;
             let meas = s.out.measured_pose;
@@ -1130,7 +918,7 @@ impl Session {
                 slave_force_n: norm3(&s.out.wrench_measured),
                 steady: intent.steady && !intent.clutch && !m.device.clutch,
                 observed_min_j: m.step.observed_j.min(s.port.observed_j),
-                drift_mm: norm3(&self.slave.port.drift_mm),
+                drift_mm: norm3(&s.drift_mm),
                 tracking_err_mm: norm3(&[
                     meas[0] - s.desired_mm[0],
                     meas[1] - s.desired_mm[1],
@@ -1165,8 +953,8 @@ impl Session {
                         dissipated_j: me.dissipated_j,
                     },
                 )?;
-                let se = self.slave.port.energy;
-                let tp = self.slave.arm.true_pose();
+                let se = self.slave.port().energy;
+                let tp = self.slave.arm().true_pose();
                 r.write(
                     ch.slave,
                     t,
@@ -1180,7 +968,7 @@ impl Session {
                         status: s.out.status.code(),
                         admittance_mm_per_n_s: s.port.admittance_mm_per_n_s,
                         observed_j: s.port.observed_j,
-                        drift_mm: self.slave.port.drift_mm,
+                        drift_mm: s.drift_mm,
                         energy_in_j: se.in_j,
                         energy_out_j: se.out_j,
                         dissipated_j: se.dissipated_j,
@@ -1219,9 +1007,9 @@ impl Session {
         }
         let wall_time_s = wall.elapsed().as_secs_f64();
         let dissipated =
-            self.master.coupling.port.energy.dissipated_j + self.slave.port.energy.dissipated_j;
+            self.master.coupling.port.energy.dissipated_j + self.slave.port().energy.dissipated_j;
         let lost = self.master_end.counters.dropped() + self.slave_end.counters.dropped();
-        let rejected = self.master.gate.counters.rejected() + self.slave.gate.counters.rejected();
+        let rejected = self.master.gate.counters.rejected() + self.slave.gate_counters().rejected();
         let rtt = if self.master.rtt_n > 0 {
             self.master.rtt_sum_ms / self.master.rtt_n as f64
         } else {

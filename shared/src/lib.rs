@@ -6,6 +6,7 @@
 pub mod clock;
 pub mod config;
 pub mod kinematics;
+pub mod passivity;
 pub mod process;
 pub mod recording;
 pub mod rng;

@@ -7,6 +7,8 @@
 //! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
 //!   implicit force control with online environment-stiffness estimation, safe stop).
 //! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
+//! * [`teleop`]: [`teleop::SlaveTeleop`], the slave's per-cycle teleoperation endpoint
+//!   (gate, watchdog and safe stop, passivity port, controller, feedback).
 //! * [`server`]: `h4-slave run`, the slave as a real-time process on a link.
 
 pub mod controller;
@@ -15,3 +17,4 @@ pub mod filter;
 pub mod kin_tool;
 pub mod plant;
 pub mod server;
+pub mod teleop;

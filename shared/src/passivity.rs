@@ -23,9 +23,83 @@
 //!
 //! Units: N, mm/s, s; energies in J (N·mm × 1e-3).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{ConfigError, check_range};
 
 const J_PER_N_MM: f64 = 1e-3;
+
+/// Passivity control settings (`passivity.*` in session files), the same on both sides.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PassivityParams {
+    /// Passivity controllers on both ports (`false`: observers only).
+    pub enabled: bool,
+    /// Largest damping the master's controller adds, N·s/mm.
+    pub max_damping_n_s_per_mm: f64,
+    /// Largest backing-off speed the slave's controller commands, mm/s.
+    pub max_correction_mm_per_s: f64,
+    /// Drift compensation gain, 1/s.
+    pub drift_gain_per_s: f64,
+    /// Share of the slave observer's surplus the drift compensation may spend per cycle.
+    pub drift_energy_share: f64,
+    /// Contact force below which the slave's controller does not act (sensor noise), N.
+    pub force_floor_n: f64,
+}
+
+impl Default for PassivityParams {
+    fn default() -> Self {
+        PassivityParams {
+            enabled: true,
+            max_damping_n_s_per_mm: 2.0,
+            max_correction_mm_per_s: 200.0,
+            drift_gain_per_s: 2.0,
+            drift_energy_share: 0.2,
+            force_floor_n: 1.0,
+        }
+    }
+}
+
+impl PassivityParams {
+    /// Checks every field; errors name the key with `prefix` (e.g. `"passivity."`).
+    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        check_range(
+            &format!("{prefix}max_damping_n_s_per_mm"),
+            self.max_damping_n_s_per_mm,
+            0.0,
+            1e3,
+            "N·s/mm",
+        )?;
+        check_range(
+            &format!("{prefix}max_correction_mm_per_s"),
+            self.max_correction_mm_per_s,
+            0.0,
+            1e4,
+            "mm/s",
+        )?;
+        check_range(
+            &format!("{prefix}drift_gain_per_s"),
+            self.drift_gain_per_s,
+            0.0,
+            100.0,
+            "1/s",
+        )?;
+        check_range(
+            &format!("{prefix}drift_energy_share"),
+            self.drift_energy_share,
+            0.0,
+            1.0,
+            "",
+        )?;
+        check_range(
+            &format!("{prefix}force_floor_n"),
+            self.force_floor_n,
+            0.0,
+            100.0,
+            "N",
+        )
+    }
+}
 
 /// Cumulative energy flows at one port, J.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -150,6 +224,8 @@ pub struct AdmittancePort {
     pub drift_energy_share: f64,
     /// Largest backing-off speed the controller may command, mm/s.
     pub max_correction_mm_per_s: f64,
+    /// Contact force below which the controller does not act, N.
+    pub force_floor_n: f64,
 }
 
 /// What the slave's port did this cycle.
@@ -174,7 +250,20 @@ impl AdmittancePort {
             drift_gain_per_s,
             drift_energy_share,
             max_correction_mm_per_s,
+            force_floor_n: 1.0,
             ..AdmittancePort::default()
+        }
+    }
+
+    /// A port with the slave-side settings of `p`.
+    pub fn from_params(p: &PassivityParams) -> Self {
+        AdmittancePort {
+            force_floor_n: p.force_floor_n,
+            ..AdmittancePort::new(
+                p.drift_gain_per_s,
+                p.drift_energy_share,
+                p.max_correction_mm_per_s,
+            )
         }
     }
 
@@ -229,7 +318,8 @@ impl AdmittancePort {
                 }
             }
             let p0 = power(&v);
-            if p0 > 0.0 && f2 > 1e-12 {
+            let floor = self.force_floor_n.max(1e-6);
+            if p0 > 0.0 && f2 > floor * floor {
                 let w = self.observed_j() - p0 * dt_s * J_PER_N_MM;
                 if w < 0.0 {
                     beta = (-w / (J_PER_N_MM * dt_s * f2))
@@ -244,11 +334,31 @@ impl AdmittancePort {
         for i in 0..3 {
             self.drift_mm[i] += (v[i] - desired_mm_per_s[i]) * dt_s;
         }
-        self.energy.add_power(power(&v), dt_s);
         AdmittanceStep {
             velocity_mm_per_s: v,
             admittance_mm_per_n_s: beta,
             observed_j: self.observed_j(),
+        }
+    }
+
+    /// Books the motion the arm was actually commanded this cycle (`velocity_mm_per_s`,
+    /// after the controller's own limits) against the measured contact force: the observer
+    /// counts what really left the link, not what was asked for.
+    pub fn commit(&mut self, force_n: [f64; 3], velocity_mm_per_s: [f64; 3], dt_s: f64) {
+        if force_n
+            .iter()
+            .chain(velocity_mm_per_s.iter())
+            .all(|x| x.is_finite())
+        {
+            self.energy
+                .add_power(-dot3(&force_n, &velocity_mm_per_s), dt_s);
+        }
+    }
+
+    /// Sets the drift (a re-anchoring that turns a gap into drift to be closed passively).
+    pub fn set_drift(&mut self, drift_mm: [f64; 3]) {
+        if drift_mm.iter().all(|d| d.is_finite()) {
+            self.drift_mm = drift_mm;
         }
     }
 
@@ -289,9 +399,11 @@ mod tests {
     fn admittance_port_backs_off_and_compensates_drift_with_budget() {
         let mut port = AdmittancePort::new(2.0, 0.5, 1e6);
         let dt = 0.001;
-        // Pushing into a force with no energy received: the controller stops the motion.
+        // Pushing into a force with no energy received: the controller stops the motion
+        // (the arm follows the corrected velocity exactly here).
         for _ in 0..100 {
-            port.step([0.0, 0.0, -5.0], [0.0, 0.0, 20.0], dt, true);
+            let s = port.step([0.0, 0.0, -5.0], [0.0, 0.0, 20.0], dt, true);
+            port.commit([0.0, 0.0, 20.0], s.velocity_mm_per_s, dt);
         }
         assert!(port.observed_j() >= -1e-12);
         assert!(port.drift_mm[2] > 0.4, "{:?}", port.drift_mm);
@@ -299,7 +411,8 @@ mod tests {
         // Energy arrives: the drift closes.
         port.receive_remote_in(10.0);
         for _ in 0..3000 {
-            port.step([0.0; 3], [0.0, 0.0, 20.0], dt, true);
+            let s = port.step([0.0; 3], [0.0, 0.0, 20.0], dt, true);
+            port.commit([0.0, 0.0, 20.0], s.velocity_mm_per_s, dt);
         }
         assert!(port.drift_mm[2].abs() < 0.01 * drift, "{:?}", port.drift_mm);
         assert!(port.observed_j() >= 0.0);

@@ -1,0 +1,464 @@
+//! The slave's teleoperation endpoint: everything the slave does in one 1 kHz cycle of a
+//! teleoperation session, on any [`ArmDriver`] and any [`Link`]. The lockstep session
+//! simulation (`h4-master sim`) and the real process (`h4-slave run`) both step this, so
+//! there is one piece of code for the slave's per-cycle logic.
+//!
+//! One [`SlaveTeleop::step`]:
+//! 1. drains the link through the receive gate (wrong version, wrong arm, malformed,
+//!    duplicated or reordered commands are counted and dropped);
+//! 2. the watchdog: no valid command for `watchdog_ms` while active → the controller's safe
+//!    stop (force ramped down, retract, hold), state `SafeStop`, `FAULT_COMMAND_TIMEOUT`;
+//!    a fresh valid command after that → `clear_safe_stop()` and re-pairing with no jump
+//!    (the gap between where the arm holds and where the master now points is taken as
+//!    drift, closed by the energy-bounded drift compensation), counted;
+//! 3. the slave's passivity port ([`AdmittancePort`]): observer always, controller in
+//!    position mode when enabled;
+//! 4. the controller step, the actuator command, the fault flags;
+//! 5. publishes the feedback, with the port's cumulative energies.
+//!
+//! It allocates nothing, blocks on nothing, logs nothing and never panics; link errors are
+//! counted, not returned. Energies on the wire are in slave units (J at the slave): the
+//! master converts with κ = scale.force / scale.motion, so the slave needs no scaling.
+
+use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
+use h4_shared::process::Watchdog;
+use h4_shared::wire::{
+    Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, Feedback, Mode,
+    PROTOCOL_VERSION, SlaveState,
+};
+use h4_transport::Link;
+use h4_transport::gate::{Gate, GateCounters};
+use serde::Serialize;
+
+use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
+use crate::plant::ArmDriver;
+
+/// Settings of the endpoint.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TeleopParams {
+    /// Arm id: commands for another arm are rejected, feedback carries it.
+    pub arm_id: u16,
+    /// No valid command for this long while active → safe stop, ms.
+    pub watchdog_ms: f64,
+    /// After this much silence a command whose sequence number went backwards is taken as
+    /// a restarted master, ms.
+    pub restart_silence_ms: f64,
+    /// Passivity control (only `enabled`, `max_correction_mm_per_s`, `drift_gain_per_s`
+    /// and `drift_energy_share` matter at the slave).
+    pub passivity: PassivityParams,
+    /// Commanded speeds are limited to this share of the controller's speed limit.
+    pub speed_margin: f64,
+}
+
+impl Default for TeleopParams {
+    fn default() -> Self {
+        TeleopParams {
+            arm_id: 0,
+            watchdog_ms: 20.0,
+            restart_silence_ms: 100.0,
+            passivity: PassivityParams::default(),
+            speed_margin: 0.9,
+        }
+    }
+}
+
+/// Why the endpoint could not be built.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum TeleopError {
+    /// A setting is out of range.
+    #[error("teleop endpoint: {field} = {value} is out of range ({allowed})")]
+    OutOfRange {
+        /// The setting.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+        /// What is allowed.
+        allowed: &'static str,
+    },
+}
+
+/// Counters over the endpoint's life.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct TeleopCounters {
+    /// Cycles stepped.
+    pub cycles: u64,
+    /// Commands the controller rejected (workspace, limits): never passed to the actuators.
+    pub commands_rejected_by_controller: u64,
+    /// Link errors while receiving or publishing.
+    pub link_errors: u64,
+    /// Times the watchdog put the arm into its safe state.
+    pub safe_stops: u64,
+    /// Silence when the watchdog tripped (largest over all trips), ms.
+    pub safe_stop_entry_silence_ms: f64,
+    /// Times a master was paired again after a safe stop.
+    pub repairs: u64,
+    /// Feedback messages published.
+    pub feedback_published: u64,
+}
+
+/// What one cycle did (plain data, no allocation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TeleopCycle {
+    /// The controller's output.
+    pub out: ControllerOutput,
+    /// The passivity port's step.
+    pub port: AdmittanceStep,
+    /// The slave position the link asks for (master's command), mm.
+    pub desired_mm: [f64; 3],
+    /// The position commanded to the controller (desired + drift), mm and rad.
+    pub commanded_pose: [f64; 4],
+    /// The port's drift (commanded − desired), mm.
+    pub drift_mm: [f64; 3],
+    /// The mode acted on.
+    pub mode: Mode,
+    /// The endpoint's state after this cycle.
+    pub state: SlaveState,
+    /// Fault flags sent with this cycle's feedback.
+    pub fault_flags: u16,
+    /// A valid command arrived this cycle.
+    pub fresh: bool,
+    /// The watchdog tripped this cycle.
+    pub tripped: bool,
+    /// The master was paired again this cycle (after a safe stop).
+    pub repaired: bool,
+    /// Cumulative energies of the slave's port, J.
+    pub energy_in_j: f64,
+    /// See `energy_in_j`.
+    pub energy_out_j: f64,
+    /// See `energy_in_j`.
+    pub dissipated_j: f64,
+    /// Sequence number of the newest accepted command (0: none).
+    pub command_seq: u64,
+}
+
+/// The slave's teleoperation endpoint over the arm `A`.
+pub struct SlaveTeleop<A: ArmDriver> {
+    p: TeleopParams,
+    gate: Gate<Command>,
+    watchdog: Watchdog,
+    port: AdmittancePort,
+    ctrl: SlaveController,
+    arm: A,
+    state: SlaveState,
+    faults: u16,
+    latest: Option<Command>,
+    desired: [f64; 3],
+    desired_theta: f64,
+    anchored: bool,
+    last_out: Option<ControllerOutput>,
+    seq: u64,
+    counters: TeleopCounters,
+}
+
+impl<A: ArmDriver> SlaveTeleop<A> {
+    /// An endpoint driving `arm` with `ctrl`; `period_ns` is the loop period (the watchdog
+    /// trips at the first cycle whose silence reaches `watchdog_ms`).
+    pub fn new(
+        p: TeleopParams,
+        ctrl: SlaveController,
+        arm: A,
+        period_ns: u64,
+    ) -> Result<Self, TeleopError> {
+        let check = |field, value: f64, min: f64, max: f64, allowed| {
+            if value.is_finite() && value >= min && value <= max {
+                Ok(())
+            } else {
+                Err(TeleopError::OutOfRange {
+                    field,
+                    value,
+                    allowed,
+                })
+            }
+        };
+        check("watchdog_ms", p.watchdog_ms, 1.0, 1e5, "1 to 100000 ms")?;
+        check(
+            "restart_silence_ms",
+            p.restart_silence_ms,
+            1.0,
+            1e6,
+            "1 to 1000000 ms",
+        )?;
+        check("speed_margin", p.speed_margin, 0.1, 1.0, "0.1 to 1")?;
+        check(
+            "passivity.max_correction_mm_per_s",
+            p.passivity.max_correction_mm_per_s,
+            0.0,
+            1e4,
+            "0 to 10000 mm/s",
+        )?;
+        check(
+            "passivity.drift_gain_per_s",
+            p.passivity.drift_gain_per_s,
+            0.0,
+            100.0,
+            "0 to 100 1/s",
+        )?;
+        check(
+            "passivity.drift_energy_share",
+            p.passivity.drift_energy_share,
+            0.0,
+            1.0,
+            "0 to 1",
+        )?;
+        let watchdog_ns = ((p.watchdog_ms * 1e6) as u64).saturating_sub(period_ns);
+        Ok(SlaveTeleop {
+            gate: Gate::new(p.arm_id, (p.restart_silence_ms * 1e6) as u64),
+            watchdog: Watchdog::new(watchdog_ns),
+            port: AdmittancePort::from_params(&p.passivity),
+            ctrl,
+            arm,
+            state: SlaveState::Idle,
+            faults: 0,
+            latest: None,
+            desired: [0.0; 3],
+            desired_theta: 0.0,
+            anchored: false,
+            last_out: None,
+            seq: 0,
+            counters: TeleopCounters::default(),
+            p,
+        })
+    }
+
+    /// The arm.
+    pub fn arm(&self) -> &A {
+        &self.arm
+    }
+
+    /// The arm, mutable (a simulated arm is advanced by its owner).
+    pub fn arm_mut(&mut self) -> &mut A {
+        &mut self.arm
+    }
+
+    /// The controller.
+    pub fn controller(&self) -> &SlaveController {
+        &self.ctrl
+    }
+
+    /// The passivity port.
+    pub fn port(&self) -> &AdmittancePort {
+        &self.port
+    }
+
+    /// Counters.
+    pub fn counters(&self) -> &TeleopCounters {
+        &self.counters
+    }
+
+    /// What the receive gate accepted and rejected.
+    pub fn gate_counters(&self) -> &GateCounters {
+        &self.gate.counters
+    }
+
+    /// The state.
+    pub fn state(&self) -> SlaveState {
+        self.state
+    }
+
+    /// Time since the last valid command at `now_ns` (None before the first).
+    pub fn silence_ns(&self, now_ns: u64) -> Option<u64> {
+        self.watchdog.silence_ns(now_ns)
+    }
+
+    /// One cycle at `now_ns` of `dt_s` seconds on `link`.
+    pub fn step<L: Link<Feedback, Command>>(
+        &mut self,
+        link: &mut L,
+        now_ns: u64,
+        dt_s: f64,
+    ) -> TeleopCycle {
+        let reading = self.arm.read();
+        let mut fresh = false;
+        loop {
+            match link.try_recv() {
+                Ok(Some(msg)) => {
+                    if let Ok(c) = self.gate.accept(&msg, now_ns) {
+                        self.port.receive_remote_in(c.energy_in_j);
+                        self.latest = Some(c);
+                        fresh = true;
+                    }
+                }
+                Ok(None) => break,
+                Err(_) => {
+                    self.counters.link_errors += 1;
+                    break;
+                }
+            }
+        }
+        let mut repaired = false;
+        if fresh {
+            self.watchdog.feed(now_ns);
+            if self.state == SlaveState::SafeStop {
+                self.ctrl.clear_safe_stop();
+                self.counters.repairs += 1;
+                repaired = true;
+                // Re-pair with no jump: re-anchor on the next command.
+                self.anchored = false;
+            }
+            self.state = SlaveState::Active;
+            self.faults &= !FAULT_COMMAND_TIMEOUT;
+        }
+        let mut tripped = false;
+        if self.state == SlaveState::Active && self.watchdog.tripped(now_ns) {
+            self.ctrl.safe_stop();
+            self.state = SlaveState::SafeStop;
+            self.faults |= FAULT_COMMAND_TIMEOUT;
+            self.counters.safe_stops += 1;
+            let silence_ms = self.watchdog.silence_ns(now_ns).unwrap_or(0) as f64 / 1e6;
+            self.counters.safe_stop_entry_silence_ms =
+                self.counters.safe_stop_entry_silence_ms.max(silence_ms);
+            tripped = true;
+        }
+        let active = self.state == SlaveState::Active;
+        let (mode, clutch, setpoint, cmd_vel) = match (&self.latest, active) {
+            (Some(c), true) => (
+                c.mode().unwrap_or(Mode::Hold),
+                c.clutch(),
+                c.force_setpoint_n,
+                c.velocity,
+            ),
+            _ => (Mode::Hold, false, 0.0, [0.0; 4]),
+        };
+        let mut v_d = [0.0; 3];
+        if let Some(c) = &self.latest
+            && active
+            && !clutch
+            && mode != Mode::Hold
+        {
+            if !self.anchored {
+                // First command, or the first after a safe stop or a hold: the step from
+                // where the arm is commanded to the master's pose becomes drift.
+                let held = self
+                    .last_out
+                    .map_or([c.pose[0], c.pose[1], c.pose[2]], |o| {
+                        [
+                            o.commanded_pose[0],
+                            o.commanded_pose[1],
+                            o.commanded_pose[2],
+                        ]
+                    });
+                self.desired = [c.pose[0], c.pose[1], c.pose[2]];
+                let d = [
+                    held[0] - self.desired[0],
+                    held[1] - self.desired[1],
+                    held[2] - self.desired[2],
+                ];
+                self.port.set_drift(d);
+                self.anchored = true;
+            }
+            for (i, v) in v_d.iter_mut().enumerate() {
+                *v = (c.pose[i] - self.desired[i]) / dt_s;
+                self.desired[i] = c.pose[i];
+            }
+            self.desired_theta = c.pose[3];
+        } else if mode == Mode::Hold || !active {
+            // While holding the arm stays where it is; re-anchor on the next motion.
+            self.anchored = false;
+        }
+        let force = self.last_out.map_or([0.0; 3], |o| {
+            [
+                o.wrench_measured[0],
+                o.wrench_measured[1],
+                o.wrench_measured[2],
+            ]
+        });
+        let control = self.p.passivity.enabled && mode == Mode::Position && !clutch;
+        let ps = self.port.step(v_d, force, dt_s, control);
+        let drift = self.port.drift_mm;
+        let pose = [
+            self.desired[0] + drift[0],
+            self.desired[1] + drift[1],
+            self.desired[2] + drift[2],
+            self.desired_theta,
+        ];
+        let max_v = self.ctrl.params().max_speed_mm_per_s * self.p.speed_margin;
+        let mut vel = [cmd_vel[0], cmd_vel[1], cmd_vel[2]];
+        if mode == Mode::Position {
+            vel = ps.velocity_mm_per_s;
+        }
+        let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
+        if speed > max_v {
+            for v in vel.iter_mut() {
+                *v *= max_v / speed;
+            }
+        }
+        let input = ControllerInput {
+            actuators_mm: reading.actuators_mm,
+            wrench: reading.wrench,
+            command: SlaveCommand {
+                mode,
+                pose,
+                velocity: [vel[0], vel[1], vel[2], 0.0],
+                force_setpoint_n: setpoint.clamp(0.0, self.ctrl.params().force_limit_n),
+                clutch,
+            },
+        };
+        let out = self.ctrl.step(&input, dt_s);
+        if out.rejection.is_some() {
+            self.counters.commands_rejected_by_controller += 1;
+            self.faults |= FAULT_COMMAND_REJECTED;
+        } else {
+            self.faults &= !FAULT_COMMAND_REJECTED;
+        }
+        if out.status == Status::ForceLimited {
+            self.faults |= FAULT_FORCE_LIMIT;
+        } else {
+            self.faults &= !FAULT_FORCE_LIMIT;
+        }
+        self.arm.command(&out.actuators_cmd_mm);
+        // The port books the motion actually commanded (the controller's rate limits and
+        // holds included) against the force the arm measured.
+        let moved = self.last_out.map_or([0.0; 3], |o| {
+            [
+                (out.commanded_pose[0] - o.commanded_pose[0]) / dt_s,
+                (out.commanded_pose[1] - o.commanded_pose[1]) / dt_s,
+                (out.commanded_pose[2] - o.commanded_pose[2]) / dt_s,
+            ]
+        });
+        self.port.commit(force, moved, dt_s);
+        self.last_out = Some(out);
+        self.seq += 1;
+        let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));
+        let energy = self.port.energy;
+        let fb = Feedback {
+            seq: self.seq,
+            send_time_ns: now_ns,
+            echo_seq,
+            echo_send_time_ns: echo_t,
+            pose: out.measured_pose,
+            wrench_measured: out.wrench_measured,
+            wrench_desired: out.wrench_desired,
+            energy_in_j: energy.in_j,
+            energy_out_j: energy.out_j,
+            protocol_version: PROTOCOL_VERSION,
+            arm_id: self.p.arm_id,
+            state: self.state as u8,
+            reserved: 0,
+            fault_flags: self.faults,
+        };
+        if fb.validate().is_ok() {
+            match link.publish(&fb) {
+                Ok(()) => self.counters.feedback_published += 1,
+                Err(_) => self.counters.link_errors += 1,
+            }
+        }
+        self.counters.cycles += 1;
+        TeleopCycle {
+            out,
+            port: ps,
+            desired_mm: self.desired,
+            commanded_pose: pose,
+            drift_mm: drift,
+            mode,
+            state: self.state,
+            fault_flags: self.faults,
+            fresh,
+            tripped,
+            repaired,
+            energy_in_j: energy.in_j,
+            energy_out_j: energy.out_j,
+            dissipated_j: energy.dissipated_j,
+            command_seq: echo_seq,
+        }
+    }
+}
