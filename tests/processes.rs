@@ -210,20 +210,35 @@ fn s(v: &[&str]) -> Vec<String> {
 }
 
 /// The scripted contact used here: the wall-push session on a 20 N/mm wall, so the slave's
-/// position-mode contact stays below its force limit (80 N).
+/// position-mode contact stays below its force limit (80 N). Both processes get the same
+/// session: the master reads it, the slave the files `h4-master slave-config` derives.
 const SESSION: &str = "config/sessions/wall-push.toml";
 const WALL_N_PER_MM: &str = "20";
 
+/// `h4-slave run` arguments for the slave side of the session (world and passivity files
+/// written by `h4-master slave-config`).
 fn slave_args(scratch: &Scratch, extra: &[&str]) -> Vec<String> {
-    let mut a = s(&[
-        "run",
-        "--config",
-        "config/slave/sim-resin.toml",
-        "--set",
-        "approach.gap_mm=3",
-        "--set",
-    ]);
-    a.push(format!("surface.stiffness_n_per_mm={WALL_N_PER_MM}.0"));
+    let (master, _) = binaries();
+    let world = scratch.path("world.toml");
+    let passivity = scratch.path("passivity.toml");
+    let mut cfg = s(&["slave-config", SESSION, "--set"]);
+    cfg.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    cfg.extend(["--world".into(), world.display().to_string()]);
+    cfg.extend(["--passivity".into(), passivity.display().to_string()]);
+    let out = Proc::new(master)
+        .args(&cfg)
+        .current_dir(workspace())
+        .output()
+        .expect("h4-master slave-config");
+    assert!(
+        out.status.success(),
+        "slave-config: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut a = s(&["run", "--config"]);
+    a.push(world.display().to_string());
+    a.push("--passivity-config".into());
+    a.push(passivity.display().to_string());
     a.extend(s(&["--fifo-priority", "10", "--iceoryx2-prefix"]));
     a.push(scratch.prefix.clone());
     a.extend(s(extra));
@@ -320,7 +335,8 @@ fn iceoryx2_loopback_runs_a_contact_and_ends_stable() {
 #[test]
 fn loopback_verdict_catches_a_contact_over_the_force_limit() {
     // Negative control of the verdict above: the same session on a steel wall
-    // (2000 N/mm) drives the true contact force past the limit.
+    // (2000 N/mm) with the passivity controllers off drives the true contact force past
+    // the limit (with them on, it stays below).
     let _g = serial();
     let (master, _) = binaries();
     let scratch = Scratch::new("loopback-steel");
@@ -333,6 +349,8 @@ fn loopback_verdict_catches_a_contact_over_the_force_limit() {
         "10".into(),
         "--set".into(),
         "environment.material=steel".into(),
+        "--set".into(),
+        "passivity.enabled=false".into(),
         "--summary".into(),
         summary.display().to_string(),
     ];

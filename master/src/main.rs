@@ -23,6 +23,9 @@ enum Command {
     /// Start the slave and the master as two processes connected by iceoryx2, run the
     /// session for a while, stop, and print a summary (JSON).
     Loopback(cli::loopback::LoopbackArgs),
+    /// Write the slave's world and passivity files of a session, for
+    /// `h4-slave run --config WORLD --passivity-config PASSIVITY`.
+    SlaveConfig(cli::loopback::SlaveConfigArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -31,6 +34,7 @@ fn main() -> std::process::ExitCode {
         Command::Sim(args) => args.run(),
         Command::Run(args) => args.run(),
         Command::Loopback(args) => args.run(),
+        Command::SlaveConfig(args) => args.run(),
     };
     match result {
         Ok(code) => code,

@@ -107,8 +107,8 @@ impl LoopbackArgs {
         let work = std::env::temp_dir().join(format!("h4-loopback-{pid}"));
         std::fs::create_dir_all(&work).map_err(|e| format!("{}: {e}", work.display()))?;
         let world = work.join("slave-world.toml");
-        let text = toml::to_string(&slave_world(&cfg)).map_err(|e| e.to_string())?;
-        std::fs::write(&world, text).map_err(|e| format!("{}: {e}", world.display()))?;
+        let passivity = work.join("passivity.toml");
+        write_slave_config(&cfg, &world, &passivity)?;
         let slave_summary = work.join("slave-summary.json");
         let slave_log = work.join("slave.log");
 
@@ -127,6 +127,8 @@ impl LoopbackArgs {
             .arg("--config")
             .arg(&world)
             .args(transport.to_args())
+            .arg("--passivity-config")
+            .arg(&passivity)
             .arg("--watchdog-ms")
             .arg(self.watchdog_ms.to_string())
             .arg("--summary")
@@ -256,6 +258,45 @@ fn stop_child(child: &mut Child) -> Result<(), String> {
     let _ = child.kill();
     let _ = child.wait();
     Err("the slave process did not stop within 10 s of SIGTERM; killed".into())
+}
+
+/// Writes the files `h4-slave run --config WORLD --passivity-config PASSIVITY` needs to
+/// simulate the slave side of a session.
+pub fn write_slave_config(
+    cfg: &SessionConfig,
+    world: &Path,
+    passivity: &Path,
+) -> Result<(), String> {
+    let text = toml::to_string(&slave_world(cfg)).map_err(|e| e.to_string())?;
+    std::fs::write(world, text).map_err(|e| format!("{}: {e}", world.display()))?;
+    let text = toml::to_string(&cfg.passivity).map_err(|e| e.to_string())?;
+    std::fs::write(passivity, text).map_err(|e| format!("{}: {e}", passivity.display()))
+}
+
+/// Write the slave's world and passivity files of a session, for `h4-slave run`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct SlaveConfigArgs {
+    /// The session file.
+    pub session: PathBuf,
+    /// Override a field of the session file (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Where to write the world (for `h4-slave run --config`).
+    #[arg(long, default_value = "slave-world.toml")]
+    pub world: PathBuf,
+    /// Where to write the passivity settings (for `h4-slave run --passivity-config`).
+    #[arg(long, default_value = "slave-passivity.toml")]
+    pub passivity: PathBuf,
+}
+
+impl SlaveConfigArgs {
+    /// Writes both files.
+    pub fn run(self) -> Result<ExitCode, String> {
+        let cfg = session::load(&self.session, &self.set)
+            .map_err(|e| format!("{}: {e}", self.session.display()))?;
+        write_slave_config(&cfg, &self.world, &self.passivity)?;
+        Ok(ExitCode::SUCCESS)
+    }
 }
 
 /// The slave's world (arm, plant, sensor, controller, surface, start) from a session file,
