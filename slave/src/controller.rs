@@ -281,6 +281,8 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// Smoothing of a rising cycle-to-cycle force-error swing (per cycle).
+const SWING_ATTACK: f64 = 0.3;
 /// Smoothing of the cycle-to-cycle force-error swing (per cycle).
 const SWING_FILTER: f64 = 0.05;
 /// Mean second difference of the force error (per cycle) that counts as oscillation, N
@@ -938,7 +940,13 @@ impl SlaveController {
         // fast, legitimate force rise) leaves alone; the first difference's swing is kept
         // for the force guard's estimate of an oscillation's peak.
         let de = e - self.e_prev;
-        self.swing += (de.abs() - self.swing) * SWING_FILTER;
+        // Fast attack, slow release: a bounce's first swings already count.
+        let k_swing = if de.abs() > self.swing {
+            SWING_ATTACK
+        } else {
+            SWING_FILTER
+        };
+        self.swing += (de.abs() - self.swing) * k_swing;
         self.swing2 += ((de - self.de_prev).abs() - self.swing2) * SWING_FILTER;
         self.de_prev = de;
         if self.swing2 > SWING2_LIMIT_N {
