@@ -86,7 +86,7 @@ pub struct ControllerParams {
     pub normal_time_constant_s: f64,
     /// Time constant of the low-pass filter on the difference between the measured force
     /// and the prefiltered set-point in the compensation of the arm's tangential
-    /// deflection, s (0.001 to 1).
+    /// deflection, s (0 to 1; below one cycle: no filtering).
     pub deflection_comp_time_constant_s: f64,
     /// Cut-off of the filter applied to the measured position so it lines up with the
     /// force sensor's filtered signal, Hz (set it to the sensor filter's cut-off).
@@ -1031,10 +1031,10 @@ impl SlaveController {
     /// Force guard, a safety limiter independent of the force law (and of whether the Λ
     /// model is used): the command may lead the encoders' position (filtered like the
     /// sensor, so that both lag alike) into the surface only by as much as would keep the
-    /// force under the limit if the surface were rigid, the arm
-    /// [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed and the tool's mass
-    /// rang to twice the static force (a lightly damped step response). Returns whether
-    /// it clipped the command.
+    /// force under the limit if the surface were rigid (or, once measured, `c_measured`
+    /// compliant), the arm [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed and
+    /// the tool's mass rang to twice the static force (a lightly damped step response).
+    /// Returns whether it clipped the command.
     fn force_guard(
         &self,
         next: &mut Pose,
