@@ -86,7 +86,7 @@ pub struct ControllerParams {
     pub normal_time_constant_s: f64,
     /// Time constant of the low-pass filter on the difference between the measured force
     /// and the prefiltered set-point in the compensation of the arm's tangential
-    /// deflection, s (0.001 to 1).
+    /// deflection, s (0 to 1; below one cycle: no filtering).
     pub deflection_comp_time_constant_s: f64,
     /// Cut-off of the filter applied to the measured position so it lines up with the
     /// force sensor's filtered signal, Hz (set it to the sensor filter's cut-off).
@@ -285,6 +285,8 @@ pub struct ControllerOutput {
 }
 
 const WINDOW_MAX: usize = 64;
+/// Smoothing of a rising cycle-to-cycle force-error swing (per cycle).
+const SWING_ATTACK: f64 = 0.3;
 /// Smoothing of the cycle-to-cycle force-error swing (per cycle).
 const SWING_FILTER: f64 = 0.05;
 /// Mean second difference of the force error (per cycle) that counts as oscillation, N
@@ -983,7 +985,13 @@ impl SlaveController {
         // fast, legitimate force rise) leaves alone; the first difference's swing is kept
         // for the force guard's estimate of an oscillation's peak.
         let de = e - self.e_prev;
-        self.swing += (de.abs() - self.swing) * SWING_FILTER;
+        // Fast attack, slow release: a bounce's first swings already count.
+        let k_swing = if de.abs() > self.swing {
+            SWING_ATTACK
+        } else {
+            SWING_FILTER
+        };
+        self.swing += (de.abs() - self.swing) * k_swing;
         self.swing2 += ((de - self.de_prev).abs() - self.swing2) * SWING_FILTER;
         self.de_prev = de;
         if self.swing2 > SWING2_LIMIT_N {
@@ -1068,10 +1076,10 @@ impl SlaveController {
     /// Force guard, a safety limiter independent of the force law (and of whether the Λ
     /// model is used): the command may lead the encoders' position (filtered like the
     /// sensor, so that both lag alike) into the surface only by as much as would keep the
-    /// force under the limit if the surface were rigid, the arm
-    /// [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed and the tool's mass
-    /// rang to twice the static force (a lightly damped step response). Returns whether
-    /// it clipped the command.
+    /// force under the limit if the surface were rigid (or, once measured, `c_measured`
+    /// compliant), the arm [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed and
+    /// the tool's mass rang to twice the static force (a lightly damped step response).
+    /// Returns whether it clipped the command.
     fn force_guard(
         &self,
         next: &mut Pose,

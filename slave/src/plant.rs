@@ -591,6 +591,11 @@ impl SimArm {
         let mut pen = self.penetration_mm;
         let inv_m_tool = inv_mass[0];
         let m_tool_over_dt = 1.0 / (inv_m_tool * dt);
+        // Products of constants taken out of the loop.
+        let ki_dt = ki * dt;
+        let dt_over_m_c = inv_m_c * dt;
+        let dt_over_m_tool = inv_m_tool * dt;
+        let dt_over_inertia = inv_mass[3] * dt;
         // Leg rates the platform imposes (J held over the block).
         let mut ld = [0.0f64; 4];
         for r in 0..4 {
@@ -604,7 +609,7 @@ impl SimArm {
                 f_act[i] = f;
                 // PID servo on the encoder, derivative on the measurement, anti-windup.
                 let e = cmd[i] - q[i];
-                let i_term = integ[i] + ki * e * dt;
+                let i_term = integ[i] + ki_dt * e;
                 let u_raw = kp * e + i_term - kd * qd[i];
                 let u = u_raw.clamp(-u_max, u_max);
                 if u == u_raw {
@@ -612,7 +617,7 @@ impl SimArm {
                 }
                 let v = qd[i];
                 let friction = fc_n * (v * inv_v0).clamp(-1.0, 1.0) + fv * v;
-                qd[i] += (u + f - friction) * inv_m_c * dt;
+                qd[i] += (u + f - friction) * dt_over_m_c;
                 q[i] += qd[i] * dt;
             }
             // Platform: the legs act through Jᵀ (explicit), plus joint/air damping.
@@ -624,12 +629,12 @@ impl SimArm {
                     + j[3][c] * f_act[3])
                     - vel[c] * damp;
             }
-            vel[3] += gen_f[3] * inv_mass[3] * dt;
+            vel[3] += gen_f[3] * dt_over_inertia;
             // Translational velocity before the contact forces.
             let mut vs = [
-                vel[0] + gen_f[0] * inv_m_tool * dt,
-                vel[1] + gen_f[1] * inv_m_tool * dt,
-                vel[2] + gen_f[2] * inv_m_tool * dt,
+                vel[0] + gen_f[0] * dt_over_m_tool,
+                vel[1] + gen_f[1] * dt_over_m_tool,
+                vel[2] + gen_f[2] * dt_over_m_tool,
             ];
             // Contact at the tool point.
             let p = Vector3::new(pose[0], pose[1], pose[2]);
@@ -639,7 +644,7 @@ impl SimArm {
             if depth > 0.0 {
                 let vn = vel[0] * nrm[0] + vel[1] * nrm[1] + vel[2] * nrm[2];
                 let f_n = (k_env * depth - b_env * vn).max(0.0);
-                let dv_n = f_n * inv_m_tool * dt;
+                let dv_n = f_n * dt_over_m_tool;
                 for a in 0..3 {
                     vs[a] += nrm[a] * dv_n;
                 }

@@ -160,32 +160,37 @@ fn tracking_along_y_on_aluminium_meets_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
-/// The force guard keeps the *true* force under the limit even when the force loop itself
-/// is far too hot (proportional gain 10× the default: the loop rings and bounces on steel).
-/// Negative control: the same run with the limit out of the way (500 N) peaks far above
-/// 80 N, so the scenario does threaten the limit and the guard is what holds it.
+/// The force guard keeps the *true* force under the limit when the force loop itself is far
+/// too hot (proportional gain 10× the default: the tool rings and bounces on steel), at both
+/// plant stiffnesses. Negative control: the same runs with the limit out of the way (500 N)
+/// peak far above 80 N, so the scenario does threaten the limit and the guard is what holds
+/// it. (Not a proof for every mistuning: see docs/slave-results.md, "Known limits".)
 #[test]
 fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
-    let (cfg, guarded) = run("fig7c.toml", &["controller.kp=3", "duration_s=6"]);
-    assert!(
-        guarded.max_force_n <= cfg.controller.force_limit_n,
-        "guarded: {:.1} N > {} N",
-        guarded.max_force_n,
-        cfg.controller.force_limit_n
-    );
-    let (_, unguarded) = run(
-        "fig7c.toml",
-        &[
-            "controller.kp=3",
-            "duration_s=6",
-            "controller.force_limit_n=500",
-        ],
-    );
-    assert!(
-        unguarded.max_force_n > 120.0,
-        "the hot loop does not threaten the limit: {:.1} N",
-        unguarded.max_force_n
-    );
+    for scale in ["0.7", "1.3"] {
+        let set = format!("plant.stiffness_scale={scale}");
+        let (cfg, guarded) = run("fig7c.toml", &["controller.kp=3", "duration_s=6", &set]);
+        assert!(
+            guarded.max_force_n <= cfg.controller.force_limit_n,
+            "×{scale} guarded: {:.1} N > {} N",
+            guarded.max_force_n,
+            cfg.controller.force_limit_n
+        );
+        let (_, unguarded) = run(
+            "fig7c.toml",
+            &[
+                "controller.kp=3",
+                "duration_s=6",
+                &set,
+                "controller.force_limit_n=500",
+            ],
+        );
+        assert!(
+            unguarded.max_force_n > 120.0,
+            "×{scale}: the hot loop does not threaten the limit: {:.1} N",
+            unguarded.max_force_n
+        );
+    }
 }
 
 /// The targets are not met by accident: a controller whose compliance is badly wrong (no
