@@ -749,6 +749,11 @@ impl SlaveController {
                 next[j] += self.v_ref[j] * dt;
             }
             let mut status = Status::Free;
+            if f_mag > self.p.contact_threshold_n
+                && self.position_force_guard(&mut next, xf, f3, f_mag, lambda.as_ref(), dt)
+            {
+                status = Status::ForceLimited;
+            }
             if f_mag > self.p.force_limit_n {
                 self.v_ref = Pose::zeros();
                 next = self.x_cmd;
@@ -1109,6 +1114,41 @@ impl SlaveController {
         } else {
             false
         }
+    }
+
+    /// Force guard of position mode (a teleoperated push into a wall: no force law runs):
+    /// along the measured force, the command may lead the encoders' position (filtered like
+    /// the sensor) into the surface only by as much as keeps the force under the limit if the
+    /// surface were rigid, the arm [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed
+    /// and the tool rang to twice the static force. The trajectory's speed into the surface is
+    /// dropped when it clips. Returns whether it clipped the command.
+    fn position_force_guard(
+        &mut self,
+        next: &mut Pose,
+        xf: [f64; 3],
+        f3: Vector3<f64>,
+        f_mag: f64,
+        lambda: Option<&Matrix3<f64>>,
+        dt: f64,
+    ) -> bool {
+        let n = f3 / f_mag;
+        let c_rigid = match lambda {
+            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
+        } / GUARD_ARM_STIFFNESS_MARGIN;
+        // 5 % of the limit is kept for the sensor's filter lag and noise.
+        let allowed = 0.5 * (0.95 * self.p.force_limit_n - f_mag).max(0.0) * c_rigid;
+        let lead = (0..3).map(|i| n[i] * (xf[i] - next[i])).sum::<f64>();
+        if lead <= allowed {
+            return false;
+        }
+        let back = (lead - allowed).min(self.p.max_speed_mm_per_s * dt);
+        let v_into = (0..3).map(|i| n[i] * self.v_ref[i]).sum::<f64>().min(0.0);
+        for i in 0..3 {
+            next[i] += n[i] * back;
+            self.v_ref[i] -= n[i] * v_into;
+        }
+        true
     }
 
     fn arm_compliance(&self, lambda: Option<&Matrix3<f64>>) -> f64 {

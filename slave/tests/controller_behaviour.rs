@@ -277,3 +277,38 @@ fn safe_stop_out_of_a_position_mode_push_releases_the_force() {
         "moved while holding"
     );
 }
+
+/// Position mode runs no force law, yet the force limit holds: a position command far into a
+/// steel surface (a teleoperated push) stops at the limit on the true force. With the limit
+/// moved out of the way, the same push goes far past it (the guard is what holds it).
+#[test]
+fn position_mode_push_into_steel_keeps_the_force_limit() {
+    let peak_for = |extra: &[&str]| {
+        let mut rig = Rig::new(extra);
+        let p = rig.cfg.surface.contact_point_mm;
+        let push = SlaveCommand {
+            mode: Mode::Position,
+            pose: [p[0], p[1], p[2] - 5.0, 0.0],
+            velocity: [0.0; 4],
+            force_setpoint_n: 0.0,
+            clutch: false,
+        };
+        let mut peak: f64 = 0.0;
+        for _ in 0..3000 {
+            rig.step(push);
+            peak = peak.max(rig.true_normal_force());
+        }
+        (peak, rig.cfg.controller.force_limit_n)
+    };
+    let (peak, limit) = peak_for(&[]);
+    assert!(peak > 0.5 * limit, "the push should press hard: {peak} N");
+    assert!(
+        peak <= limit,
+        "true force {peak} N over the {limit} N limit"
+    );
+    let (unguarded, _) = peak_for(&["controller.force_limit_n=1000"]);
+    assert!(
+        unguarded > 1.5 * limit,
+        "without the limit the push reaches {unguarded} N"
+    );
+}
