@@ -116,6 +116,10 @@ pub struct MasterRunSummary {
     pub max_slave_force_n: f64,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
+    /// CPU time the whole process used (all threads, start-up included), s.
+    pub cpu_time_s: f64,
+    /// `cpu_time_s` over `run_time_s`, % of one core.
+    pub cpu_percent: f64,
     /// Time spent waiting for the slave's first feedback, s.
     pub waited_for_slave_s: f64,
     /// Seconds run, by the master's clock (from the end of the wait).
@@ -431,6 +435,12 @@ pub fn run_then<L: Link<Command, Feedback>>(
         0.0
     };
     s.run_time_s = clock.now_ns() as f64 / 1e9;
+    s.cpu_time_s = h4_shared::process::cpu_time_s();
+    s.cpu_percent = if s.run_time_s > 0.0 {
+        100.0 * s.cpu_time_s / s.run_time_s
+    } else {
+        0.0
+    };
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(MasterRunError::Recording)?;
     Ok(s)
