@@ -483,7 +483,8 @@ fn sigkill_of_the_master_in_contact_puts_the_slave_in_its_safe_state_and_a_resta
     sl.stop();
     // The killed master's iceoryx2 resources were found and removed by the next process.
     assert!(
-        ma2.log().contains("removed the resources of 1 dead process"),
+        ma2.log()
+            .contains("removed the resources of 1 dead process"),
         "master 2 log:\n{}",
         ma2.log()
     );
