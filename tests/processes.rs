@@ -509,7 +509,7 @@ fn sigkill_of_the_master_in_contact_puts_the_slave_in_its_safe_state_and_a_resta
 }
 
 #[test]
-fn sigkill_of_the_slave_fades_the_masters_force() {
+fn sigkill_of_the_slave_fades_the_masters_force_and_a_restart_repairs() {
     let _g = serial();
     let (master, slave) = binaries();
     let scratch = Scratch::new("kill-slave");
@@ -528,18 +528,30 @@ fn sigkill_of_the_slave_fades_the_masters_force() {
         fb.state == SlaveState::Active as u8 && force(fb) > 5.0
     });
     sl.sigkill();
-    // Feedback timeout 100 ms + fade 50 ms on the master's clock; this wait only has to be
-    // longer than that, and a host stall cannot make it shorter.
+    // Feedback timeout 100 ms + fade 50 ms on the master's clock, and the master's gate
+    // takes a restarted slave after 1 s of silence; this wait only has to be longer than
+    // that, and a host stall cannot make it shorter.
     std::thread::sleep(Duration::from_secs(2));
+    // A new slave: the master pairs with it (its commands make the slave Active).
+    let mut sl2 = Running::spawn("slave 2", slave, &slave_args(&scratch, &[]), &scratch);
+    watch_until(&mut watch, 20.0, "the new slave commanded (Active)", |fb| {
+        fb.state == SlaveState::Active as u8
+    });
+    std::thread::sleep(Duration::from_millis(500));
     ma.stop();
+    sl2.stop();
     let v = read_json(&master_summary);
     assert!(u(&v, "feedback_losses") >= 1, "{v:#}");
     assert!(
         f(&v, "max_rendered_force_n") > 2.0,
         "never rendered a force: {v:#}"
     );
-    assert_eq!(f(&v, "final_fade"), 0.0, "{v:#}");
-    assert!(f(&v, "final_rendered_force_n") < 1e-9, "{v:#}");
+    // Faded out completely, and nothing was rendered while faded out.
+    assert!(u(&v, "faded_out") >= 1, "{v:#}");
+    assert!(f(&v, "max_force_while_faded_out_n") < 1e-9, "{v:#}");
+    // Faded back in with the new slave.
+    assert!(u(&v, "feedback_restored") >= 1, "{v:#}");
+    assert_eq!(f(&v, "final_fade"), 1.0, "{v:#}");
 }
 
 fn command(seq: u64, pose: [f64; 4]) -> Command {

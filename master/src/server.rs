@@ -103,6 +103,10 @@ pub struct MasterRunSummary {
     pub feedback_losses: u64,
     /// Times feedback returned after a loss and the force faded back in.
     pub feedback_restored: u64,
+    /// Times the rendered force reached zero fade after a loss.
+    pub faded_out: u64,
+    /// Largest force rendered while faded out completely (should be 0), N.
+    pub max_force_while_faded_out_n: f64,
     /// Fade factor of the rendered force in the last cycle (1 = full, 0 = faded out).
     pub final_fade: f64,
     /// Cycles in which the slave reported its safe state.
@@ -350,6 +354,12 @@ pub fn run_then<L: Link<Command, Feedback>>(
             s.feedback_restored += 1;
         } else if fade >= 1.0 {
             fading_out = false;
+        }
+        if fade <= 0.0 && s.feedback_losses > 0 {
+            if prev_fade > 0.0 {
+                s.faded_out += 1;
+            }
+            s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(force);
         }
         prev_fade = fade;
         let mut slave_force = [0.0; 3];
