@@ -230,7 +230,7 @@ impl Default for DetectorConfig {
             window_s: 2.0,
             oscillation_limit_n: 1.5,
             growth_limit: 3.0,
-            oscillation_floor_n: 0.2,
+            oscillation_floor_n: 0.5,
             energy_tolerance_j: 0.01,
             force_limit_n: 100.0,
         }

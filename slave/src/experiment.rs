@@ -534,6 +534,13 @@ impl Validate for ExperimentConfig {
             "s",
         )?;
         check_range(
+            "controller.deflection_comp_time_constant_s",
+            c.deflection_comp_time_constant_s,
+            0.0,
+            1.0,
+            "s",
+        )?;
+        check_range(
             "controller.sensor_filter_cutoff_hz",
             c.sensor_filter_cutoff_hz,
             1.0,

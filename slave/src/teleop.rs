@@ -338,11 +338,17 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                         ]
                     });
                 self.desired = [c.pose[0], c.pose[1], c.pose[2]];
-                let d = [
-                    held[0] - self.desired[0],
-                    held[1] - self.desired[1],
-                    held[2] - self.desired[2],
-                ];
+                // In force-guided mode the controller approaches the surface at its own
+                // speed: no jump, and no drift to close.
+                let d = if mode == Mode::Position {
+                    [
+                        held[0] - self.desired[0],
+                        held[1] - self.desired[1],
+                        held[2] - self.desired[2],
+                    ]
+                } else {
+                    [0.0; 3]
+                };
                 self.port.set_drift(d);
                 self.anchored = true;
             }
@@ -415,7 +421,11 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 (out.commanded_pose[2] - o.commanded_pose[2]) / dt_s,
             ]
         });
-        self.port.commit(force, moved, dt_s);
+        // Only position mode closes a loop through the link: in force-guided mode the
+        // contact force is the slave's own force loop's, and nothing measured is rendered.
+        if mode == Mode::Position {
+            self.port.commit(force, moved, dt_s);
+        }
         self.last_out = Some(out);
         self.seq += 1;
         let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));

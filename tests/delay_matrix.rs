@@ -1,0 +1,264 @@
+//! Delay-injection stability matrix (issue 4): `config/sessions/wall-push.toml` (scripted
+//! push, hold, release, push again, release) over round-trip delay × jitter × loss ×
+//! environment, on the simulated clock, two cases at a time.
+//!
+//! * `negative_control_*`: with passivity control off, the detector must report the stiff
+//!   wall unstable from 20 ms round trip — the detector can fail, on real physics.
+//! * `matrix_passivity_on_meets_targets`: the issue's targets in every cell. Not met yet
+//!   (see docs/sessions.md, "Delay matrix"), so it is ignored with the reason; run it with
+//!   `cargo test --release -p h4-tests --test delay_matrix -- --ignored --nocapture`, which
+//!   also prints the whole table.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use h4_master::session::{self, Summary};
+
+const RTT_MS: [f64; 8] = [0.0, 10.0, 50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0];
+const JITTER: [f64; 2] = [0.0, 0.2];
+const LOSS: [Loss; 4] = [Loss::None, Loss::P5, Loss::P20, Loss::Blackout];
+const ENV: [Env; 3] = [Env::Soft, Env::Resin, Env::Stiff];
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Loss {
+    None,
+    P5,
+    P20,
+    Blackout,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Env {
+    /// 1 N/mm.
+    Soft,
+    /// The resin preset (200 N/mm).
+    Resin,
+    /// 100 N/mm.
+    Stiff,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Case {
+    rtt_ms: f64,
+    jitter: f64,
+    loss: Loss,
+    env: Env,
+    passivity: bool,
+}
+
+impl Case {
+    fn overrides(&self) -> Vec<String> {
+        let one_way = self.rtt_ms / 2.0;
+        let mut o = vec![
+            format!("link.delay_ms={one_way}"),
+            format!("link.jitter_ms={}", one_way * self.jitter),
+            format!("passivity.enabled={}", self.passivity),
+        ];
+        match self.loss {
+            Loss::None => {}
+            Loss::P5 => o.push("link.loss=0.05".into()),
+            Loss::P20 => o.push("link.loss=0.2".into()),
+            Loss::Blackout => {
+                o.push("link.blackout_ms=200".into());
+                o.push("link.blackout_every_ms=2000".into());
+            }
+        }
+        match self.env {
+            Env::Soft => o.push("environment.stiffness_n_per_mm=1".into()),
+            // wall-push.toml's material is resin; 0 = the material's stiffness.
+            Env::Resin => o.push("environment.stiffness_n_per_mm=0".into()),
+            Env::Stiff => o.push("environment.stiffness_n_per_mm=100".into()),
+        }
+        o
+    }
+
+    fn label(&self) -> String {
+        format!(
+            "rtt {:>4} ms, jitter {:>2} %, loss {:<9}, env {:<5}, passivity {}",
+            self.rtt_ms,
+            self.jitter * 100.0,
+            format!("{:?}", self.loss),
+            format!("{:?}", self.env),
+            if self.passivity { "on" } else { "off" }
+        )
+    }
+}
+
+fn session_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml")
+}
+
+fn run_case(c: &Case) -> Summary {
+    let cfg = session::load(&session_path(), &c.overrides())
+        .unwrap_or_else(|e| panic!("{}: {e}", c.label()));
+    session::run(&cfg, None).unwrap_or_else(|e| panic!("{}: {e}", c.label()))
+}
+
+/// Runs the cases on two threads (this machine has two cores), in order.
+fn run_all(cases: &[Case]) -> Vec<Summary> {
+    let next = Mutex::new(0usize);
+    let out: Mutex<Vec<Option<Summary>>> = Mutex::new(vec![None; cases.len()]);
+    std::thread::scope(|s| {
+        for _ in 0..2 {
+            s.spawn(|| {
+                loop {
+                    let i = {
+                        let mut n = next.lock().unwrap();
+                        let i = *n;
+                        *n += 1;
+                        i
+                    };
+                    if i >= cases.len() {
+                        break;
+                    }
+                    let r = run_case(&cases[i]);
+                    out.lock().unwrap()[i] = Some(r);
+                }
+            });
+        }
+    });
+    out.into_inner()
+        .unwrap()
+        .into_iter()
+        .map(|s| s.expect("every case ran"))
+        .collect()
+}
+
+/// The issue's targets for one cell with passivity on; empty when all are met.
+fn misses(c: &Case, s: &Summary) -> Vec<String> {
+    let mut m = Vec::new();
+    if !s.stable {
+        m.push(format!("unstable ({})", s.unstable_reasons.join("; ")));
+    }
+    if s.energy_min_j < -0.01 {
+        m.push(format!("energy_min_j {:.4} < -0.01", s.energy_min_j));
+    }
+    if s.max_force_n > 100.0 {
+        m.push(format!("max_force_n {:.1} > 100", s.max_force_n));
+    }
+    if s.max_master_force_n > 30.0 + 1e-9 {
+        m.push(format!(
+            "max_master_force_n {:.1} > 30",
+            s.max_master_force_n
+        ));
+    }
+    if s.position_drift_mm > 2.0 {
+        m.push(format!("position_drift_mm {:.2} > 2", s.position_drift_mm));
+    }
+    let t = s.force_transparency_err_pct;
+    if c.rtt_ms <= 100.0 && (t.is_nan() || t > 10.0) {
+        m.push(format!(
+            "force_transparency_err_pct {:.1} > 10",
+            s.force_transparency_err_pct
+        ));
+    }
+    m
+}
+
+fn matrix_cases() -> Vec<Case> {
+    let mut cases = Vec::new();
+    for env in ENV {
+        for loss in LOSS {
+            for jitter in JITTER {
+                for rtt_ms in RTT_MS {
+                    cases.push(Case {
+                        rtt_ms,
+                        jitter,
+                        loss,
+                        env,
+                        passivity: true,
+                    });
+                }
+            }
+        }
+    }
+    cases
+}
+
+fn fmt_cell(s: &Summary, ok: bool) -> String {
+    format!(
+        "{} {:.0}/{:.1}/{:.1}",
+        if ok { "ok" } else { "**x**" },
+        s.max_force_n,
+        s.position_drift_mm,
+        s.energy_min_j * 1e3
+    )
+}
+
+/// Markdown table: one row per (env, loss, jitter), one column per round trip.
+fn table(cases: &[Case], sums: &[Summary]) -> String {
+    let mut t = String::from("| env | loss | jitter |");
+    for r in RTT_MS {
+        t.push_str(&format!(" {r} ms |"));
+    }
+    t.push_str("\n|---|---|---|");
+    for _ in RTT_MS {
+        t.push_str("---|");
+    }
+    t.push('\n');
+    for (chunk_c, chunk_s) in cases.chunks(RTT_MS.len()).zip(sums.chunks(RTT_MS.len())) {
+        let c0 = chunk_c[0];
+        t.push_str(&format!(
+            "| {:?} | {:?} | {:.0} % |",
+            c0.env,
+            c0.loss,
+            c0.jitter * 100.0
+        ));
+        for (c, s) in chunk_c.iter().zip(chunk_s) {
+            t.push_str(&format!(" {} |", fmt_cell(s, misses(c, s).is_empty())));
+        }
+        t.push('\n');
+    }
+    t
+}
+
+#[test]
+#[ignore = "issue 4 targets not met in many cells (stiff wall and resin: contact chatter, \
+            drift > 2 mm, transparency > 10 %); measured table in docs/sessions.md"]
+fn matrix_passivity_on_meets_targets() {
+    let cases = matrix_cases();
+    let sums = run_all(&cases);
+    println!("{}", table(&cases, &sums));
+    let mut failed = Vec::new();
+    for (c, s) in cases.iter().zip(&sums) {
+        let m = misses(c, s);
+        if !m.is_empty() {
+            failed.push(format!("{}: {}", c.label(), m.join(", ")));
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} of {} cells miss the targets:\n{}",
+        failed.len(),
+        cases.len(),
+        failed.join("\n")
+    );
+}
+
+/// Negative control: without passivity control the stiff wall is unstable from 20 ms
+/// round trip, and the detector says so. (If the detector could not fail, this would.)
+#[test]
+fn negative_control_passivity_off_stiff_wall_unstable_from_20_ms() {
+    let cases: Vec<Case> = [20.0, 50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0]
+        .into_iter()
+        .map(|rtt_ms| Case {
+            rtt_ms,
+            jitter: 0.0,
+            loss: Loss::None,
+            env: Env::Stiff,
+            passivity: false,
+        })
+        .collect();
+    let sums = run_all(&cases);
+    for (c, s) in cases.iter().zip(&sums) {
+        assert!(!s.stable, "{}: detector said stable: {s:#?}", c.label());
+        // Real physics, not a detector artefact: the true contact force or the observed
+        // energy shows it.
+        assert!(
+            s.energy_min_j < -0.01 || s.max_force_n > 100.0 || s.oscillation_late_n > 1.5,
+            "{}: {s:#?}",
+            c.label()
+        );
+    }
+}
