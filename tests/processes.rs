@@ -308,10 +308,11 @@ fn iceoryx2_loopback_runs_a_contact_and_ends_stable() {
     args.push("--summary".into());
     args.push(summary.display().to_string());
     let mut run = Running::spawn("loopback", master, &args, &scratch);
-    let ok = run.wait(60.0);
+    // The exit code also says whether the loops kept real time, which a loaded host can
+    // spoil; the physics verdict is what this test judges.
+    let _ = run.wait(60.0);
     let v = read_json(&summary);
-    assert!(ok, "loopback said unstable: {v:#}\n{}", run.log());
-    assert_eq!(v["stable"], true, "{v:#}");
+    assert_eq!(v["stable"], true, "{v:#}\n{}", run.log());
     // A real contact happened, over a working link, in two processes.
     assert!(f(&v, "contact_time_s") > 1.0, "{v:#}");
     assert!(f(&v, "max_force_n") > 5.0, "{v:#}");
@@ -481,6 +482,13 @@ fn sigkill_of_the_master_in_contact_puts_the_slave_in_its_safe_state_and_a_resta
     }
     ma2.stop();
     sl.stop();
+    // The killed master's iceoryx2 resources were found and removed by the next process.
+    assert!(
+        ma2.log()
+            .contains("removed the resources of 1 dead process"),
+        "master 2 log:\n{}",
+        ma2.log()
+    );
     let v = read_json(&slave_summary);
     assert!(u(&v, "safe_stops") >= 1, "{v:#}");
     assert!(u(&v, "repairs") >= 1, "{v:#}");
@@ -502,7 +510,7 @@ fn sigkill_of_the_master_in_contact_puts_the_slave_in_its_safe_state_and_a_resta
 }
 
 #[test]
-fn sigkill_of_the_slave_fades_the_masters_force() {
+fn sigkill_of_the_slave_fades_the_masters_force_and_a_restart_repairs() {
     let _g = serial();
     let (master, slave) = binaries();
     let scratch = Scratch::new("kill-slave");
@@ -521,18 +529,30 @@ fn sigkill_of_the_slave_fades_the_masters_force() {
         fb.state == SlaveState::Active as u8 && force(fb) > 5.0
     });
     sl.sigkill();
-    // Feedback timeout 100 ms + fade 50 ms on the master's clock; this wait only has to be
-    // longer than that, and a host stall cannot make it shorter.
+    // Feedback timeout 100 ms + fade 50 ms on the master's clock, and the master's gate
+    // takes a restarted slave after 1 s of silence; this wait only has to be longer than
+    // that, and a host stall cannot make it shorter.
     std::thread::sleep(Duration::from_secs(2));
+    // A new slave: the master pairs with it (its commands make the slave Active).
+    let mut sl2 = Running::spawn("slave 2", slave, &slave_args(&scratch, &[]), &scratch);
+    watch_until(&mut watch, 20.0, "the new slave commanded (Active)", |fb| {
+        fb.state == SlaveState::Active as u8
+    });
+    std::thread::sleep(Duration::from_millis(500));
     ma.stop();
+    sl2.stop();
     let v = read_json(&master_summary);
     assert!(u(&v, "feedback_losses") >= 1, "{v:#}");
     assert!(
         f(&v, "max_rendered_force_n") > 2.0,
         "never rendered a force: {v:#}"
     );
-    assert_eq!(f(&v, "final_fade"), 0.0, "{v:#}");
-    assert!(f(&v, "final_rendered_force_n") < 1e-9, "{v:#}");
+    // Faded out completely, and nothing was rendered while faded out.
+    assert!(u(&v, "faded_out") >= 1, "{v:#}");
+    assert!(f(&v, "max_force_while_faded_out_n") < 1e-9, "{v:#}");
+    // Faded back in with the new slave.
+    assert!(u(&v, "feedback_restored") >= 1, "{v:#}");
+    assert_eq!(f(&v, "final_fade"), 1.0, "{v:#}");
 }
 
 fn command(seq: u64, pose: [f64; 4]) -> Command {

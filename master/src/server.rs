@@ -103,6 +103,10 @@ pub struct MasterRunSummary {
     pub feedback_losses: u64,
     /// Times feedback returned after a loss and the force faded back in.
     pub feedback_restored: u64,
+    /// Times the rendered force reached zero fade after a loss.
+    pub faded_out: u64,
+    /// Largest force rendered while faded out completely (should be 0), N.
+    pub max_force_while_faded_out_n: f64,
     /// Fade factor of the rendered force in the last cycle (1 = full, 0 = faded out).
     pub final_fade: f64,
     /// Cycles in which the slave reported its safe state.
@@ -116,6 +120,10 @@ pub struct MasterRunSummary {
     pub max_slave_force_n: f64,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
+    /// CPU time the whole process used (all threads, start-up included), s.
+    pub cpu_time_s: f64,
+    /// `cpu_time_s` over `run_time_s`, % of one core.
+    pub cpu_percent: f64,
     /// Time spent waiting for the slave's first feedback, s.
     pub waited_for_slave_s: f64,
     /// Seconds run, by the master's clock (from the end of the wait).
@@ -347,6 +355,12 @@ pub fn run_then<L: Link<Command, Feedback>>(
         } else if fade >= 1.0 {
             fading_out = false;
         }
+        if fade <= 0.0 && s.feedback_losses > 0 {
+            if prev_fade > 0.0 {
+                s.faded_out += 1;
+            }
+            s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(force);
+        }
         prev_fade = fade;
         let mut slave_force = [0.0; 3];
         let mut slave_state = SlaveState::Idle as u8;
@@ -431,6 +445,12 @@ pub fn run_then<L: Link<Command, Feedback>>(
         0.0
     };
     s.run_time_s = clock.now_ns() as f64 / 1e9;
+    s.cpu_time_s = h4_shared::process::cpu_time_s();
+    s.cpu_percent = if s.run_time_s > 0.0 {
+        100.0 * s.cpu_time_s / s.run_time_s
+    } else {
+        0.0
+    };
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(MasterRunError::Recording)?;
     Ok(s)

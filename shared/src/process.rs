@@ -35,6 +35,18 @@ pub fn request_stop() {
     STOP.store(true, Ordering::SeqCst);
 }
 
+/// CPU time (user + system, all threads) this process has used so far, s; 0 if unknown.
+pub fn cpu_time_s() -> f64 {
+    // SAFETY: `rusage` is plain data; getrusage fills it for the calling process.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: valid pointer to a live `rusage`.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) } != 0 {
+        return 0.0;
+    }
+    let t = |tv: libc::timeval| tv.tv_sec as f64 + tv.tv_usec as f64 * 1e-6;
+    t(ru.ru_utime) + t(ru.ru_stime)
+}
+
 /// Trips when no valid message has been seen for `timeout_ns` on the caller's clock.
 #[derive(Clone, Copy, Debug)]
 pub struct Watchdog {

@@ -115,6 +115,10 @@ pub struct SlaveRunSummary {
     pub final_state: String,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
+    /// CPU time the whole process used (all threads, start-up included), s.
+    pub cpu_time_s: f64,
+    /// `cpu_time_s` over `run_time_s`, % of one core.
+    pub cpu_percent: f64,
     /// Seconds run, by the slave's clock.
     pub run_time_s: f64,
 }
@@ -323,6 +327,12 @@ pub fn run<L: Link<Feedback, Command>>(
     };
     s.final_state = format!("{state:?}");
     s.run_time_s = clock.now_ns() as f64 / 1e9;
+    s.cpu_time_s = h4_shared::process::cpu_time_s();
+    s.cpu_percent = if s.run_time_s > 0.0 {
+        100.0 * s.cpu_time_s / s.run_time_s
+    } else {
+        0.0
+    };
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)

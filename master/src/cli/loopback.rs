@@ -62,11 +62,15 @@ pub struct LoopbackSummary {
     /// The session's name.
     pub name: String,
     /// The verdict on the physics: every force finite, the slave's true contact force within
-    /// the session's detector.force_limit_n, the rendered force within coupling.force_limit_n,
+    /// the slave controller's force limit, the rendered force within coupling.force_limit_n,
     /// and a round trip completed.
     pub stable: bool,
     /// Why not stable (empty when stable).
     pub unstable_reasons: Vec<String>,
+    /// Both loops ran in real time: each missed at most 1 % of its deadlines and the master
+    /// ran at least 90 % of the requested cycles. False ⇒ the figures describe a starved run
+    /// (exit code 1 as for an unstable one).
+    pub realtime_ok: bool,
     /// Fault events that are not instability: the slave's watchdog tripped (safe state),
     /// commands the controller rejected, messages the gates rejected, feedback losses.
     pub faults: Vec<String>,
@@ -82,7 +86,8 @@ pub struct LoopbackSummary {
     pub round_trip_p99_us: f64,
     /// Largest true contact force at the slave, N.
     pub max_force_n: f64,
-    /// Force limit the verdict uses (the session's detector.force_limit_n), N.
+    /// Force limit the verdict uses (the slave controller's, `slave.controller.force_limit_n`
+    /// of the session), N.
     pub force_limit_n: f64,
     /// Largest force rendered to the operator, N.
     pub max_master_force_n: f64,
@@ -170,11 +175,12 @@ impl LoopbackArgs {
             })
         };
 
+        let duration_s = self.duration_s.unwrap_or(cfg.duration_s);
         let master_args = super::run::RunArgs {
             config: self.config.clone(),
             set: self.set.clone(),
             transport,
-            duration_s: Some(self.duration_s.unwrap_or(cfg.duration_s)),
+            duration_s: Some(duration_s),
             wait_for_slave_s: 20.0,
             summary: None,
             record: self.record.clone(),
@@ -207,14 +213,14 @@ impl LoopbackArgs {
         }
         let _ = std::fs::remove_dir_all(&work);
 
-        let summary = combine(&cfg, master, slave);
+        let summary = combine(&cfg, duration_s, master, slave);
         let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
         println!("{json}");
         if let Some(p) = &self.summary {
             std::fs::write(p, format!("{json}\n"))
                 .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
         }
-        Ok(if summary.stable {
+        Ok(if summary.stable && summary.realtime_ok {
             ExitCode::SUCCESS
         } else {
             ExitCode::from(1)
@@ -341,8 +347,19 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
     }
 }
 
-fn combine(cfg: &SessionConfig, m: MasterRunSummary, s: SlaveRunSummary) -> LoopbackSummary {
-    let limit = cfg.detector.force_limit_n;
+/// A loop that missed more than this share of its deadlines did not run in real time.
+const MAX_MISSED_SHARE: f64 = 0.01;
+/// The master must have run at least this share of the requested cycles.
+const MIN_CYCLE_SHARE: f64 = 0.9;
+
+fn combine(
+    cfg: &SessionConfig,
+    duration_s: f64,
+    m: MasterRunSummary,
+    s: SlaveRunSummary,
+) -> LoopbackSummary {
+    // The slave's own force limit (its controller's): the arm must never exceed it.
+    let limit = s.force_limit_n;
     let mut reasons = Vec::new();
     if !s.max_force_n.is_finite() || !m.max_rendered_force_n.is_finite() {
         reasons.push("diverged: a force is not finite".to_string());
@@ -379,6 +396,30 @@ fn combine(cfg: &SessionConfig, m: MasterRunSummary, s: SlaveRunSummary) -> Loop
             m.feedback_invalid
         ));
     }
+    let mut realtime_ok = true;
+    for (who, cycles, misses) in [
+        ("master", m.cycles, m.deadline_misses),
+        ("slave", s.cycles, s.deadline_misses),
+    ] {
+        let share = misses as f64 / (cycles + misses).max(1) as f64;
+        if share > MAX_MISSED_SHARE {
+            realtime_ok = false;
+            faults.push(format!(
+                "real time: the {who} loop missed {misses} deadlines ({:.1} % > {:.0} %)",
+                100.0 * share,
+                100.0 * MAX_MISSED_SHARE
+            ));
+        }
+    }
+    let expected = (duration_s * 1000.0).round() as u64;
+    if (m.cycles as f64) < MIN_CYCLE_SHARE * expected as f64 {
+        realtime_ok = false;
+        faults.push(format!(
+            "real time: the master ran {} of {expected} cycles (< {:.0} %)",
+            m.cycles,
+            100.0 * MIN_CYCLE_SHARE
+        ));
+    }
     if m.feedback_losses > 0 {
         faults.push(format!(
             "feedback: lost {} time(s), restored {} time(s)",
@@ -392,6 +433,7 @@ fn combine(cfg: &SessionConfig, m: MasterRunSummary, s: SlaveRunSummary) -> Loop
         name: cfg.name.clone(),
         stable: reasons.is_empty(),
         unstable_reasons: reasons,
+        realtime_ok,
         faults,
         cycles: m.cycles,
         deadline_misses: m.deadline_misses + s.deadline_misses,
@@ -486,5 +528,46 @@ fn without_cargo_run_env(cmd: &mut std::process::Command) {
         {
             cmd.env_remove(k);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn summaries(misses: u64, cycles: u64) -> (MasterRunSummary, SlaveRunSummary) {
+        let m = MasterRunSummary {
+            cycles,
+            deadline_misses: misses,
+            round_trip_samples: 100,
+            ..MasterRunSummary::default()
+        };
+        let s = SlaveRunSummary {
+            cycles,
+            force_limit_n: 80.0,
+            max_force_n: 10.0,
+            ..SlaveRunSummary::default()
+        };
+        (m, s)
+    }
+
+    #[test]
+    fn verdict_flags_starved_loops_and_the_slaves_force_limit() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
+        let cfg = session::load(&path, &[]).expect("wall-push session");
+        let (m, s) = summaries(5, 2000);
+        let ok = combine(&cfg, 2.0, m, s);
+        assert!(ok.stable && ok.realtime_ok, "{ok:?}");
+        let (m, s) = summaries(100, 1900);
+        let missed = combine(&cfg, 2.0, m, s);
+        assert!(missed.stable && !missed.realtime_ok, "{missed:?}");
+        assert!(missed.faults.iter().any(|f| f.contains("missed")));
+        let (m, s) = summaries(0, 1500);
+        let short = combine(&cfg, 2.0, m, s);
+        assert!(!short.realtime_ok, "{short:?}");
+        let (m, mut s) = summaries(0, 2000);
+        s.max_force_n = 81.0;
+        let over = combine(&cfg, 2.0, m, s);
+        assert!(!over.stable && over.force_limit_n == 80.0, "{over:?}");
     }
 }

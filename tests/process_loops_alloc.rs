@@ -1,0 +1,138 @@
+//! The 1 kHz loops of `h4-master run` and `h4-slave run` allocate nothing per cycle: each
+//! loop runs twice on its own thread, for 300 and for 900 real 1 ms cycles, against the other
+//! side's loop on a helper thread over an in-process link; a counting global allocator
+//! (per thread) must see the same number of allocations on the measured thread both times
+//! (set-up and summary allocate, the cycles do not).
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+
+use h4_master::server::MasterRunOptions;
+use h4_master::session::{self, SessionConfig};
+use h4_slave::experiment::ExperimentConfig;
+use h4_slave::server::RunOptions;
+use h4_transport::inproc;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: every call is forwarded unchanged to the system allocator; the counter is a
+// const-initialised thread-local without a destructor, which needs no allocation itself.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+        // SAFETY: the caller upholds `GlobalAlloc::alloc`'s contract.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+        // SAFETY: as for `alloc`.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+        // SAFETY: the caller upholds `GlobalAlloc::realloc`'s contract.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: the caller upholds `GlobalAlloc::dealloc`'s contract.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations_in<T>(f: impl FnOnce() -> T) -> (u64, T) {
+    let before = ALLOCATIONS.with(Cell::get);
+    let r = f();
+    (ALLOCATIONS.with(Cell::get) - before, r)
+}
+
+fn config_path(rel: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+fn session() -> SessionConfig {
+    session::load(&config_path("config/sessions/wall-push.toml"), &[]).unwrap()
+}
+
+fn world() -> ExperimentConfig {
+    h4_shared::config::load(&config_path("config/slave/sim-resin.toml"), &[]).unwrap()
+}
+
+fn master_opts(duration_s: f64) -> MasterRunOptions {
+    MasterRunOptions {
+        duration_s: Some(duration_s),
+        wait_for_slave_s: 0.0,
+        ..MasterRunOptions::default()
+    }
+}
+
+fn slave_opts(duration_s: f64) -> RunOptions {
+    RunOptions {
+        duration_s: Some(duration_s),
+        ..RunOptions::default()
+    }
+}
+
+/// The master loop on this thread for `duration_s`, a slave loop on a helper thread.
+fn master_run(duration_s: f64) -> (u64, u64) {
+    let (m, mut s) = inproc::pair(64);
+    let cfg = session();
+    let w = world();
+    let helper = std::thread::spawn(move || {
+        h4_slave::server::run(&w, &slave_opts(duration_s + 0.5), &mut s).unwrap()
+    });
+    let (n, summary) =
+        allocations_in(|| h4_master::server::run(&cfg, &master_opts(duration_s), m).unwrap());
+    helper.join().unwrap();
+    (n, summary.cycles)
+}
+
+/// The slave loop on this thread for `duration_s`, a master loop on a helper thread.
+fn slave_run(duration_s: f64) -> (u64, u64) {
+    let (m, mut s) = inproc::pair(64);
+    let cfg = session();
+    let w = world();
+    let helper = std::thread::spawn(move || {
+        h4_master::server::run(&cfg, &master_opts(duration_s + 0.5), m).unwrap()
+    });
+    let (n, summary) =
+        allocations_in(|| h4_slave::server::run(&w, &slave_opts(duration_s), &mut s).unwrap());
+    helper.join().unwrap();
+    (n, summary.cycles)
+}
+
+#[test]
+fn master_loop_allocates_nothing_per_cycle() {
+    let (short, short_cycles) = master_run(0.3);
+    let (long, long_cycles) = master_run(0.9);
+    assert!(
+        long_cycles > short_cycles + 300,
+        "{short_cycles} vs {long_cycles} cycles"
+    );
+    assert_eq!(
+        long, short,
+        "{long} allocations in {long_cycles} cycles vs {short} in {short_cycles}"
+    );
+}
+
+#[test]
+fn slave_loop_allocates_nothing_per_cycle() {
+    let (short, short_cycles) = slave_run(0.3);
+    let (long, long_cycles) = slave_run(0.9);
+    assert!(
+        long_cycles > short_cycles + 300,
+        "{short_cycles} vs {long_cycles} cycles"
+    );
+    assert_eq!(
+        long, short,
+        "{long} allocations in {long_cycles} cycles vs {short} in {short_cycles}"
+    );
+}
