@@ -143,6 +143,11 @@ impl MasterCoupling {
         &self.p
     }
 
+    /// Speaks for another arm: its commands carry `arm_id`.
+    pub fn set_arm_id(&mut self, arm_id: u16) {
+        self.p.arm_id = arm_id;
+    }
+
     /// κ = force scale / motion scale: slave energy × κ = master energy.
     pub fn kappa(&self) -> f64 {
         self.p.force_scale / self.p.motion_scale

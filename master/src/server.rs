@@ -141,9 +141,6 @@ pub enum MasterRunError {
         "no feedback from a slave within {0} s: is `h4-slave run` running with the same transport, arm id and prefix/endpoints?"
     )]
     NoSlave(f64),
-    /// Options not supported yet.
-    #[error("{0}")]
-    Unsupported(String),
     /// The recording could not be written.
     #[error("recording: {0}")]
     Recording(String),
@@ -245,12 +242,7 @@ fn norm3(v: &[f64]) -> f64 {
 
 /// The master side of a session, for `arm_id`.
 pub fn master_side(cfg: &SessionConfig, arm_id: u16) -> Result<MasterSide, MasterRunError> {
-    if arm_id != 0 {
-        return Err(MasterRunError::Unsupported(format!(
-            "arm id {arm_id}: the session's master side speaks for arm 0 only (for now)"
-        )));
-    }
-    Ok(Session::new(cfg)?.master)
+    Ok(Session::new(cfg)?.master.for_arm(arm_id))
 }
 
 /// Runs the master until stopped (SIGINT/SIGTERM or the duration), on `link`.
@@ -463,5 +455,50 @@ pub fn state_name(code: u8) -> &'static str {
         c if c == SlaveState::Active as u8 => "active",
         c if c == SlaveState::SafeStop as u8 => "safe-stop",
         _ => "?",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use h4_shared::wire::Feedback;
+    use h4_transport::inproc;
+
+    fn wall_push() -> SessionConfig {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/sessions/wall-push.toml"
+        );
+        crate::session::load(std::path::Path::new(path), &[]).expect("wall-push loads")
+    }
+
+    /// A master for arm 3 commands arm 3 and takes only arm 3's feedback.
+    #[test]
+    fn master_side_speaks_for_its_arm() {
+        let cfg = wall_push();
+        let mut side = master_side(&cfg, 3).expect("master side");
+        let (mut master_end, mut slave_end) = inproc::pair(16);
+        let mut t_ns = 0;
+        for _ in 0..5 {
+            t_ns += 1_000_000;
+            side.step(&mut master_end, t_ns).expect("step");
+        }
+        let cmd = slave_end.recv_latest().expect("link").expect("a command");
+        assert_eq!(cmd.arm_id, 3);
+        // Feedback of another arm is rejected, of this arm accepted.
+        for (seq, arm_id) in [(1, 0), (2, 3)] {
+            let fb = Feedback {
+                seq,
+                send_time_ns: t_ns,
+                arm_id,
+                ..Feedback::default()
+            };
+            slave_end.publish(&fb).expect("publish");
+            t_ns += 1_000_000;
+            side.step(&mut master_end, t_ns).expect("step");
+        }
+        let counters = side.gate_counters();
+        assert_eq!(counters.wrong_arm, 1, "{counters:?}");
+        assert_eq!(counters.accepted, 1, "{counters:?}");
     }
 }

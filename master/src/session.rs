@@ -22,7 +22,7 @@ use h4_slave::plant::{
 };
 use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError, TeleopParams};
 use h4_transport::Link;
-use h4_transport::gate::Gate;
+use h4_transport::gate::{Gate, GateCounters};
 use h4_transport::impair::{Impaired, ImpairmentConfig, LinkEvent};
 use h4_transport::inproc::{self, InprocEnd};
 use serde::{Deserialize, Serialize};
@@ -736,6 +736,19 @@ pub struct MasterCycle {
 }
 
 impl MasterSide {
+    /// The same side speaking for arm `arm_id`: its commands carry it and its gate rejects
+    /// another arm's feedback.
+    pub fn for_arm(mut self, arm_id: u16) -> Self {
+        self.gate = Gate::new(arm_id, 1_000_000_000);
+        self.coupling.set_arm_id(arm_id);
+        self
+    }
+
+    /// What the receive gate accepted and rejected.
+    pub fn gate_counters(&self) -> &GateCounters {
+        &self.gate.counters
+    }
+
     /// One master cycle at `now_ns`.
     pub fn step<L: Link<Command, Feedback>>(
         &mut self,
