@@ -144,9 +144,8 @@ fn soft_surface_meets_targets() {
 /// Known miss, kept visible: on a 5 N/mm surface the loop is stable, p99 and overshoot are
 /// met, but the first contact settles in ≈ 190–230 ms against 150 (6–8 mm of travel into the
 /// surface under the normal acceleration limit, and the contact mode rings at the sensor
-/// filter's cut-off; see docs/slave-results.md, "Known limits"). Not robust either: with
-/// seeds 2 and 3 the aluminium base at ×0.7 drifts while tracking (the estimated normal
-/// tilts, true force up to ≈ 83 N). Run with `cargo test -- --ignored`.
+/// filter's cut-off; see docs/slave-results.md, "Known limits"). Run with
+/// `cargo test -- --ignored`.
 #[test]
 #[ignore = "known miss: 5 N/mm settles in ≈ 190–230 ms (docs/slave-results.md)"]
 fn very_soft_surface_meets_targets() {
