@@ -44,6 +44,10 @@ pub struct ControllerParams {
     pub max_accel_mm_per_s2: f64,
     /// Acceleration of the motion along the surface in ForceGuided mode, mm/s².
     pub track_accel_mm_per_s2: f64,
+    /// Largest acceleration of the force loop's motion along the contact normal, mm/s²
+    /// (a rate limit's corners would ring the tool on the arm's stiffness; the force
+    /// limit's back-off ignores it).
+    pub force_accel_mm_per_s2: f64,
     /// Largest rate of theta, rad/s.
     pub max_theta_rate_rad_per_s: f64,
     /// Speed of the approach towards an unknown surface and of re-approach, mm/s.
@@ -110,6 +114,7 @@ impl Default for ControllerParams {
             max_accel_mm_per_s2: 1000.0,
             max_theta_rate_rad_per_s: 1.0,
             track_accel_mm_per_s2: 5.0,
+            force_accel_mm_per_s2: 5000.0,
             approach_speed_mm_per_s: 2.0,
             force_limit_n: 80.0,
             contact_threshold_n: 0.8,
@@ -317,8 +322,14 @@ const GUARD_TRUST_UPDATES: u32 = 10;
 const GUARD_MEASURED_COMPLIANCE_SHARE: f64 = 0.5;
 /// Force guard: compliance along the normal when Λ(x) cannot be evaluated, mm/N.
 const GUARD_FALLBACK_COMPLIANCE_MM_PER_N: f64 = 1e-3;
-/// The force loop's integral gain stays this factor below the contact resonance, rad/s.
-const RESONANCE_MARGIN: f64 = 4.0;
+/// Resonance gain assumed for the contact mode (the tool's mass between the arm and the
+/// surface) where only the arm's structural damping damps it (ζ ≈ 0.05).
+const MODE_Q: f64 = 10.0;
+/// Largest loop gain at the contact mode.
+const MODE_LOOP_GAIN: f64 = 0.6;
+/// The sliding normal's time constant grows by this factor times the estimated
+/// environment compliance (mm/N): ×3 on 5 N/mm, ×1.5 on 20 N/mm, ×1.01 on aluminium.
+const SOFT_NORMAL_SLOWDOWN_N_PER_MM: f64 = 10.0;
 /// Time constant of the normal estimate at a standstill under a steady force (force
 /// direction), s.
 const STANDSTILL_NORMAL_TIME_CONSTANT_S: f64 = 0.1;
@@ -382,6 +393,7 @@ pub struct SlaveController {
     de_prev: f64,
     gain_guard: f64,
     e_prev: f64,
+    depth_step_mm: f64,
     // Estimator.
     c_env: f64,
     c_tot: f64,
@@ -434,6 +446,7 @@ impl SlaveController {
             de_prev: 0.0,
             gain_guard: 1.0,
             e_prev: 0.0,
+            depth_step_mm: 0.0,
             c_env,
             c_tot: c_env,
             p_rls: 100.0,
@@ -786,6 +799,7 @@ impl SlaveController {
                 self.comp_err = 0.0;
                 self.e_prev = 0.0;
                 self.de_prev = 0.0;
+                self.depth_step_mm = 0.0;
                 self.contact_cycles = 0;
                 self.track_speed = 0.0;
                 self.p_rls = 100.0;
@@ -883,7 +897,10 @@ impl SlaveController {
             let vn = v.norm();
             if vn > self.p.contact_lost_n.max(0.1) {
                 let tau = if moving {
+                    // Deep in a soft surface the motion's direction carries the depth
+                    // corrections (millimetres): trust it more slowly there.
                     self.p.normal_time_constant_s
+                        * (1.0 + SOFT_NORMAL_SLOWDOWN_N_PER_MM * self.c_env)
                 } else if standstill {
                     STANDSTILL_NORMAL_TIME_CONSTANT_S
                 } else {
@@ -917,13 +934,31 @@ impl SlaveController {
         };
 
         // Set-point prefilter.
-        // Gain schedule: the tool's mass on the contact's total stiffness resonates at
-        // ω_r = sqrt(k/m); keep the loop's integral gain and the set-point prefilter well
-        // below it (soft surfaces), otherwise use the tuned values.
-        let c_sched = (self.arm_compliance(lambda.as_ref()) + self.c_env).max(1e-9);
-        let omega_r = (1000.0 / (c_sched * self.p.tool_mass_kg.max(1e-6))).sqrt();
-        let gain_scale = (omega_r / (RESONANCE_MARGIN * self.p.ki_per_s.max(1e-9))).min(1.0);
-        let tau_sp = self.p.setpoint_time_constant_s.max(2.0 / omega_r);
+        // Gain schedule (docs/slave-results.md, "Gain schedule"). With the compliance
+        // right, the loop (command c·ΔF → force) is an integrator of gain ki at low
+        // frequency: the same bandwidth on every surface. What limits the gains is the
+        // contact mode, the tool's mass between the arm's and the surface's stiffness (in
+        // parallel: both hold the tool), ω_m = sqrt((k_arm + k_env)/m), which only the
+        // arm's structural damping damps on a soft surface (resonance gain up to
+        // MODE_Q). The controller's gain at ω_m, |kp + ki/(jω_m)|, times the resonance
+        // gain and the sensor filter's |H(jω_m)| must stay below MODE_LOOP_GAIN. On a
+        // stiff surface ω_m is far above the filter's cut-off and the tuned gains pass;
+        // on a soft one ω_m sits at the cut-off: the proportional gain (which acts at
+        // high frequency) goes first, then the integral gain.
+        let c_arm_s = self.arm_compliance(lambda.as_ref()).max(1e-9);
+        let k_par = 1.0 / c_arm_s + 1.0 / self.c_env.max(1e-9);
+        let omega_m = (1000.0 * k_par / self.p.tool_mass_kg.max(1e-6)).sqrt();
+        let w_f = omega_m / (2.0 * std::f64::consts::PI * self.p.sensor_filter_cutoff_hz.max(1.0));
+        let h_f = 1.0 / (1.0 + w_f * w_f * w_f * w_f).sqrt();
+        let allowed = MODE_LOOP_GAIN / (MODE_Q * h_f);
+        let ki_w = self.p.ki_per_s / omega_m;
+        let ki_scale = (allowed / ki_w.max(1e-12)).min(1.0);
+        let kp_scale = if self.p.kp > 0.0 {
+            ((allowed - ki_w).max(0.0) / self.p.kp).min(1.0)
+        } else {
+            1.0
+        };
+        let tau_sp = self.p.setpoint_time_constant_s;
         let a_sp = (dt / tau_sp.max(dt)).min(1.0);
         let sp_prev = self.sp2;
         self.sp1 += (eff.force_setpoint_n - self.sp1) * a_sp;
@@ -1004,10 +1039,11 @@ impl SlaveController {
         } else {
             self.gain_guard = (self.gain_guard * GUARD_RECOVERY).min(1.0);
         }
-        let gain_scale = gain_scale * self.gain_guard;
         let mut d_depth = c
             * (self.p.feedforward_gain * d_sp
-                + gain_scale * (self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt));
+                + self.gain_guard
+                    * (kp_scale * self.p.kp * (e - self.e_prev)
+                        + ki_scale * self.p.ki_per_s * e * dt));
         self.e_prev = e;
         let mut status = status;
         // The force the sensor does not show yet: a resonance's peaks are filtered down
@@ -1019,6 +1055,11 @@ impl SlaveController {
         }
         let dmax = self.p.max_speed_mm_per_s * dt;
         d_depth = d_depth.clamp(-dmax, dmax);
+        if status != Status::ForceLimited {
+            let amax = self.p.force_accel_mm_per_s2 * dt * dt;
+            d_depth = d_depth.clamp(self.depth_step_mm - amax, self.depth_step_mm + amax);
+        }
+        self.depth_step_mm = d_depth;
         let mut mv = -n * d_depth;
         // Motion along the surface only while the force is established.
         // The speed along the surface ramps with the tracking acceleration limit, so the

@@ -427,6 +427,13 @@ impl Validate for ExperimentConfig {
             "mm/s",
         )?;
         check_range(
+            "controller.force_accel_mm_per_s2",
+            c.force_accel_mm_per_s2,
+            1.0,
+            1e7,
+            "mm/s²",
+        )?;
+        check_range(
             "controller.max_accel_mm_per_s2",
             c.max_accel_mm_per_s2,
             1.0,

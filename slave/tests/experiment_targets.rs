@@ -118,24 +118,38 @@ fn untuned_planes_cylinders_spheres_stiff_soft_and_dry_surfaces_meet_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
-/// Known miss, kept visible: on 20 and 5 N/mm surfaces the loop is stable and the force
-/// limit holds, but the first contact settles too slowly (20 N/mm on resin's base: 160–180
-/// ms against 150) and 5 N/mm misses overshoot and p99 (see docs/slave-results.md, "Known
-/// limits"). Run with `cargo test -- --ignored`.
-#[test]
-#[ignore = "known miss: 5–20 N/mm surfaces (docs/slave-results.md)"]
-fn very_soft_surface_meets_targets() {
+/// Soft (20 N/mm) and very soft (5 N/mm) surfaces on both bases, 20 s, at both plant
+/// stiffnesses. Needs millimetres of travel into the surface and has the contact mode (the
+/// tool between the arm's and the surface's stiffness) right at the sensor filter's
+/// cut-off: what the gain schedule and the normal acceleration limit are for.
+fn soft_surface_misses(k: &str) -> Vec<String> {
     let mut all = Vec::new();
     for base in ["fig6b.toml", "fig7d.toml"] {
-        for k in ["20", "5"] {
-            for scale in ["0.7", "1.3"] {
-                let set = format!("plant.stiffness_scale={scale}");
-                let stiff = format!("surface.stiffness_n_per_mm={k}");
-                let (cfg, s) = run(base, &[&stiff, &set]);
-                all.extend(misses(&format!("{base} {k} N/mm ×{scale}"), &cfg, &s));
-            }
+        for scale in ["0.7", "1.3"] {
+            let set = format!("plant.stiffness_scale={scale}");
+            let stiff = format!("surface.stiffness_n_per_mm={k}");
+            let (cfg, s) = run(base, &[&stiff, &set]);
+            all.extend(misses(&format!("{base} {k} N/mm ×{scale}"), &cfg, &s));
         }
     }
+    all
+}
+
+#[test]
+fn soft_surface_meets_targets() {
+    let all = soft_surface_misses("20");
+    assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
+}
+
+/// Known miss, kept visible: on a 5 N/mm surface the loop is stable, p99 and overshoot are
+/// met, but the first contact settles in ≈ 190–230 ms against 150 (6–8 mm of travel into the
+/// surface under the normal acceleration limit, and the contact mode rings at the sensor
+/// filter's cut-off; see docs/slave-results.md, "Known limits"). Run with
+/// `cargo test -- --ignored`.
+#[test]
+#[ignore = "known miss: 5 N/mm settles in ≈ 190–230 ms (docs/slave-results.md)"]
+fn very_soft_surface_meets_targets() {
+    let all = soft_surface_misses("5");
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
@@ -162,14 +176,24 @@ fn tracking_along_y_on_aluminium_meets_targets() {
 
 /// The force guard keeps the *true* force under the limit when the force loop itself is far
 /// too hot (proportional gain 10× the default: the tool rings and bounces on steel), at both
-/// plant stiffnesses. Negative control: the same runs with the limit out of the way (500 N)
+/// plant stiffnesses. The loop's other protections are mistuned so they let the hot gain
+/// through: the tool mass is told 100× too light (the gain schedule then sees the contact
+/// mode far above the sensor filter and keeps kp) and the normal acceleration limit is
+/// out of the way. Negative control: the same runs with the limit out of the way (500 N)
 /// peak far above 80 N, so the scenario does threaten the limit and the guard is what holds
 /// it. (Not a proof for every mistuning: see docs/slave-results.md, "Known limits".)
+const HOT_KP: &str = "controller.kp=3";
+const HOT_MASS: &str = "controller.tool_mass_kg=0.01";
+const HOT_ACCEL: &str = "controller.force_accel_mm_per_s2=1e6";
+
 #[test]
 fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
     for scale in ["0.7", "1.3"] {
         let set = format!("plant.stiffness_scale={scale}");
-        let (cfg, guarded) = run("fig7c.toml", &["controller.kp=3", "duration_s=6", &set]);
+        let (cfg, guarded) = run(
+            "fig7c.toml",
+            &[HOT_KP, HOT_MASS, HOT_ACCEL, "duration_s=6", &set],
+        );
         assert!(
             guarded.max_force_n <= cfg.controller.force_limit_n,
             "×{scale} guarded: {:.1} N > {} N",
@@ -179,7 +203,9 @@ fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
         let (_, unguarded) = run(
             "fig7c.toml",
             &[
-                "controller.kp=3",
+                HOT_KP,
+                HOT_MASS,
+                HOT_ACCEL,
                 "duration_s=6",
                 &set,
                 "controller.force_limit_n=500",
