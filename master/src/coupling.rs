@@ -66,6 +66,9 @@ pub struct CouplingParams {
     pub guide_setpoint_max_n: f64,
     /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
     pub guide_approach_depth_mm: f64,
+    /// Local damping the master renders against the handle's velocity, N·s/mm (position–
+    /// force mode; passive, not part of the link's two-port).
+    pub master_damping_n_s_per_mm: f64,
     /// Arm id in the commands.
     pub arm_id: u16,
 }
@@ -111,6 +114,7 @@ pub struct MasterCoupling {
     normal: [f64; 3],
     last: MasterStep,
     velocity: [f64; 3],
+    local_n: [f64; 3],
 }
 
 fn norm3(v: &[f64; 3]) -> f64 {
@@ -134,6 +138,7 @@ impl MasterCoupling {
             normal: [0.0, 0.0, 1.0],
             last: MasterStep::default(),
             velocity: [0.0; 3],
+            local_n: [0.0; 3],
             p,
         }
     }
@@ -273,6 +278,13 @@ impl MasterCoupling {
         self.velocity = vel;
         let pc = self.port.step(link_force, v_m, dt_s, p.passivity);
         let mut force = pc.force_n;
+        let mut local = [0.0; 3];
+        if p.mode == CouplingMode::PositionForce && !self.clutched {
+            for i in 0..3 {
+                local[i] = -p.master_damping_n_s_per_mm * v_m[i];
+                force[i] += local[i];
+            }
+        }
         // Force-guided: the local virtual spring sets the set-point.
         if p.mode == CouplingMode::ForceGuided && !self.clutched {
             let n = self.normal;
@@ -292,8 +304,12 @@ impl MasterCoupling {
             for f in force.iter_mut() {
                 *f *= s;
             }
+            for l in local.iter_mut() {
+                *l *= s;
+            }
             step.saturated = true;
         }
+        self.local_n = local;
         step.wrench = [force[0], force[1], force[2], 0.0];
         step.link_force_n = link_force;
         step.damping_n_s_per_mm = pc.damping_n_s_per_mm;
@@ -317,7 +333,11 @@ impl MasterCoupling {
         // Only the link's share of the force passes through the two-port: in force-guided
         // mode the local spring is not the link's.
         let link = if self.p.mode == CouplingMode::PositionForce {
-            [applied[0], applied[1], applied[2]]
+            [
+                applied[0] - self.local_n[0],
+                applied[1] - self.local_n[1],
+                applied[2] - self.local_n[2],
+            ]
         } else {
             [0.0; 3]
         };

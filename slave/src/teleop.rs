@@ -326,30 +326,10 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             && mode != Mode::Hold
         {
             if !self.anchored {
-                // First command, or the first after a safe stop or a hold: the step from
-                // where the arm is commanded to the master's pose becomes drift.
-                let held = self
-                    .last_out
-                    .map_or([c.pose[0], c.pose[1], c.pose[2]], |o| {
-                        [
-                            o.commanded_pose[0],
-                            o.commanded_pose[1],
-                            o.commanded_pose[2],
-                        ]
-                    });
+                // First command, or the first after a safe stop or a hold: the link's
+                // pose becomes the desired one with no velocity; the port closes the gap
+                // from where the arm is commanded gradually (no jump).
                 self.desired = [c.pose[0], c.pose[1], c.pose[2]];
-                // In force-guided mode the controller approaches the surface at its own
-                // speed: no jump, and no drift to close.
-                let d = if mode == Mode::Position {
-                    [
-                        held[0] - self.desired[0],
-                        held[1] - self.desired[1],
-                        held[2] - self.desired[2],
-                    ]
-                } else {
-                    [0.0; 3]
-                };
-                self.port.set_drift(d);
                 self.anchored = true;
             }
             for (i, v) in v_d.iter_mut().enumerate() {
@@ -369,19 +349,34 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             ]
         });
         let control = self.p.passivity.enabled && mode == Mode::Position && !clutch;
-        let ps = self.port.step(v_d, force, dt_s, control);
+        let max_v = self.ctrl.params().max_speed_mm_per_s * self.p.speed_margin;
+        let held = self.last_out.map_or(self.desired, |o| {
+            [
+                o.commanded_pose[0],
+                o.commanded_pose[1],
+                o.commanded_pose[2],
+            ]
+        });
+        let ps = if mode == Mode::Position {
+            self.port
+                .step_position(held, self.desired, v_d, force, max_v, dt_s, control)
+        } else {
+            self.port.clear_drift();
+            AdmittanceStep {
+                velocity_mm_per_s: [cmd_vel[0], cmd_vel[1], cmd_vel[2]],
+                target_mm: self.desired,
+                admittance_mm_per_n_s: 0.0,
+                observed_j: self.port.observed_j(),
+            }
+        };
         let drift = self.port.drift_mm;
         let pose = [
-            self.desired[0] + drift[0],
-            self.desired[1] + drift[1],
-            self.desired[2] + drift[2],
+            ps.target_mm[0],
+            ps.target_mm[1],
+            ps.target_mm[2],
             self.desired_theta,
         ];
-        let max_v = self.ctrl.params().max_speed_mm_per_s * self.p.speed_margin;
-        let mut vel = [cmd_vel[0], cmd_vel[1], cmd_vel[2]];
-        if mode == Mode::Position {
-            vel = ps.velocity_mm_per_s;
-        }
+        let mut vel = ps.velocity_mm_per_s;
         let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
         if speed > max_v {
             for v in vel.iter_mut() {
