@@ -178,8 +178,9 @@ fn matrix_cases() -> Vec<Case> {
 
 fn fmt_cell(s: &Summary, ok: bool) -> String {
     format!(
-        "{} {:.0}/{:.1}/{:.1}",
+        "{}{} {:.0}/{:.1}/{:.1}",
         if ok { "ok" } else { "**x**" },
+        if s.stable { "" } else { " U" },
         s.max_force_n,
         s.position_drift_mm,
         s.energy_min_j * 1e3
@@ -220,6 +221,22 @@ fn matrix_passivity_on_meets_targets() {
     let cases = matrix_cases();
     let sums = run_all(&cases);
     println!("{}", table(&cases, &sums));
+    // Per-criterion counts of the cells that miss.
+    let count = |f: &dyn Fn(&Case, &Summary) -> bool| {
+        cases.iter().zip(&sums).filter(|(c, s)| f(c, s)).count()
+    };
+    println!(
+        "cells: {}; unstable: {}; energy_min_j < -0.01: {}; max_force_n > 100: {}; \
+         position_drift_mm > 2: {}; transparency > 10 % (rtt <= 100 ms, of {}): {}",
+        cases.len(),
+        count(&|_, s| !s.stable),
+        count(&|_, s| s.energy_min_j < -0.01),
+        count(&|_, s| s.max_force_n > 100.0),
+        count(&|_, s| s.position_drift_mm > 2.0),
+        count(&|c, _| c.rtt_ms <= 100.0),
+        count(&|c, s| c.rtt_ms <= 100.0
+            && (s.force_transparency_err_pct.is_nan() || s.force_transparency_err_pct > 10.0)),
+    );
     let mut failed = Vec::new();
     for (c, s) in cases.iter().zip(&sums) {
         let m = misses(c, s);

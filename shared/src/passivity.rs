@@ -346,15 +346,16 @@ impl AdmittancePort {
             }
         }
         let mut beta = 0.0;
-        if in_contact {
-            // Limit the energy output to what the observer holds.
+        if f2 > 1e-12 {
+            // Limit the energy output to what the observer holds (at any force: this only
+            // removes the part of the motion that pushes into the force).
             let p0 = power(&v);
             if p0 > budget {
                 beta += (p0 - budget) / f2;
             }
-            // Dissipate a deficit by backing away from the force.
+            // Dissipate a deficit by backing away from the force (above the noise floor).
             let w = self.observed_j();
-            if w < 0.0 {
+            if w < 0.0 && in_contact {
                 beta +=
                     (-w / (J_PER_N_MM * dt_s * f2)).min(self.max_correction_mm_per_s / f2.sqrt());
             }
