@@ -55,7 +55,7 @@ impl Default for PassivityParams {
             max_correction_mm_per_s: 200.0,
             drift_gain_per_s: 2.0,
             drift_energy_share: 0.2,
-            force_floor_n: 1.0,
+            force_floor_n: 0.3,
         }
     }
 }
@@ -252,7 +252,7 @@ impl AdmittancePort {
             drift_gain_per_s,
             drift_energy_share,
             max_correction_mm_per_s,
-            force_floor_n: 1.0,
+            force_floor_n: 0.3,
             ..AdmittancePort::default()
         }
     }
@@ -346,16 +346,18 @@ impl AdmittancePort {
             }
         }
         let mut beta = 0.0;
-        if f2 > 1e-12 {
-            // Limit the energy output to what the observer holds (at any force: this only
-            // removes the part of the motion that pushes into the force).
+        // Below the noise floor the measured force's direction is noise: correcting along it
+        // would steer free motion sideways.
+        if in_contact {
+            // Limit the energy output to what the observer holds (this removes only the
+            // part of the motion that pushes into the force).
             let p0 = power(&v);
             if p0 > budget {
                 beta += (p0 - budget) / f2;
             }
-            // Dissipate a deficit by backing away from the force (above the noise floor).
+            // Dissipate a deficit by backing away from the force.
             let w = self.observed_j();
-            if w < 0.0 && in_contact {
+            if w < 0.0 {
                 beta +=
                     (-w / (J_PER_N_MM * dt_s * f2)).min(self.max_correction_mm_per_s / f2.sqrt());
             }
