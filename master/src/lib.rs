@@ -13,4 +13,5 @@
 pub mod coupling;
 pub mod device;
 pub mod operator;
+pub mod server;
 pub mod session;

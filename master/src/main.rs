@@ -17,12 +17,24 @@ struct Cli {
 enum Command {
     /// Simulate a whole session (operator, master, impaired link, slave) on the simulated clock.
     Sim(cli::sim::SimArgs),
+    /// Run the master process: simulated master arm and scripted operator at 1 kHz against a
+    /// slave process over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
+    Run(cli::run::RunArgs),
+    /// Start the slave and the master as two processes connected by iceoryx2, run the
+    /// session for a while, stop, and print a summary (JSON).
+    Loopback(cli::loopback::LoopbackArgs),
+    /// Write the slave's world and passivity files of a session, for
+    /// `h4-slave run --config WORLD --passivity-config PASSIVITY`.
+    SlaveConfig(cli::loopback::SlaveConfigArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sim(args) => args.run(),
+        Command::Run(args) => args.run(),
+        Command::Loopback(args) => args.run(),
+        Command::SlaveConfig(args) => args.run(),
     };
     match result {
         Ok(code) => code,

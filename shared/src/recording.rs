@@ -243,59 +243,6 @@ impl Recorder {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[derive(Serialize)]
-    struct Sample {
-        t: f64,
-    }
-
-    fn record() -> Vec<u8> {
-        let mut rec = Recorder::in_memory().unwrap();
-        let ch = rec
-            .add_channel(
-                "/a",
-                "A",
-                r#"{"type":"object","properties":{"t":{"type":"number"}}}"#,
-            )
-            .unwrap();
-        for i in 0..100u64 {
-            rec.write(ch, i * 1_000_000, &Sample { t: i as f64 })
-                .unwrap();
-        }
-        rec.finish_into_bytes().unwrap()
-    }
-
-    #[test]
-    fn same_input_same_bytes_and_valid_mcap() {
-        let a = record();
-        let b = record();
-        assert_eq!(a, b);
-        assert!(a.starts_with(b"\x89MCAP0\r\n"));
-        let messages: Vec<_> = mcap::MessageStream::new(&a).unwrap().collect();
-        assert_eq!(messages.len(), 100);
-        let m = messages[7].as_ref().unwrap();
-        assert_eq!(m.log_time, 7_000_000);
-        assert_eq!(&m.data[..], br#"{"t":7.0}"#);
-        assert_eq!(m.channel.topic, "/a");
-    }
-
-    #[test]
-    fn bad_schema_and_unknown_channel_are_errors() {
-        let mut rec = Recorder::in_memory().unwrap();
-        assert!(matches!(
-            rec.add_channel("/a", "A", "{not json"),
-            Err(RecordingError::BadSchema { .. })
-        ));
-        assert!(matches!(
-            rec.write(ChannelId(42), 0, &Sample { t: 0.0 }),
-            Err(RecordingError::UnknownChannel(42))
-        ));
-    }
-}
-
 /// A recording written by its own thread: a control loop hands it one `Copy` record per cycle
 /// through a bounded queue (no allocation, no blocking; a full queue drops the record and
 /// counts it), and the thread does the JSON encoding and the file writes.
@@ -360,5 +307,58 @@ impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
                 .map_err(|_| "recording thread panicked".to_string())?,
             None => Ok(()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Serialize)]
+    struct Sample {
+        t: f64,
+    }
+
+    fn record() -> Vec<u8> {
+        let mut rec = Recorder::in_memory().unwrap();
+        let ch = rec
+            .add_channel(
+                "/a",
+                "A",
+                r#"{"type":"object","properties":{"t":{"type":"number"}}}"#,
+            )
+            .unwrap();
+        for i in 0..100u64 {
+            rec.write(ch, i * 1_000_000, &Sample { t: i as f64 })
+                .unwrap();
+        }
+        rec.finish_into_bytes().unwrap()
+    }
+
+    #[test]
+    fn same_input_same_bytes_and_valid_mcap() {
+        let a = record();
+        let b = record();
+        assert_eq!(a, b);
+        assert!(a.starts_with(b"\x89MCAP0\r\n"));
+        let messages: Vec<_> = mcap::MessageStream::new(&a).unwrap().collect();
+        assert_eq!(messages.len(), 100);
+        let m = messages[7].as_ref().unwrap();
+        assert_eq!(m.log_time, 7_000_000);
+        assert_eq!(&m.data[..], br#"{"t":7.0}"#);
+        assert_eq!(m.channel.topic, "/a");
+    }
+
+    #[test]
+    fn bad_schema_and_unknown_channel_are_errors() {
+        let mut rec = Recorder::in_memory().unwrap();
+        assert!(matches!(
+            rec.add_channel("/a", "A", "{not json"),
+            Err(RecordingError::BadSchema { .. })
+        ));
+        assert!(matches!(
+            rec.write(ChannelId(42), 0, &Sample { t: 0.0 }),
+            Err(RecordingError::UnknownChannel(42))
+        ));
     }
 }

@@ -84,6 +84,10 @@ pub struct ControllerParams {
     pub estimator_excitation_n: f64,
     /// Time constant of the contact-normal filter, s.
     pub normal_time_constant_s: f64,
+    /// Time constant of the low-pass filter on the difference between the measured force
+    /// and the prefiltered set-point in the compensation of the arm's tangential
+    /// deflection, s (0.001 to 1).
+    pub deflection_comp_time_constant_s: f64,
     /// Cut-off of the filter applied to the measured position so it lines up with the
     /// force sensor's filtered signal, Hz (set it to the sensor filter's cut-off).
     pub sensor_filter_cutoff_hz: f64,
@@ -93,6 +97,9 @@ pub struct ControllerParams {
     pub safe_stop_ramp_s: f64,
     /// Safe stop: retraction along the contact normal, mm.
     pub safe_stop_retract_mm: f64,
+    /// Safe stop out of a position-mode contact: the farthest the arm backs away along the
+    /// measured force before giving up and holding, mm.
+    pub safe_stop_release_max_mm: f64,
 }
 
 impl Default for ControllerParams {
@@ -121,10 +128,12 @@ impl Default for ControllerParams {
             estimator_window_cycles: 10,
             estimator_excitation_n: 0.4,
             normal_time_constant_s: 0.1,
+            deflection_comp_time_constant_s: 0.03,
             sensor_filter_cutoff_hz: 80.0,
             tare_cycles: 100,
             safe_stop_ramp_s: 0.2,
             safe_stop_retract_mm: 3.0,
+            safe_stop_release_max_mm: 50.0,
         }
     }
 }
@@ -278,8 +287,10 @@ pub struct ControllerOutput {
 const WINDOW_MAX: usize = 64;
 /// Smoothing of the cycle-to-cycle force-error swing (per cycle).
 const SWING_FILTER: f64 = 0.05;
-/// Mean cycle-to-cycle swing of the force error that counts as oscillation, N.
-const SWING_LIMIT_N: f64 = 0.6;
+/// Mean second difference of the force error (per cycle) that counts as oscillation, N
+/// (≈ 0.2 × the amplitude the sensor shows of a 90 Hz oscillation; filtered noise gives
+/// ≈ 0.01).
+const SWING2_LIMIT_N: f64 = 0.1;
 /// Per-cycle gain reduction while oscillating, and recovery afterwards.
 const GUARD_DECAY: f64 = 0.98;
 const GUARD_RECOVERY: f64 = 1.0005;
@@ -292,8 +303,23 @@ const DEPTH_TRUST: f64 = 0.3;
 const STEADY_FORCE_CHANGE_N: f64 = 0.5;
 /// Cycles right after touching during which the normal follows the force's direction.
 const ONSET_CYCLES: u32 = 20;
+/// Force guard: ratio of an oscillation's peak to its mean cycle-to-cycle swing as the
+/// filtered sensor shows it (a sine of amplitude A near 100 Hz swings ≈ 0.4 A per 1 ms,
+/// and the 80 Hz filter shows ≈ 0.55 A of it).
+const GUARD_PEAK_PER_SWING: f64 = 5.0;
+/// Force guard: the arm may be this much stiffer than assumed.
+const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
+/// Force guard: estimator updates on this contact before its figure is used.
+const GUARD_TRUST_UPDATES: u32 = 10;
+/// Force guard: share of the measured compliance it counts on.
+const GUARD_MEASURED_COMPLIANCE_SHARE: f64 = 0.5;
+/// Force guard: compliance along the normal when Λ(x) cannot be evaluated, mm/N.
+const GUARD_FALLBACK_COMPLIANCE_MM_PER_N: f64 = 1e-3;
 /// The force loop's integral gain stays this factor below the contact resonance, rad/s.
 const RESONANCE_MARGIN: f64 = 4.0;
+/// Time constant of the normal estimate at a standstill under a steady force (force
+/// direction), s.
+const STANDSTILL_NORMAL_TIME_CONSTANT_S: f64 = 0.1;
 /// Time constant of the normal estimate right after touching (force direction), s.
 const ONSET_NORMAL_TIME_CONSTANT_S: f64 = 0.01;
 /// Per-cycle fade of the deflection compensation outside force control.
@@ -306,8 +332,18 @@ const MOTION_FULL_MM: f64 = 0.1;
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum SafeStopPhase {
     Inactive,
-    RampDown { remaining_s: f64, from_n: f64 },
-    Retract { remaining_mm: f64 },
+    RampDown {
+        remaining_s: f64,
+        from_n: f64,
+    },
+    Retract {
+        remaining_mm: f64,
+    },
+    /// Pressed against something without force control (position mode): back away along
+    /// the measured force until it falls below the contact threshold.
+    Release {
+        moved_mm: f64,
+    },
     Done,
 }
 
@@ -326,6 +362,7 @@ pub struct SlaveController {
     // Command state.
     x_cmd: Pose,
     comp: Pose,
+    comp_err: f64,
     v_ref: Pose,
     l_cmd: [f64; 4],
     // Contact state.
@@ -339,12 +376,15 @@ pub struct SlaveController {
     sp2: f64,
     track_speed: f64,
     swing: f64,
+    swing2: f64,
+    de_prev: f64,
     gain_guard: f64,
     e_prev: f64,
     // Estimator.
     c_env: f64,
     c_tot: f64,
     p_rls: f64,
+    est_updates: u32,
     pos_filters: [Butterworth2; 3],
     hist_x: [[f64; 3]; WINDOW_MAX],
     hist_f: [Vector3<f64>; WINDOW_MAX],
@@ -375,6 +415,7 @@ impl SlaveController {
             bias: Vector4::zeros(),
             x_cmd: Pose::zeros(),
             comp: Pose::zeros(),
+            comp_err: 0.0,
             v_ref: Pose::zeros(),
             l_cmd: [0.0; 4],
             in_contact: false,
@@ -387,11 +428,14 @@ impl SlaveController {
             sp2: 0.0,
             track_speed: 0.0,
             swing: 0.0,
+            swing2: 0.0,
+            de_prev: 0.0,
             gain_guard: 1.0,
             e_prev: 0.0,
             c_env,
             c_tot: c_env,
             p_rls: 100.0,
+            est_updates: 0,
             pos_filters: [pf; 3],
             hist_x: [[0.0; 3]; WINDOW_MAX],
             hist_f: [Vector3::zeros(); WINDOW_MAX],
@@ -432,7 +476,9 @@ impl SlaveController {
                     from_n: self.sp2,
                 }
             } else {
-                SafeStopPhase::Done
+                // Not in force control, but possibly pressed into a surface by a position
+                // command: released in `step`, where the measured force is known.
+                SafeStopPhase::Release { moved_mm: 0.0 }
             };
             self.v_ref = Pose::zeros();
         }
@@ -516,6 +562,16 @@ impl SlaveController {
         };
         let lambda: Option<Matrix3<f64>> =
             full_lambda.map(|m| m.fixed_view::<3, 3>(0, 0).into_owned());
+        // The force guard needs the arm's compliance even without the model.
+        let guard_lambda: Option<Matrix3<f64>> = match lambda {
+            Some(l) => Some(l),
+            None => self
+                .ws
+                .params
+                .compliance(&pose_fk, &self.stiffness)
+                .ok()
+                .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned()),
+        };
         let measured_pose = match &full_lambda {
             Some(full) => pose_fk + full * wrench,
             None => pose_fk,
@@ -580,6 +636,35 @@ impl SlaveController {
                 };
                 self.in_contact = false;
                 return self.commit(next, pose_fk, measured_pose, wrench, 0.0, Status::SafeStop);
+            }
+            SafeStopPhase::Release { moved_mm } => {
+                let f_mag = f3.norm();
+                let mut next = self.x_cmd;
+                let status = if f_mag > self.p.contact_threshold_n
+                    && moved_mm < self.p.safe_stop_release_max_mm
+                {
+                    // Back away along the measured force, as fast as a retract.
+                    let step = self.p.approach_speed_mm_per_s * 2.0 * dt;
+                    self.normal = f3 / f_mag;
+                    for i in 0..3 {
+                        next[i] += self.normal[i] * step;
+                    }
+                    self.safe = SafeStopPhase::Release {
+                        moved_mm: moved_mm + step,
+                    };
+                    Status::SafeStop
+                } else if moved_mm > 0.0 {
+                    // Free: the usual retract along the last force direction, then hold.
+                    self.safe = SafeStopPhase::Retract {
+                        remaining_mm: self.p.safe_stop_retract_mm,
+                    };
+                    Status::SafeStop
+                } else {
+                    self.safe = SafeStopPhase::Done;
+                    Status::Holding
+                };
+                self.in_contact = false;
+                return self.commit(next, pose_fk, measured_pose, wrench, 0.0, status);
             }
             SafeStopPhase::Done => {
                 self.in_contact = false;
@@ -691,10 +776,13 @@ impl SlaveController {
                 self.normal = f3 / f_mag;
                 self.sp1 = f_mag;
                 self.sp2 = f_mag;
+                self.comp_err = 0.0;
                 self.e_prev = 0.0;
+                self.de_prev = 0.0;
                 self.contact_cycles = 0;
                 self.track_speed = 0.0;
                 self.p_rls = 100.0;
+                self.est_updates = 0;
                 self.c_tot = self.arm_compliance(lambda.as_ref()) + self.c_env;
                 status = Status::Contact;
             } else {
@@ -774,14 +862,23 @@ impl SlaveController {
             Some(f3 - tm * f3.dot(&tm))
         } else if self.contact_cycles < ONSET_CYCLES {
             Some(f3)
+        } else if speed == 0.0 && steady && self.contact_cycles as usize >= WINDOW_MAX {
+            // At a standstill under a steady force the normal is only known to lie in the
+            // friction cone around the force; the force's direction is the best guess (the
+            // cone's centre), and it turns to the true normal as a tilted touch-down's
+            // friction relaxes. Slowly: the friction left over is not a measurement.
+            Some(f3)
         } else {
             None
         };
+        let standstill = !moving && self.contact_cycles >= ONSET_CYCLES;
         if let Some(v) = n_raw {
             let vn = v.norm();
             if vn > self.p.contact_lost_n.max(0.1) {
                 let tau = if moving {
                     self.p.normal_time_constant_s
+                } else if standstill {
+                    STANDSTILL_NORMAL_TIME_CONSTANT_S
                 } else {
                     ONSET_NORMAL_TIME_CONSTANT_S
                 };
@@ -843,6 +940,7 @@ impl SlaveController {
                 let c_min = 1.0 / self.p.env_stiffness_max_n_per_mm.max(1e-6);
                 let c_max = 1.0 / self.p.env_stiffness_min_n_per_mm.max(1e-6);
                 self.c_env = (self.c_tot - c_arm).clamp(c_min, c_max);
+                self.est_updates = self.est_updates.saturating_add(1);
             }
         }
         let c = c_arm + self.c_env;
@@ -852,18 +950,28 @@ impl SlaveController {
         // rotation), so the tool stays on its path and does not drag friction sideways.
         // The normal part is left to the force loop (compensating it would close a positive
         // feedback loop through the contact).
-        let comp_target = match &full_lambda {
+        // The force the compensation is for: the prefiltered set-point (smooth, no sensor
+        // lag), corrected by the low-passed difference to the measured force. Fed the
+        // measured force directly, its ripple (and its lag) would drive the arm's lightly
+        // damped tangential modes, which off the centre line push back on the normal force
+        // through the coupling of Λ (a closed loop that went unstable when tracking along
+        // y at 10 mm/s); the set-point also leads the deflection at touch-down instead of
+        // trailing it, so the tool does not slide sideways (and tilt the force by friction)
+        // while the force builds up.
+        let a_comp = (dt / self.p.deflection_comp_time_constant_s.max(dt)).min(1.0);
+        self.comp_err += ((f_n - self.sp2) - self.comp_err) * a_comp;
+        let f_comp = self.sp2 + self.comp_err;
+        self.comp = match &full_lambda {
             Some(full) => {
                 // The normal force's deflection only: friction's share is left alone, so
                 // the compensation cannot drag the tool and feed friction back into itself.
-                let d = full * Vector4::new(n[0] * f_n, n[1] * f_n, n[2] * f_n, 0.0);
+                let d = full * Vector4::new(n[0] * f_comp, n[1] * f_comp, n[2] * f_comp, 0.0);
                 let d3 = Vector3::new(d[0], d[1], d[2]);
                 let dt3 = d3 - n * d3.dot(&n);
                 Pose::new(-dt3[0], -dt3[1], -dt3[2], -d[3])
             }
             None => Pose::zeros(),
         };
-        self.comp = comp_target;
 
         // Implicit force law (incremental form: bumpless when c changes).
         let e = self.sp2 - f_n;
@@ -871,9 +979,14 @@ impl SlaveController {
         // sensor noise means a resonance inside the loop (e.g. the tool's mass between the
         // arm and a stiff surface): back the loop gains off until it calms down, then let
         // them recover slowly.
-        let swing = (e - self.e_prev).abs();
-        self.swing += (swing - self.swing) * SWING_FILTER;
-        if self.swing > SWING_LIMIT_N {
+        // The detector uses the error's second difference, which a ramp (a soft surface's
+        // fast, legitimate force rise) leaves alone; the first difference's swing is kept
+        // for the force guard's estimate of an oscillation's peak.
+        let de = e - self.e_prev;
+        self.swing += (de.abs() - self.swing) * SWING_FILTER;
+        self.swing2 += ((de - self.de_prev).abs() - self.swing2) * SWING_FILTER;
+        self.de_prev = de;
+        if self.swing2 > SWING2_LIMIT_N {
             self.gain_guard = (self.gain_guard * GUARD_DECAY).max(GUARD_MIN);
         } else {
             self.gain_guard = (self.gain_guard * GUARD_RECOVERY).min(1.0);
@@ -884,8 +997,11 @@ impl SlaveController {
                 + gain_scale * (self.p.kp * (e - self.e_prev) + self.p.ki_per_s * e * dt));
         self.e_prev = e;
         let mut status = status;
-        if f_n > self.p.force_limit_n {
-            d_depth = -c * (f_n - self.p.force_limit_n);
+        // The force the sensor does not show yet: a resonance's peaks are filtered down
+        // (an oscillation's amplitude is a few times its mean cycle-to-cycle swing).
+        let f_peak = f_n + GUARD_PEAK_PER_SWING * self.swing;
+        if f_peak > self.p.force_limit_n {
+            d_depth = -c.max(1e-6) * (f_peak - self.p.force_limit_n);
             status = Status::ForceLimited;
         }
         let dmax = self.p.max_speed_mm_per_s * dt;
@@ -909,6 +1025,25 @@ impl SlaveController {
         for i in 0..3 {
             next[i] += mv[i];
         }
+        // Once the estimator has measured this contact, the guard may count on half its
+        // compliance (the contact up to twice as stiff as measured) instead of a rigid one.
+        let c_measured = if self.p.estimate_env_stiffness && self.est_updates >= GUARD_TRUST_UPDATES
+        {
+            GUARD_MEASURED_COMPLIANCE_SHARE
+                * (self.arm_compliance(guard_lambda.as_ref()) + self.c_env)
+        } else {
+            0.0
+        };
+        if self.force_guard(
+            &mut next,
+            xf,
+            f_peak,
+            guard_lambda.as_ref(),
+            c_measured,
+            dmax,
+        ) {
+            status = Status::ForceLimited;
+        }
 
         // Contact loss.
         if f_n < self.p.contact_lost_n && eff.force_setpoint_n > self.p.contact_lost_n {
@@ -928,6 +1063,44 @@ impl SlaveController {
             status = Status::SafeStop;
         }
         self.commit(next, pose_fk, measured_pose, wrench, c, status)
+    }
+
+    /// Force guard, a safety limiter independent of the force law (and of whether the Λ
+    /// model is used): the command may lead the encoders' position (filtered like the
+    /// sensor, so that both lag alike) into the surface only by as much as would keep the
+    /// force under the limit if the surface were rigid, the arm
+    /// [`GUARD_ARM_STIFFNESS_MARGIN`] times stiffer than assumed and the tool's mass
+    /// rang to twice the static force (a lightly damped step response). Returns whether
+    /// it clipped the command.
+    fn force_guard(
+        &self,
+        next: &mut Pose,
+        xf: [f64; 3],
+        f_peak: f64,
+        lambda: Option<&Matrix3<f64>>,
+        c_measured: f64,
+        dmax: f64,
+    ) -> bool {
+        let n = self.normal;
+        let c_rigid = (match lambda {
+            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
+        } / GUARD_ARM_STIFFNESS_MARGIN)
+            .max(c_measured);
+        let headroom = self.p.force_limit_n - f_peak;
+        let allowed = 0.5 * headroom * c_rigid;
+        let pending = (0..3)
+            .map(|i| n[i] * (xf[i] - (next[i] + self.comp[i])))
+            .sum::<f64>();
+        if pending > allowed {
+            let back = (pending - allowed).min(dmax);
+            for i in 0..3 {
+                next[i] += n[i] * back;
+            }
+            true
+        } else {
+            false
+        }
     }
 
     fn arm_compliance(&self, lambda: Option<&Matrix3<f64>>) -> f64 {

@@ -534,6 +534,13 @@ impl Validate for ExperimentConfig {
             "s",
         )?;
         check_range(
+            "controller.deflection_comp_time_constant_s",
+            c.deflection_comp_time_constant_s,
+            0.0,
+            1.0,
+            "s",
+        )?;
+        check_range(
             "controller.sensor_filter_cutoff_hz",
             c.sensor_filter_cutoff_hz,
             1.0,
@@ -559,6 +566,13 @@ impl Validate for ExperimentConfig {
             c.safe_stop_retract_mm,
             0.0,
             100.0,
+            "mm",
+        )?;
+        check_range(
+            "controller.safe_stop_release_max_mm",
+            c.safe_stop_release_max_mm,
+            0.0,
+            500.0,
             "mm",
         )?;
         check_range(

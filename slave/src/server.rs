@@ -12,20 +12,19 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use h4_shared::clock::{Clock, MonotonicClock};
-use h4_shared::process::{StatusLine, Watchdog, stop_requested};
+use h4_shared::passivity::PassivityParams;
+use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
 use h4_shared::rt::{Histogram, Pacer, lock_memory, set_fifo_priority};
-use h4_shared::wire::{
-    Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, Feedback, Mode,
-    SlaveState,
-};
+use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
-use h4_transport::gate::{Gate, GateCounters};
-use serde::Serialize;
+use h4_transport::gate::GateCounters;
+use serde::{Deserialize, Serialize};
 
-use crate::controller::{ControllerInput, SlaveCommand, SlaveController, Status};
+use crate::controller::{SlaveController, Status};
 use crate::experiment::ExperimentConfig;
-use crate::plant::{ArmDriver, SimArm, SimError};
+use crate::plant::{SimArm, SimError};
+use crate::teleop::{SlaveTeleop, TeleopError, TeleopParams};
 
 /// How the loop runs.
 #[derive(Clone, Debug)]
@@ -38,6 +37,11 @@ pub struct RunOptions {
     pub spin_ns: u64,
     /// No valid command for this long → safe state, ms.
     pub watchdog_ms: f64,
+    /// After this much silence a command whose sequence number went backwards is taken as a
+    /// restarted master, ms.
+    pub restart_silence_ms: f64,
+    /// The slave's passivity port.
+    pub passivity: PassivityParams,
     /// Run under SCHED_FIFO at this priority (None: normal scheduling).
     pub fifo_priority: Option<i32>,
     /// Lock all memory (mlockall).
@@ -55,6 +59,8 @@ impl Default for RunOptions {
             period_ns: 1_000_000,
             spin_ns: 200_000,
             watchdog_ms: 20.0,
+            restart_silence_ms: 100.0,
+            passivity: PassivityParams::default(),
             fifo_priority: None,
             lock_memory: false,
             duration_s: None,
@@ -64,7 +70,8 @@ impl Default for RunOptions {
 }
 
 /// What a slave run reports when it stops.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SlaveRunSummary {
     /// Loop cycles run.
     pub cycles: u64,
@@ -86,10 +93,11 @@ pub struct SlaveRunSummary {
     pub link_errors: u64,
     /// Times the watchdog put the arm into its safe state.
     pub safe_stops: u64,
-    /// Silence when the watchdog tripped (the largest over all trips), ms on the slave's clock.
+    /// Silence when the watchdog tripped, ms on the slave's clock (of the trip where the
+    /// silence most exceeded the loop's own lateness).
     pub safe_stop_entry_silence_ms: f64,
-    /// The loop's lateness in the cycle the watchdog tripped (largest), ms: the part of the
-    /// entry silence that is the host not running the loop.
+    /// The loop's lateness in that cycle, ms: the part of the entry silence that is the host
+    /// not running the slave's loop.
     pub safe_stop_entry_lateness_ms: f64,
     /// Times a master was paired after a safe stop.
     pub repairs: u64,
@@ -97,9 +105,9 @@ pub struct SlaveRunSummary {
     pub max_force_n: f64,
     /// The controller's force limit, N.
     pub force_limit_n: f64,
-    /// Largest measured (sensor) force, N.
+    /// Largest measured (sensor) force magnitude, N.
     pub max_measured_force_n: f64,
-    /// Cycles in contact force control.
+    /// Cycles in contact force control (force-guided mode).
     pub contact_cycles: u64,
     /// Mean |F_n − F_d| over contact cycles, N.
     pub force_error_mean_n: f64,
@@ -123,6 +131,9 @@ pub enum ServerError {
     /// The recording could not be written.
     #[error("recording: {0}")]
     Recording(String),
+    /// The teleoperation endpoint's settings are unusable.
+    #[error("{0}")]
+    Teleop(#[from] TeleopError),
 }
 
 /// One cycle as recorded.
@@ -166,17 +177,10 @@ fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
 }
 
-fn slave_command(cmd: &Command) -> SlaveCommand {
-    SlaveCommand {
-        mode: cmd.mode().unwrap_or(Mode::Hold),
-        pose: cmd.pose,
-        velocity: cmd.velocity,
-        force_setpoint_n: cmd.force_setpoint_n,
-        clutch: cmd.clutch(),
-    }
-}
-
-/// Runs the slave until stopped (SIGINT/SIGTERM or the duration), on `link`.
+/// Runs the slave until stopped (SIGINT/SIGTERM or the duration), on `link`: a real-time
+/// shell (pacer, clock, statistics, recording, status line, signals) around the slave's
+/// teleoperation endpoint [`SlaveTeleop`], the same per-cycle code the lockstep session
+/// simulation steps.
 pub fn run<L: Link<Feedback, Command>>(
     cfg: &ExperimentConfig,
     opts: &RunOptions,
@@ -184,11 +188,12 @@ pub fn run<L: Link<Feedback, Command>>(
 ) -> Result<SlaveRunSummary, ServerError> {
     use h4_shared::config::Validate;
     cfg.validate()?;
+    opts.passivity.validate_at("passivity.")?;
     let ws = cfg.arm.workspace();
     let assumed = cfg.arm.stiffness().map_err(SimError::from)?;
     let p = cfg.surface.contact_point_mm;
     let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let mut arm = SimArm::new(
+    let arm = SimArm::new(
         ws.params,
         cfg.arm.actuator_stiffness_n_per_mm,
         cfg.plant,
@@ -197,7 +202,21 @@ pub fn run<L: Link<Feedback, Command>>(
         start,
         cfg.seed,
     )?;
-    let mut ctrl = SlaveController::new(ws, assumed, cfg.controller);
+    let ctrl = SlaveController::new(ws, assumed, cfg.controller);
+    let period_ns = opts.period_ns.max(1);
+    let dt_s = period_ns as f64 * 1e-9;
+    let mut teleop = SlaveTeleop::new(
+        TeleopParams {
+            arm_id: opts.arm_id,
+            watchdog_ms: opts.watchdog_ms,
+            restart_silence_ms: opts.restart_silence_ms,
+            passivity: opts.passivity,
+            ..TeleopParams::default()
+        },
+        ctrl,
+        arm,
+        period_ns,
+    )?;
     let mut recorder = BackgroundRecorder::<CycleRecord>::start(
         opts.record.as_deref(),
         "/slave/cycle",
@@ -208,16 +227,10 @@ pub fn run<L: Link<Feedback, Command>>(
 
     apply_realtime(opts.fifo_priority, opts.lock_memory);
     let clock = MonotonicClock::new();
-    let period_ns = opts.period_ns.max(1);
-    let dt_s = period_ns as f64 * 1e-9;
     let mut pacer = Pacer::new(
         Duration::from_nanos(period_ns),
         Duration::from_nanos(opts.spin_ns),
     );
-    let mut gate = Gate::<Command>::new(opts.arm_id, 100_000_000);
-    // Tripped at the first cycle whose silence reaches the watchdog period.
-    let watchdog_ns = ((opts.watchdog_ms * 1e6) as u64).saturating_sub(period_ns);
-    let mut watchdog = Watchdog::new(watchdog_ns);
     let mut status_line = StatusLine::new(4.0);
     let mut text = String::with_capacity(256);
     let end_ns = opts.duration_s.map(|s| (s * 1e9) as u64);
@@ -226,120 +239,44 @@ pub fn run<L: Link<Feedback, Command>>(
         force_limit_n: cfg.controller.force_limit_n,
         ..SlaveRunSummary::default()
     };
-    let mut state = SlaveState::Idle;
-    let mut current = SlaveCommand::default();
-    let mut last_cmd: Option<Command> = None;
-    let mut seq = 0u64;
     let mut error_sum = 0.0;
-    let mut faults = 0u16;
+    let mut worst_excess_ms = f64::NEG_INFINITY;
+    let mut state = SlaveState::Idle;
     loop {
         let tick = pacer.wait();
         let now = clock.now_ns();
         if stop_requested() || end_ns.is_some_and(|e| now >= e) {
             break;
         }
-        let mut fresh = false;
-        loop {
-            match link.try_recv() {
-                Ok(Some(msg)) => {
-                    if let Ok(cmd) = gate.accept(&msg, now) {
-                        last_cmd = Some(cmd);
-                        fresh = true;
-                    }
-                }
-                Ok(None) => break,
-                Err(_) => {
-                    s.link_errors += 1;
-                    break;
-                }
+        let c = teleop.step(link, now, dt_s);
+        state = c.state;
+        if c.tripped {
+            // The trip whose silence most exceeds the loop's own lateness is the one reported.
+            let silence_ms = teleop.silence_ns(now).unwrap_or(0) as f64 / 1e6;
+            let lateness_ms = tick.lateness_ns as f64 / 1e6;
+            if silence_ms - lateness_ms > worst_excess_ms {
+                worst_excess_ms = silence_ms - lateness_ms;
+                s.safe_stop_entry_silence_ms = silence_ms;
+                s.safe_stop_entry_lateness_ms = lateness_ms;
             }
         }
-        if fresh {
-            watchdog.feed(now);
-            if state == SlaveState::SafeStop {
-                ctrl.clear_safe_stop();
-                s.repairs += 1;
-            }
-            state = SlaveState::Active;
-            faults &= !FAULT_COMMAND_TIMEOUT;
-            if let Some(cmd) = &last_cmd {
-                current = slave_command(cmd);
-            }
-        }
-        if state == SlaveState::Active && watchdog.tripped(now) {
-            ctrl.safe_stop();
-            state = SlaveState::SafeStop;
-            faults |= FAULT_COMMAND_TIMEOUT;
-            s.safe_stops += 1;
-            let silence_ms = watchdog.silence_ns(now).unwrap_or(0) as f64 / 1e6;
-            s.safe_stop_entry_silence_ms = s.safe_stop_entry_silence_ms.max(silence_ms);
-            s.safe_stop_entry_lateness_ms = s
-                .safe_stop_entry_lateness_ms
-                .max(tick.lateness_ns as f64 / 1e6);
-        }
-        let reading = arm.read();
-        let command = if state == SlaveState::Active {
-            current
-        } else {
-            SlaveCommand {
-                mode: Mode::Hold,
-                ..current
-            }
-        };
-        let out = ctrl.step(
-            &ControllerInput {
-                actuators_mm: reading.actuators_mm,
-                wrench: reading.wrench,
-                command,
-            },
-            dt_s,
-        );
-        if out.rejection.is_some() {
-            s.commands_rejected_by_controller += 1;
-            faults |= FAULT_COMMAND_REJECTED;
-        } else {
-            faults &= !FAULT_COMMAND_REJECTED;
-        }
-        if out.status == Status::ForceLimited {
-            faults |= FAULT_FORCE_LIMIT;
-        } else {
-            faults &= !FAULT_FORCE_LIMIT;
-        }
-        arm.command(&out.actuators_cmd_mm);
         // The simulated arm keeps real time, skipped deadlines included.
-        arm.advance(period_ns * (1 + tick.missed));
+        teleop.arm_mut().advance(period_ns * (1 + tick.missed));
 
-        let true_force_n = arm.true_contact_wrench().fixed_rows::<3>(0).norm();
+        let out = &c.out;
+        let true_force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
+        let measured_n = norm3(&out.wrench_measured);
         s.max_force_n = s.max_force_n.max(true_force_n);
-        s.max_measured_force_n = s.max_measured_force_n.max(out.normal_force_n.abs());
+        s.max_measured_force_n = s.max_measured_force_n.max(measured_n);
         if out.status == Status::Contact {
             s.contact_cycles += 1;
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
-        }
-        seq += 1;
-        let fb = Feedback {
-            seq,
-            send_time_ns: now,
-            echo_seq: last_cmd.map_or(0, |c| c.seq),
-            echo_send_time_ns: last_cmd.map_or(0, |c| c.send_time_ns),
-            pose: out.measured_pose,
-            wrench_measured: out.wrench_measured,
-            wrench_desired: out.wrench_desired,
-            energy_in_j: 0.0,
-            energy_out_j: 0.0,
-            arm_id: opts.arm_id,
-            state: state as u8,
-            fault_flags: faults,
-            ..Feedback::default()
-        };
-        if link.publish(&fb).is_err() {
-            s.link_errors += 1;
         }
         recorder.push(
             now,
             CycleRecord {
                 time_ns: now,
-                state: state as u8,
+                state: c.state as u8,
                 status: out.status.code(),
                 lateness_us: us(tick.lateness_ns),
                 force_measured_n: out.normal_force_n,
@@ -348,33 +285,37 @@ pub fn run<L: Link<Feedback, Command>>(
                 measured_pose: out.measured_pose,
                 commanded_pose: out.commanded_pose,
                 contact_normal: out.contact_normal,
-                command_seq: last_cmd.map_or(0, |c| c.seq),
+                command_seq: c.command_seq,
             },
         );
-        s.cycles += 1;
         if status_line.due(now) {
             use std::fmt::Write;
             text.clear();
             let _ = write!(
                 text,
-                "slave arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | {:?} {:?} | F {:>6.2} N (set {:>5.1}) | rejected {}",
+                "slave arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | {:?} {:?} | F {:>6.2} N | rejected {}",
                 opts.arm_id,
-                s.cycles,
+                teleop.counters().cycles,
                 us(pacer.lateness.quantile(0.99)),
                 pacer.misses,
-                state,
+                c.state,
                 out.status,
-                out.normal_force_n,
-                out.setpoint_n,
-                gate.counters.rejected(),
+                measured_n,
+                teleop.gate_counters().rejected(),
             );
             status_line.show(&text);
         }
     }
     status_line.finish();
+    let k = *teleop.counters();
+    s.cycles = k.cycles;
+    s.commands_rejected_by_controller = k.commands_rejected_by_controller;
+    s.link_errors = k.link_errors;
+    s.safe_stops = k.safe_stops;
+    s.repairs = k.repairs;
     s.deadline_misses = pacer.misses;
     fill_lateness(&mut s, &pacer.lateness);
-    s.gate = gate.counters;
+    s.gate = *teleop.gate_counters();
     s.force_error_mean_n = if s.contact_cycles > 0 {
         error_sum / s.contact_cycles as f64
     } else {
@@ -385,6 +326,10 @@ pub fn run<L: Link<Feedback, Command>>(
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
+}
+
+fn norm3(v: &[f64]) -> f64 {
+    v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
 }
 
 fn fill_lateness(s: &mut SlaveRunSummary, h: &Histogram) {
@@ -496,6 +441,13 @@ pub mod cli {
         {
             match self.transport {
                 TransportKind::Iceoryx2 => {
+                    match iox::remove_stale_nodes() {
+                        Ok(0) => {}
+                        Ok(n) => {
+                            eprintln!("iceoryx2: removed the resources of {n} dead process(es)")
+                        }
+                        Err(e) => eprintln!("warning: {e}"),
+                    }
                     let opts = Iceoryx2Options {
                         prefix: self.iceoryx2_prefix.clone(),
                         ..Iceoryx2Options::new(self.arm_id)
@@ -559,6 +511,21 @@ pub mod cli {
         /// Lock all memory (mlockall).
         #[arg(long)]
         pub lock_memory: bool,
+        /// The slave's passivity settings: a TOML file with the keys of a session file's
+        /// `[passivity]` section (docs/sessions.md); default: the defaults there.
+        #[arg(long, value_name = "FILE")]
+        pub passivity_config: Option<PathBuf>,
+    }
+
+    /// A `--passivity-config` file: the keys of a session's `[passivity]` section.
+    #[derive(serde::Deserialize)]
+    #[serde(transparent)]
+    struct PassivityFile(h4_shared::passivity::PassivityParams);
+
+    impl h4_shared::config::Validate for PassivityFile {
+        fn validate(&self) -> Result<(), h4_shared::config::ConfigError> {
+            self.0.validate_at("")
+        }
     }
 
     impl RunArgs {
@@ -568,8 +535,17 @@ pub mod cli {
                 .map_err(|e| format!("signal handlers: {e}"))?;
             let cfg: crate::experiment::ExperimentConfig =
                 h4_shared::config::load(&self.config, &self.set).map_err(|e| e.to_string())?;
+            let passivity = match &self.passivity_config {
+                Some(p) => {
+                    h4_shared::config::load::<PassivityFile>(p, &[])
+                        .map_err(|e| e.to_string())?
+                        .0
+                }
+                None => h4_shared::passivity::PassivityParams::default(),
+            };
             let mut link = self.transport.open_slave()?;
             let opts = super::RunOptions {
+                passivity,
                 arm_id: self.transport.arm_id,
                 watchdog_ms: self.watchdog_ms,
                 fifo_priority: self.fifo_priority,

@@ -4,7 +4,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use h4_shared::config;
 use h4_shared::wire::Mode;
@@ -14,13 +15,25 @@ use h4_slave::plant::{ArmDriver, SimArm};
 
 struct Counting;
 
-static ARMED: AtomicBool = AtomicBool::new(false);
+thread_local! {
+    // Per thread: only the test's own thread is watched (the test harness's other threads
+    // may allocate at any time, which made a global flag flaky under load).
+    static ARMED: Cell<bool> = const { Cell::new(false) };
+}
 static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+
+fn armed() -> bool {
+    ARMED.try_with(Cell::get).unwrap_or(false)
+}
+
+fn set_armed(on: bool) {
+    ARMED.with(|a| a.set(on));
+}
 
 // SAFETY: forwards to the system allocator; only counts.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if ARMED.load(Ordering::Relaxed) {
+        if armed() {
             ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
         }
         // SAFETY: same contract as the caller's.
@@ -31,7 +44,7 @@ unsafe impl GlobalAlloc for Counting {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if ARMED.load(Ordering::Relaxed) {
+        if armed() {
             ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
         }
         // SAFETY: same contract as the caller's.
@@ -82,9 +95,9 @@ fn ten_thousand_controller_steps_allocate_nothing() {
                 clutch: false,
             },
         };
-        ARMED.store(true, Ordering::SeqCst);
+        set_armed(true);
         let out = ctrl.step(&input, 1e-3);
-        ARMED.store(false, Ordering::SeqCst);
+        set_armed(false);
         steps += 1;
         statuses.insert(format!("{:?}", out.status));
         arm.command(&out.actuators_cmd_mm);
@@ -106,9 +119,9 @@ fn ten_thousand_controller_steps_allocate_nothing() {
         "the controller step allocated"
     );
     // The counter does see allocations (so the zero above means something).
-    ARMED.store(true, Ordering::SeqCst);
+    set_armed(true);
     let v = std::hint::black_box(vec![1u8; 16]);
-    ARMED.store(false, Ordering::SeqCst);
+    set_armed(false);
     drop(v);
     assert!(ALLOCATIONS.load(Ordering::SeqCst) > 0);
 }

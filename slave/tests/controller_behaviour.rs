@@ -233,3 +233,47 @@ fn safe_stop_ramps_force_down_retracts_and_holds() {
     let after = rig.arm.true_pose();
     assert!((after - before).norm() < 1e-3, "moved while holding");
 }
+
+/// A position-mode push into a surface (teleoperation, position–force coupling) is not in
+/// force control: a safe stop must still release the force, back away and hold, not hold the
+/// arm pressed into the surface.
+#[test]
+fn safe_stop_out_of_a_position_mode_push_releases_the_force() {
+    let mut rig = Rig::new(&["surface.stiffness_n_per_mm=20"]);
+    let p = rig.cfg.surface.contact_point_mm;
+    let push = SlaveCommand {
+        mode: Mode::Position,
+        pose: [p[0], p[1], p[2] - 1.5, 0.0],
+        velocity: [0.0; 4],
+        force_setpoint_n: 0.0,
+        clutch: false,
+    };
+    for _ in 0..3000 {
+        rig.step(push);
+    }
+    let pressed = rig.true_normal_force();
+    assert!(pressed > 5.0, "the push should press: {pressed} N");
+    rig.ctrl.safe_stop();
+    let mut peak: f64 = pressed;
+    for _ in 0..3000 {
+        let out = rig.step(push);
+        assert!(matches!(out.status, Status::SafeStop | Status::Holding));
+        peak = peak.max(rig.true_normal_force());
+    }
+    assert!(
+        peak < pressed + 1.0,
+        "force rose to {peak} N during the release"
+    );
+    assert_eq!(rig.true_normal_force(), 0.0, "still pressing");
+    let gap = -rig.arm.penetration_mm();
+    let retract = rig.cfg.controller.safe_stop_retract_mm;
+    assert!(gap > 0.5 * retract, "gap {gap} mm");
+    let before = rig.arm.true_pose();
+    for _ in 0..500 {
+        assert_eq!(rig.step(push).status, Status::Holding);
+    }
+    assert!(
+        (rig.arm.true_pose() - before).norm() < 1e-3,
+        "moved while holding"
+    );
+}

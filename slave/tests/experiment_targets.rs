@@ -48,6 +48,12 @@ fn misses(label: &str, cfg: &ExperimentConfig, s: &Summary) -> Vec<String> {
             s.contact_lost_ms
         ));
     }
+    if !(s.max_force_n <= cfg.controller.force_limit_n) {
+        out.push(format!(
+            "{label}: true force {:.1} N above the force limit {} N",
+            s.max_force_n, cfg.controller.force_limit_n
+        ));
+    }
     if s.rejected_cycles > 0 {
         out.push(format!("{label}: {} rejected cycles", s.rejected_cycles));
     }
@@ -86,13 +92,15 @@ fn paper_experiments_meet_targets_with_stiffness_30_percent_off() {
 }
 
 #[test]
-fn untuned_planes_cylinders_spheres_and_stiff_surfaces_meet_targets() {
-    let cases: [&[&str]; 5] = [
+fn untuned_planes_cylinders_spheres_stiff_soft_and_dry_surfaces_meet_targets() {
+    let cases: [&[&str]; 7] = [
         &["surface.tilt_deg=20"],
         &["surface.tilt_deg=-20"],
         &["surface.shape=cylinder", "surface.radius_mm=100"],
         &["surface.shape=sphere", "surface.radius_mm=100"],
         &["surface.stiffness_n_per_mm=2000"],
+        &["surface.stiffness_n_per_mm=50"],
+        &["surface.friction_coefficient=0.3"],
     ];
     let mut all = Vec::new();
     for base in ["fig6b.toml", "fig7d.toml"] {
@@ -110,25 +118,31 @@ fn untuned_planes_cylinders_spheres_and_stiff_surfaces_meet_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
-/// Known miss, kept visible: on a 5 N/mm surface the loop is stable but misses the
-/// targets (see docs/slave-results.md). Run with `cargo test -- --ignored`.
+/// Known miss, kept visible: on 20 and 5 N/mm surfaces the loop is stable and the force
+/// limit holds, but the first contact settles too slowly (20 N/mm on resin's base: 160–180
+/// ms against 150) and 5 N/mm misses overshoot and p99 (see docs/slave-results.md, "Known
+/// limits"). Run with `cargo test -- --ignored`.
 #[test]
-#[ignore = "known miss: 5 N/mm surfaces (docs/slave-results.md)"]
+#[ignore = "known miss: 5–20 N/mm surfaces (docs/slave-results.md)"]
 fn very_soft_surface_meets_targets() {
     let mut all = Vec::new();
-    for scale in ["0.7", "1.3"] {
-        let set = format!("plant.stiffness_scale={scale}");
-        let (cfg, s) = run("fig6b.toml", &["surface.stiffness_n_per_mm=5", &set]);
-        all.extend(misses(&format!("5 N/mm ×{scale}"), &cfg, &s));
+    for base in ["fig6b.toml", "fig7d.toml"] {
+        for k in ["20", "5"] {
+            for scale in ["0.7", "1.3"] {
+                let set = format!("plant.stiffness_scale={scale}");
+                let stiff = format!("surface.stiffness_n_per_mm={k}");
+                let (cfg, s) = run(base, &[&stiff, &set]);
+                all.extend(misses(&format!("{base} {k} N/mm ×{scale}"), &cfg, &s));
+            }
+        }
     }
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
-/// Known miss, kept visible: tracking along y at 10 mm/s on aluminium goes unstable after
-/// about 90 mm of travel and the true force then exceeds the force limit (see
-/// docs/slave-results.md, "Known limits"). Run with `cargo test -- --ignored`.
+/// Tracking along y at 10 mm/s on aluminium, off the arm's centre line (y from −30 to
+/// ≈ 150 mm), where Λ couples y and z: this run used to go unstable (true force up to
+/// ≈ 200 N, above the force limit; see docs/slave-results.md for what fixed it).
 #[test]
-#[ignore = "known miss: unstable when tracking along y at 10 mm/s (docs/slave-results.md)"]
 fn tracking_along_y_on_aluminium_meets_targets() {
     let mut all = Vec::new();
     for scale in ["0.7", "1.3"] {
@@ -142,14 +156,36 @@ fn tracking_along_y_on_aluminium_meets_targets() {
             ],
         );
         all.extend(misses(&format!("y tracking ×{scale}"), &cfg, &s));
-        if s.max_force_n > cfg.controller.force_limit_n {
-            all.push(format!(
-                "y tracking ×{scale}: max force {:.0} N above the limit",
-                s.max_force_n
-            ));
-        }
     }
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
+}
+
+/// The force guard keeps the *true* force under the limit even when the force loop itself
+/// is far too hot (proportional gain 10× the default: the loop rings and bounces on steel).
+/// Negative control: the same run with the limit out of the way (500 N) peaks far above
+/// 80 N, so the scenario does threaten the limit and the guard is what holds it.
+#[test]
+fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
+    let (cfg, guarded) = run("fig7c.toml", &["controller.kp=3", "duration_s=6"]);
+    assert!(
+        guarded.max_force_n <= cfg.controller.force_limit_n,
+        "guarded: {:.1} N > {} N",
+        guarded.max_force_n,
+        cfg.controller.force_limit_n
+    );
+    let (_, unguarded) = run(
+        "fig7c.toml",
+        &[
+            "controller.kp=3",
+            "duration_s=6",
+            "controller.force_limit_n=500",
+        ],
+    );
+    assert!(
+        unguarded.max_force_n > 120.0,
+        "the hot loop does not threaten the limit: {:.1} N",
+        unguarded.max_force_n
+    );
 }
 
 /// The targets are not met by accident: a controller whose compliance is badly wrong (no

@@ -39,7 +39,7 @@ pub enum Rejection {
 }
 
 /// What the gate has seen.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct GateCounters {
     /// Messages accepted.
     pub accepted: u64,

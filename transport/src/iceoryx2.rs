@@ -170,6 +170,24 @@ where
     })
 }
 
+/// Removes the shared-memory segments and files of dead nodes (processes that were killed
+/// without cleaning up) and returns how many dead nodes were found. Creating a node does
+/// the same by default; calling this first lets a process report it.
+pub fn remove_stale_nodes() -> Result<usize, Iceoryx2Error> {
+    QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
+    let mut dead = 0;
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::<ipc::Service>::Dead(view) = state {
+            dead += 1;
+            // Another process may be removing the same node: not an error.
+            let _ = view.try_remove_stale_resources();
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("list nodes")(&e))?;
+    Ok(dead)
+}
+
 /// The master's end: publishes commands, receives feedback.
 pub fn master(opts: &Iceoryx2Options) -> Result<Iceoryx2Link<Command, Feedback>, Iceoryx2Error> {
     open(opts, "command", "feedback")

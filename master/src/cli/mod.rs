@@ -1,3 +1,5 @@
 //! The subcommands.
 
+pub mod loopback;
+pub mod run;
 pub mod sim;

@@ -1,0 +1,490 @@
+//! `h4-master loopback [--duration-s N] [--summary out.json] [--record out.mcap]`: the slave
+//! (`h4-slave run`, a child process) and the master (this process) as two OS processes
+//! connected by iceoryx2, with the simulated arms, the simulated surface and the scripted
+//! operator of a session file. Stops by itself and prints a summary.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, ExitCode, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use h4_master::server::MasterRunSummary;
+use h4_master::session::{self, SessionConfig};
+use h4_slave::experiment::{
+    ApproachConfig, Axis, ExperimentConfig, ForceConfig, ShapeKind, SummaryConfig, SurfaceConfig,
+    TrackConfig,
+};
+use h4_slave::server::SlaveRunSummary;
+use h4_slave::server::cli::{TransportArgs, TransportKind};
+use serde::Serialize;
+
+/// Run the slave and the master as two processes over iceoryx2 for a fixed time and print a
+/// summary (fields in docs/processes.md).
+#[derive(Clone, Debug, clap::Args)]
+pub struct LoopbackArgs {
+    /// How long the master runs, s (default: the session's duration_s).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Write the summary as JSON here (it is also printed on stdout).
+    #[arg(long)]
+    pub summary: Option<PathBuf>,
+    /// Record every cycle of the master here (MCAP); the slave's cycles go to a second file
+    /// next to it, `<name>.slave.mcap`.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// The session file: operator script, master arm, coupling, and the slave's world
+    /// (environment and slave sections).
+    #[arg(long, default_value = "config/sessions/wall-push.toml")]
+    pub config: PathBuf,
+    /// Override a field of the session file (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Arm id.
+    #[arg(long, default_value_t = 0)]
+    pub arm_id: u16,
+    /// The h4-slave binary (default: next to this executable; under `cargo run` it is built
+    /// there first if missing).
+    #[arg(long)]
+    pub slave_bin: Option<PathBuf>,
+    /// The slave's command watchdog, ms.
+    #[arg(long, default_value_t = 20.0)]
+    pub watchdog_ms: f64,
+    /// Run both loops under SCHED_FIFO at this priority (1–99; needs root or CAP_SYS_NICE,
+    /// otherwise a warning and normal scheduling).
+    #[arg(long)]
+    pub fifo_priority: Option<i32>,
+}
+
+/// What `loopback` prints.
+#[derive(Clone, Debug, Serialize)]
+pub struct LoopbackSummary {
+    /// The session's name.
+    pub name: String,
+    /// The verdict on the physics: every force finite, the slave's true contact force within
+    /// the session's detector.force_limit_n, the rendered force within coupling.force_limit_n,
+    /// and a round trip completed.
+    pub stable: bool,
+    /// Why not stable (empty when stable).
+    pub unstable_reasons: Vec<String>,
+    /// Fault events that are not instability: the slave's watchdog tripped (safe state),
+    /// commands the controller rejected, messages the gates rejected, feedback losses.
+    pub faults: Vec<String>,
+    /// Master loop cycles.
+    pub cycles: u64,
+    /// Deadline misses, both loops.
+    pub deadline_misses: u64,
+    /// Worse of the two loops' p99 wake-up lateness, µs.
+    pub lateness_p99_us: f64,
+    /// Round trip master → slave → master, p50, µs (includes both loops' phase).
+    pub round_trip_p50_us: f64,
+    /// Round trip p99, µs.
+    pub round_trip_p99_us: f64,
+    /// Largest true contact force at the slave, N.
+    pub max_force_n: f64,
+    /// Force limit the verdict uses (the session's detector.force_limit_n), N.
+    pub force_limit_n: f64,
+    /// Largest force rendered to the operator, N.
+    pub max_master_force_n: f64,
+    /// Force transparency in contact, %: see `master.force_transparency_err_pct`.
+    pub force_transparency_err_pct: f64,
+    /// Time in contact seen by the master, s.
+    pub contact_time_s: f64,
+    /// The master process's own summary.
+    pub master: MasterRunSummary,
+    /// The slave process's own summary.
+    pub slave: SlaveRunSummary,
+}
+
+impl LoopbackArgs {
+    /// Runs the two processes; exit code 0 if stable, 1 if not.
+    pub fn run(self) -> Result<ExitCode, String> {
+        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        let cfg = session::load(&self.config, &self.set)
+            .map_err(|e| format!("{}: {e}", self.config.display()))?;
+        let slave_bin = find_slave_binary(self.slave_bin.as_deref())?;
+        let pid = std::process::id();
+        let work = std::env::temp_dir().join(format!("h4-loopback-{pid}"));
+        std::fs::create_dir_all(&work).map_err(|e| format!("{}: {e}", work.display()))?;
+        let world = work.join("slave-world.toml");
+        let passivity = work.join("passivity.toml");
+        write_slave_config(&cfg, &world, &passivity)?;
+        let slave_summary = work.join("slave-summary.json");
+        let slave_log = work.join("slave.log");
+
+        // A prefix of our own: runs side by side never share services.
+        let transport = TransportArgs {
+            transport: TransportKind::Iceoryx2,
+            arm_id: self.arm_id,
+            iceoryx2_prefix: format!("h4-loopback-{pid}"),
+            zenoh_mode: "peer".into(),
+            zenoh_listen: vec![],
+            zenoh_connect: vec![],
+            zenoh_config: None,
+        };
+        let mut cmd = std::process::Command::new(&slave_bin);
+        cmd.arg("run")
+            .arg("--config")
+            .arg(&world)
+            .args(transport.to_args())
+            .arg("--passivity-config")
+            .arg(&passivity)
+            .arg("--watchdog-ms")
+            .arg(self.watchdog_ms.to_string())
+            .arg("--summary")
+            .arg(&slave_summary)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(
+                std::fs::File::create(&slave_log)
+                    .map_err(|e| format!("{}: {e}", slave_log.display()))?,
+            );
+        if let Some(r) = &self.record {
+            cmd.arg("--record").arg(slave_recording(r));
+        }
+        if let Some(p) = self.fifo_priority {
+            cmd.arg("--fifo-priority").arg(p.to_string());
+        }
+        let slave = cmd
+            .spawn()
+            .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
+        let slave_pid = i32::try_from(slave.id()).map_err(|e| e.to_string())?;
+        // If the slave dies, the master stops too (instead of waiting for its feedback).
+        let slave = Arc::new(Mutex::new(slave));
+        let done = Arc::new(AtomicBool::new(false));
+        let watcher = {
+            let slave = Arc::clone(&slave);
+            let done = Arc::clone(&done);
+            std::thread::spawn(move || {
+                while !done.load(Ordering::SeqCst) {
+                    let exited = slave
+                        .lock()
+                        .map(|mut c| matches!(c.try_wait(), Ok(Some(_))))
+                        .unwrap_or(true);
+                    if exited {
+                        h4_shared::process::request_stop();
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            })
+        };
+
+        let master_args = super::run::RunArgs {
+            config: self.config.clone(),
+            set: self.set.clone(),
+            transport,
+            duration_s: Some(self.duration_s.unwrap_or(cfg.duration_s)),
+            wait_for_slave_s: 20.0,
+            summary: None,
+            record: self.record.clone(),
+            fifo_priority: self.fifo_priority,
+            lock_memory: false,
+        };
+        // The slave is told to stop the moment the master's loop ends, before its watchdog
+        // sees the master's silence.
+        let master = master_args.run_summary_then(|| {
+            // SAFETY: plain syscall; the slave is our child, reaped only in `stop_child`.
+            unsafe {
+                libc::kill(slave_pid, libc::SIGTERM);
+            }
+        });
+        done.store(true, Ordering::SeqCst);
+        let _ = watcher.join();
+        let stopped = match slave.lock() {
+            Ok(mut child) => stop_child(&mut child),
+            Err(_) => Err("slave process handle poisoned".to_string()),
+        };
+        let log = std::fs::read_to_string(&slave_log).unwrap_or_default();
+        let master = master.map_err(|e| with_log(format!("master: {e}"), &log))?;
+        stopped.map_err(|e| with_log(e, &log))?;
+        let slave_json = std::fs::read_to_string(&slave_summary)
+            .map_err(|e| with_log(format!("slave summary: {e}"), &log))?;
+        let slave: SlaveRunSummary = serde_json::from_str(&slave_json)
+            .map_err(|e| format!("slave summary {}: {e}", slave_summary.display()))?;
+        if !log.trim().is_empty() {
+            eprintln!("h4-slave said:\n{}", log.trim_end());
+        }
+        let _ = std::fs::remove_dir_all(&work);
+
+        let summary = combine(&cfg, master, slave);
+        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
+        println!("{json}");
+        if let Some(p) = &self.summary {
+            std::fs::write(p, format!("{json}\n"))
+                .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
+        }
+        Ok(if summary.stable {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        })
+    }
+}
+
+fn with_log(msg: String, log: &str) -> String {
+    if log.trim().is_empty() {
+        msg
+    } else {
+        format!("{msg}\nh4-slave said:\n{}", log.trim_end())
+    }
+}
+
+/// `out.mcap` → `out.slave.mcap`.
+fn slave_recording(master: &Path) -> PathBuf {
+    let stem = master
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "recording".into());
+    master.with_file_name(format!("{stem}.slave.mcap"))
+}
+
+/// SIGTERM, then up to 10 s for an orderly stop; SIGKILL after that (an error).
+fn stop_child(child: &mut Child) -> Result<(), String> {
+    let pid = i32::try_from(child.id()).map_err(|e| e.to_string())?;
+    // SAFETY: plain syscall; `pid` is our own child, not yet reaped.
+    unsafe {
+        libc::kill(pid, libc::SIGTERM);
+    }
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(10) {
+        match child.try_wait() {
+            Ok(Some(status)) if status.success() => return Ok(()),
+            Ok(Some(status)) => return Err(format!("the slave process failed: {status}")),
+            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => return Err(e.to_string()),
+        }
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    Err("the slave process did not stop within 10 s of SIGTERM; killed".into())
+}
+
+/// Writes the files `h4-slave run --config WORLD --passivity-config PASSIVITY` needs to
+/// simulate the slave side of a session.
+pub fn write_slave_config(
+    cfg: &SessionConfig,
+    world: &Path,
+    passivity: &Path,
+) -> Result<(), String> {
+    let text = toml::to_string(&slave_world(cfg)).map_err(|e| e.to_string())?;
+    std::fs::write(world, text).map_err(|e| format!("{}: {e}", world.display()))?;
+    let text = toml::to_string(&cfg.passivity).map_err(|e| e.to_string())?;
+    std::fs::write(passivity, text).map_err(|e| format!("{}: {e}", passivity.display()))
+}
+
+/// Write the slave's world and passivity files of a session, for `h4-slave run`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct SlaveConfigArgs {
+    /// The session file.
+    pub session: PathBuf,
+    /// Override a field of the session file (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Where to write the world (for `h4-slave run --config`).
+    #[arg(long, default_value = "slave-world.toml")]
+    pub world: PathBuf,
+    /// Where to write the passivity settings (for `h4-slave run --passivity-config`).
+    #[arg(long, default_value = "slave-passivity.toml")]
+    pub passivity: PathBuf,
+}
+
+impl SlaveConfigArgs {
+    /// Writes both files.
+    pub fn run(self) -> Result<ExitCode, String> {
+        let cfg = session::load(&self.session, &self.set)
+            .map_err(|e| format!("{}: {e}", self.session.display()))?;
+        write_slave_config(&cfg, &self.world, &self.passivity)?;
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+/// The slave's world (arm, plant, sensor, controller, surface, start) from a session file,
+/// in the format `h4-slave run --config` reads.
+pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
+    let env = &cfg.environment;
+    ExperimentConfig {
+        name: format!("{}: slave world", cfg.name),
+        seed: cfg.seed,
+        duration_s: cfg.duration_s.max(0.01),
+        arm: cfg.slave.arm,
+        surface: SurfaceConfig {
+            shape: ShapeKind::Plane,
+            material: env.material,
+            tilt_deg: env.tilt_deg,
+            radius_mm: 200.0,
+            stiffness_n_per_mm: (env.stiffness_n_per_mm > 0.0).then_some(env.stiffness_n_per_mm),
+            damping_ratio: (env.damping_ratio >= 0.0).then_some(env.damping_ratio),
+            friction_coefficient: (env.friction_coefficient >= 0.0)
+                .then_some(env.friction_coefficient),
+            contact_point_mm: env.contact_point_mm,
+            cylinder_axis: Axis::Y,
+        },
+        // Not used by `h4-slave run` (the master commands set-points), but must validate.
+        force: ForceConfig {
+            setpoint_n: 5.0,
+            steps: vec![],
+        },
+        track: TrackConfig {
+            speed_mm_per_s: 0.0,
+            direction: [1.0, 0.0, 0.0],
+            start_delay_s: 0.0,
+        },
+        approach: ApproachConfig {
+            gap_mm: env.gap_mm,
+            ..ApproachConfig::default()
+        },
+        sensor: cfg.slave.sensor,
+        plant: cfg.slave.plant,
+        controller: cfg.slave.controller,
+        summary: SummaryConfig::default(),
+    }
+}
+
+fn combine(cfg: &SessionConfig, m: MasterRunSummary, s: SlaveRunSummary) -> LoopbackSummary {
+    let limit = cfg.detector.force_limit_n;
+    let mut reasons = Vec::new();
+    if !s.max_force_n.is_finite() || !m.max_rendered_force_n.is_finite() {
+        reasons.push("diverged: a force is not finite".to_string());
+    }
+    if s.max_force_n > limit {
+        reasons.push(format!(
+            "force: contact force {:.1} N > {limit} N",
+            s.max_force_n
+        ));
+    }
+    if m.max_rendered_force_n > cfg.coupling.force_limit_n + 1e-9 {
+        reasons.push(format!(
+            "master force: {:.1} N > {} N",
+            m.max_rendered_force_n, cfg.coupling.force_limit_n
+        ));
+    }
+    let mut faults = Vec::new();
+    if s.safe_stops > 0 {
+        faults.push(format!(
+            "watchdog: the slave entered its safe state {} time(s)",
+            s.safe_stops
+        ));
+    }
+    if s.commands_rejected_by_controller > 0 {
+        faults.push(format!(
+            "controller: {} command(s) rejected",
+            s.commands_rejected_by_controller
+        ));
+    }
+    if s.gate.rejected() > 0 || m.feedback_invalid > 0 {
+        faults.push(format!(
+            "messages: {} command(s) and {} feedback message(s) rejected",
+            s.gate.rejected(),
+            m.feedback_invalid
+        ));
+    }
+    if m.feedback_losses > 0 {
+        faults.push(format!(
+            "feedback: lost {} time(s), restored {} time(s)",
+            m.feedback_losses, m.feedback_restored
+        ));
+    }
+    if m.round_trip_samples == 0 {
+        reasons.push("link: no round trip completed".to_string());
+    }
+    LoopbackSummary {
+        name: cfg.name.clone(),
+        stable: reasons.is_empty(),
+        unstable_reasons: reasons,
+        faults,
+        cycles: m.cycles,
+        deadline_misses: m.deadline_misses + s.deadline_misses,
+        lateness_p99_us: m.lateness_p99_us.max(s.lateness_p99_us),
+        round_trip_p50_us: m.round_trip_p50_us,
+        round_trip_p99_us: m.round_trip_p99_us,
+        max_force_n: s.max_force_n,
+        force_limit_n: limit,
+        max_master_force_n: m.max_rendered_force_n,
+        force_transparency_err_pct: m.force_transparency_err_pct,
+        contact_time_s: m.contact_cycles as f64 * 1e-3,
+        master: m,
+        slave: s,
+    }
+}
+
+/// The h4-slave binary: `explicit`, else next to this executable; under `cargo run`
+/// (`CARGO` set) a missing one is built first with the same profile and target directory.
+pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
+    if let Some(p) = explicit {
+        return if p.is_file() {
+            Ok(p.to_path_buf())
+        } else {
+            Err(format!("--slave-bin {}: no such file", p.display()))
+        };
+    }
+    let exe = std::env::current_exe().map_err(|e| format!("current executable: {e}"))?;
+    let name = format!("h4-slave{}", std::env::consts::EXE_SUFFIX);
+    let sibling = exe.with_file_name(&name);
+    if sibling.is_file() {
+        return Ok(sibling);
+    }
+    let hint = format!(
+        "{} not found next to {}: build both binaries with `cargo build --release -p h4-slave -p h4-master`, or pass --slave-bin",
+        name,
+        exe.display()
+    );
+    let (Some(cargo), Some(profile_dir)) = (std::env::var_os("CARGO"), exe.parent()) else {
+        return Err(hint);
+    };
+    let (Some(profile), Some(target_dir)) = (
+        profile_dir.file_name().and_then(|s| s.to_str()),
+        profile_dir.parent(),
+    ) else {
+        return Err(hint);
+    };
+    let profile = if profile == "debug" { "dev" } else { profile };
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
+    eprintln!(
+        "h4-master: building h4-slave ({profile} profile) next to {}",
+        exe.display()
+    );
+    let mut build = std::process::Command::new(cargo);
+    without_cargo_run_env(&mut build);
+    let status = build
+        .args([
+            "build",
+            "-p",
+            "h4-slave",
+            "--bin",
+            "h4-slave",
+            "--profile",
+            profile,
+        ])
+        .arg("--manifest-path")
+        .arg(&manifest)
+        .arg("--target-dir")
+        .arg(target_dir)
+        .status()
+        .map_err(|e| format!("{hint} (cargo: {e})"))?;
+    if status.success() && sibling.is_file() {
+        Ok(sibling)
+    } else {
+        Err(hint)
+    }
+}
+
+/// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
+/// some build scripts rerun when they change, so a nested `cargo build` would rebuild
+/// half the dependency tree and leave it dirty for the next ordinary build.
+fn without_cargo_run_env(cmd: &mut std::process::Command) {
+    for (key, _) in std::env::vars_os() {
+        let Some(k) = key.to_str() else { continue };
+        if k.starts_with("CARGO_PKG_")
+            || k.starts_with("CARGO_MANIFEST_")
+            || k.starts_with("CARGO_CRATE_")
+            || k.starts_with("CARGO_BIN_")
+            || k == "CARGO_PRIMARY_PACKAGE"
+            || k == "CARGO_TARGET_TMPDIR"
+            || k == "CARGO_RUSTC_CURRENT_DIR"
+            || k == "OUT_DIR"
+        {
+            cmd.env_remove(k);
+        }
+    }
+}

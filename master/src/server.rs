@@ -1,0 +1,447 @@
+//! `h4-master run`: the master as a real process. A 1 kHz loop on absolute deadlines steps
+//! the session's master side ([`MasterSide`]: simulated master arm, scripted operator,
+//! receive gate, coupling with its passivity port and feedback-loss fade) on the process's
+//! monotonic clock, and publishes one command per cycle on the link.
+//!
+//! When feedback stops the coupling fades the rendered force to zero; when it returns the
+//! force fades back in (no jump). The loop allocates nothing, blocks on nothing and logs
+//! nothing per cycle: statistics are fixed-size histograms, the status line is formatted a
+//! few times a second on a terminal only, and the recording goes through a bounded queue to
+//! a writer thread.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use h4_shared::clock::{Clock, MonotonicClock};
+use h4_shared::process::{StatusLine, stop_requested};
+use h4_shared::recording::BackgroundRecorder;
+use h4_shared::rt::{Histogram, Pacer};
+use h4_shared::wire::{Command, Feedback, SlaveState};
+use h4_transport::{Link, LinkError};
+use serde::{Deserialize, Serialize};
+
+use crate::session::{MasterSide, Session, SessionConfig, SessionError};
+
+/// How the master loop runs.
+#[derive(Clone, Debug)]
+pub struct MasterRunOptions {
+    /// Arm id: service names, key expressions and every message carry it.
+    pub arm_id: u16,
+    /// Loop period, ns (1 kHz = 1 000 000).
+    pub period_ns: u64,
+    /// How long before each deadline the loop stops sleeping and spins, ns.
+    pub spin_ns: u64,
+    /// Run under SCHED_FIFO at this priority (None: normal scheduling).
+    pub fifo_priority: Option<i32>,
+    /// Lock all memory (mlockall).
+    pub lock_memory: bool,
+    /// Stop by itself after this long, s (None: until SIGINT/SIGTERM).
+    pub duration_s: Option<f64>,
+    /// Wait this long for the slave's first feedback before starting the operator's script,
+    /// s (0: start at once).
+    pub wait_for_slave_s: f64,
+    /// Write an MCAP recording here.
+    pub record: Option<PathBuf>,
+}
+
+impl Default for MasterRunOptions {
+    fn default() -> Self {
+        MasterRunOptions {
+            arm_id: 0,
+            period_ns: 1_000_000,
+            spin_ns: 200_000,
+            fifo_priority: None,
+            lock_memory: false,
+            duration_s: None,
+            wait_for_slave_s: 10.0,
+            record: None,
+        }
+    }
+}
+
+/// What a master run reports when it stops.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct MasterRunSummary {
+    /// Loop cycles run.
+    pub cycles: u64,
+    /// Deadlines missed (the loop woke more than a whole period late).
+    pub deadline_misses: u64,
+    /// Lateness of the loop's wake-up, µs.
+    pub lateness_p50_us: f64,
+    /// p99 lateness, µs.
+    pub lateness_p99_us: f64,
+    /// p99.9 lateness, µs.
+    pub lateness_p999_us: f64,
+    /// Largest lateness, µs.
+    pub lateness_max_us: f64,
+    /// Round trips measured: a command's send time to the master cycle that first receives
+    /// feedback echoing it (includes the phase of both 1 kHz loops), count.
+    pub round_trip_samples: u64,
+    /// Round trip p50, µs.
+    pub round_trip_p50_us: f64,
+    /// Round trip p99, µs.
+    pub round_trip_p99_us: f64,
+    /// Round trip p99.9, µs.
+    pub round_trip_p999_us: f64,
+    /// Largest round trip, µs.
+    pub round_trip_max_us: f64,
+    /// Feedback messages received from the link (before the gate).
+    pub feedback_received: u64,
+    /// Feedback messages that failed validation (malformed, wrong version) or were for
+    /// another arm: the gate rejects them, they never reach the coupling.
+    pub feedback_invalid: u64,
+    /// Link errors while receiving or publishing.
+    pub link_errors: u64,
+    /// Largest force rendered to the operator, N.
+    pub max_rendered_force_n: f64,
+    /// Largest change of the rendered force from one cycle to the next, N.
+    pub max_rendered_force_step_n: f64,
+    /// Rendered force in the last cycle, N.
+    pub final_rendered_force_n: f64,
+    /// Times the feedback stopped and the rendered force started fading out.
+    pub feedback_losses: u64,
+    /// Times feedback returned after a loss and the force faded back in.
+    pub feedback_restored: u64,
+    /// Fade factor of the rendered force in the last cycle (1 = full, 0 = faded out).
+    pub final_fade: f64,
+    /// Cycles in which the slave reported its safe state.
+    pub slave_safe_state_cycles: u64,
+    /// Cycles in contact (slave's measured force above 1 N, feedback fresh).
+    pub contact_cycles: u64,
+    /// Force transparency over contact cycles: Σ|F_rendered / scale.force − F_slave| over
+    /// Σ|F_slave|, %.
+    pub force_transparency_err_pct: f64,
+    /// Largest force the slave measured, as reported in its feedback, N.
+    pub max_slave_force_n: f64,
+    /// Recording samples dropped because the writer fell behind.
+    pub recording_dropped: u64,
+    /// Time spent waiting for the slave's first feedback, s.
+    pub waited_for_slave_s: f64,
+    /// Seconds run, by the master's clock (from the end of the wait).
+    pub run_time_s: f64,
+}
+
+/// Why the master could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum MasterRunError {
+    /// The session could not be set up.
+    #[error("{0}")]
+    Session(#[from] SessionError),
+    /// No feedback from a slave within the wait.
+    #[error(
+        "no feedback from a slave within {0} s: is `h4-slave run` running with the same transport, arm id and prefix/endpoints?"
+    )]
+    NoSlave(f64),
+    /// Options not supported yet.
+    #[error("{0}")]
+    Unsupported(String),
+    /// The recording could not be written.
+    #[error("recording: {0}")]
+    Recording(String),
+}
+
+/// The link as the master loop sees it: errors are counted (the loop goes on; the fade
+/// handles a silent link), and every feedback message is watched for round-trip times.
+struct Watched<L> {
+    inner: L,
+    arm_id: u16,
+    now_ns: u64,
+    last_echo_seq: u64,
+    round_trip: Histogram,
+    last_round_trip_ns: u64,
+    received: u64,
+    invalid: u64,
+    link_errors: u64,
+    latest_valid: Option<Feedback>,
+}
+
+impl<L: Link<Command, Feedback>> Link<Command, Feedback> for Watched<L> {
+    fn publish(&mut self, msg: &Command) -> Result<(), LinkError> {
+        if self.inner.publish(msg).is_err() {
+            self.link_errors += 1;
+        }
+        Ok(())
+    }
+
+    fn try_recv(&mut self) -> Result<Option<Feedback>, LinkError> {
+        // Bounded: undecodable messages are skipped (counted), at most a queue's worth.
+        for _ in 0..256 {
+            match self.inner.try_recv() {
+                Ok(Some(fb)) => {
+                    self.received += 1;
+                    if fb.validate().is_err() || fb.arm_id != self.arm_id {
+                        self.invalid += 1;
+                    } else {
+                        self.latest_valid = Some(fb);
+                        let now = self.now_ns;
+                        if fb.echo_seq > self.last_echo_seq
+                            && fb.echo_send_time_ns > 0
+                            && fb.echo_send_time_ns <= now
+                        {
+                            self.last_echo_seq = fb.echo_seq;
+                            self.last_round_trip_ns = now - fb.echo_send_time_ns;
+                            self.round_trip.record(self.last_round_trip_ns);
+                        }
+                    }
+                    return Ok(Some(fb));
+                }
+                Ok(None) => return Ok(None),
+                Err(LinkError::Decode(_)) => {
+                    self.received += 1;
+                    self.invalid += 1;
+                }
+                Err(_) => {
+                    self.link_errors += 1;
+                    return Ok(None);
+                }
+            }
+        }
+        Ok(None)
+    }
+}
+
+/// One master cycle as recorded.
+#[derive(Clone, Copy, Debug, Serialize)]
+struct CycleRecord {
+    time_ns: u64,
+    lateness_us: f64,
+    pose: [f64; 4],
+    hand_wrench: [f64; 4],
+    rendered_wrench: [f64; 4],
+    fade: f64,
+    slave_target: [f64; 4],
+    slave_force_n: [f64; 3],
+    slave_state: u8,
+    round_trip_us: f64,
+}
+
+const CYCLE_SCHEMA: &str = r#"{"type":"object","title":"h4.MasterProcessCycle","properties":{
+"time_ns":{"type":"integer"},"lateness_us":{"type":"number"},
+"pose":{"type":"array","items":{"type":"number"},"description":"handle [x,y,z,theta] mm, rad"},
+"hand_wrench":{"type":"array","items":{"type":"number"}},
+"rendered_wrench":{"type":"array","items":{"type":"number"},"description":"applied by the device, N, N·mm"},
+"fade":{"type":"number"},
+"slave_target":{"type":"array","items":{"type":"number"}},
+"slave_force_n":{"type":"array","items":{"type":"number"},"description":"newest valid feedback"},
+"slave_state":{"type":"integer"},
+"round_trip_us":{"type":"number","description":"newest round trip"}}}"#;
+
+fn us(ns: u64) -> f64 {
+    ns as f64 / 1e3
+}
+
+fn norm3(v: &[f64]) -> f64 {
+    v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// The master side of a session, for `arm_id`.
+pub fn master_side(cfg: &SessionConfig, arm_id: u16) -> Result<MasterSide, MasterRunError> {
+    if arm_id != 0 {
+        return Err(MasterRunError::Unsupported(format!(
+            "arm id {arm_id}: the session's master side speaks for arm 0 only (for now)"
+        )));
+    }
+    Ok(Session::new(cfg)?.master)
+}
+
+/// Runs the master until stopped (SIGINT/SIGTERM or the duration), on `link`.
+pub fn run<L: Link<Command, Feedback>>(
+    cfg: &SessionConfig,
+    opts: &MasterRunOptions,
+    link: L,
+) -> Result<MasterRunSummary, MasterRunError> {
+    run_then(cfg, opts, link, || {})
+}
+
+/// [`run`], calling `at_loop_end` as soon as the loop has stopped (before the summary and
+/// the recording are finished): `loopback` stops the slave there, before its watchdog
+/// would notice the silence.
+pub fn run_then<L: Link<Command, Feedback>>(
+    cfg: &SessionConfig,
+    opts: &MasterRunOptions,
+    link: L,
+    at_loop_end: impl FnOnce(),
+) -> Result<MasterRunSummary, MasterRunError> {
+    let mut side = master_side(cfg, opts.arm_id)?;
+    let mut link = Watched {
+        inner: link,
+        arm_id: opts.arm_id,
+        now_ns: 0,
+        last_echo_seq: 0,
+        round_trip: Histogram::new(),
+        last_round_trip_ns: 0,
+        received: 0,
+        invalid: 0,
+        link_errors: 0,
+        latest_valid: None,
+    };
+    let mut recorder = BackgroundRecorder::<CycleRecord>::start(
+        opts.record.as_deref(),
+        "/master/cycle",
+        "h4.MasterProcessCycle",
+        CYCLE_SCHEMA,
+    )
+    .map_err(|e| MasterRunError::Recording(e.to_string()))?;
+
+    h4_slave::server::apply_realtime(opts.fifo_priority, opts.lock_memory);
+    let mut s = MasterRunSummary::default();
+
+    // Wait for the slave (its feedback) before the operator's script starts.
+    let wait = std::time::Instant::now();
+    if opts.wait_for_slave_s > 0.0 {
+        loop {
+            if stop_requested() {
+                break;
+            }
+            if let Ok(Some(fb)) = link.inner.try_recv()
+                && fb.validate().is_ok()
+                && fb.arm_id == opts.arm_id
+            {
+                break;
+            }
+            if wait.elapsed().as_secs_f64() > opts.wait_for_slave_s {
+                return Err(MasterRunError::NoSlave(opts.wait_for_slave_s));
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    s.waited_for_slave_s = wait.elapsed().as_secs_f64();
+
+    let clock = MonotonicClock::new();
+    let period_ns = opts.period_ns.max(1);
+    let mut pacer = Pacer::new(
+        Duration::from_nanos(period_ns),
+        Duration::from_nanos(opts.spin_ns),
+    );
+    let mut status_line = StatusLine::new(4.0);
+    let mut text = String::with_capacity(256);
+    let end_ns = opts.duration_s.map(|d| (d * 1e9) as u64);
+    let force_scale = cfg.scale.force;
+    let mut prev_fade = 0.0;
+    let mut fading_out = false;
+    let mut prev_force = 0.0;
+    let mut trans_abs = 0.0;
+    let mut trans_ref = 0.0;
+    loop {
+        let tick = pacer.wait();
+        let now = clock.now_ns();
+        if stop_requested() || end_ns.is_some_and(|e| now >= e) {
+            break;
+        }
+        link.now_ns = now;
+        let m = side.step(&mut link, now)?;
+        side.device.advance(period_ns * (1 + tick.missed));
+
+        let force = norm3(&m.rendered);
+        s.max_rendered_force_n = s.max_rendered_force_n.max(force);
+        s.max_rendered_force_step_n = s.max_rendered_force_step_n.max((force - prev_force).abs());
+        prev_force = force;
+        let fade = m.step.fade;
+        if fade < prev_fade && !fading_out {
+            fading_out = true;
+            s.feedback_losses += 1;
+        } else if fade > prev_fade && fading_out {
+            fading_out = false;
+            s.feedback_restored += 1;
+        } else if fade >= 1.0 {
+            fading_out = false;
+        }
+        prev_fade = fade;
+        let mut slave_force = [0.0; 3];
+        let mut slave_state = SlaveState::Idle as u8;
+        if let Some(fb) = &link.latest_valid {
+            slave_force = [
+                fb.wrench_measured[0],
+                fb.wrench_measured[1],
+                fb.wrench_measured[2],
+            ];
+            slave_state = fb.state;
+            if fb.state == SlaveState::SafeStop as u8 {
+                s.slave_safe_state_cycles += 1;
+            }
+        }
+        let fs = norm3(&slave_force);
+        s.max_slave_force_n = s.max_slave_force_n.max(fs);
+        if fs > 1.0 && fade >= 1.0 {
+            s.contact_cycles += 1;
+            let mut d = [0.0; 3];
+            for (i, di) in d.iter_mut().enumerate() {
+                *di = m.rendered[i] / force_scale - slave_force[i];
+            }
+            trans_abs += norm3(&d);
+            trans_ref += fs;
+        }
+        recorder.push(
+            now,
+            CycleRecord {
+                time_ns: now,
+                lateness_us: us(tick.lateness_ns),
+                pose: m.device.pose,
+                hand_wrench: m.hand.wrench,
+                rendered_wrench: m.rendered,
+                fade,
+                slave_target: m.step.slave_target,
+                slave_force_n: slave_force,
+                slave_state,
+                round_trip_us: us(link.last_round_trip_ns),
+            },
+        );
+        s.cycles += 1;
+        if status_line.due(now) {
+            use std::fmt::Write;
+            text.clear();
+            let _ = write!(
+                text,
+                "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | rtt p99 {:>7.1} us | F {:>6.2} N | fade {:.2} | slave {}",
+                opts.arm_id,
+                s.cycles,
+                us(pacer.lateness.quantile(0.99)),
+                pacer.misses,
+                us(link.round_trip.quantile(0.99)),
+                force,
+                fade,
+                state_name(slave_state),
+            );
+            status_line.show(&text);
+        }
+        s.final_rendered_force_n = force;
+        s.final_fade = fade;
+    }
+    at_loop_end();
+    status_line.finish();
+    s.deadline_misses = pacer.misses;
+    let h = &pacer.lateness;
+    s.lateness_p50_us = us(h.quantile(0.5));
+    s.lateness_p99_us = us(h.quantile(0.99));
+    s.lateness_p999_us = us(h.quantile(0.999));
+    s.lateness_max_us = us(h.max());
+    let r = &link.round_trip;
+    s.round_trip_samples = r.count();
+    s.round_trip_p50_us = us(r.quantile(0.5));
+    s.round_trip_p99_us = us(r.quantile(0.99));
+    s.round_trip_p999_us = us(r.quantile(0.999));
+    s.round_trip_max_us = us(r.max());
+    s.feedback_received = link.received;
+    s.feedback_invalid = link.invalid;
+    s.link_errors = link.link_errors;
+    s.force_transparency_err_pct = if trans_ref > 0.0 {
+        100.0 * trans_abs / trans_ref
+    } else {
+        0.0
+    };
+    s.run_time_s = clock.now_ns() as f64 / 1e9;
+    s.recording_dropped = recorder.dropped();
+    recorder.finish().map_err(MasterRunError::Recording)?;
+    Ok(s)
+}
+
+/// A slave state code as a word.
+pub fn state_name(code: u8) -> &'static str {
+    match code {
+        c if c == SlaveState::Idle as u8 => "idle",
+        c if c == SlaveState::Active as u8 => "active",
+        c if c == SlaveState::SafeStop as u8 => "safe-stop",
+        _ => "?",
+    }
+}

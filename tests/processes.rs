@@ -1,0 +1,648 @@
+//! The slave and the master as real OS processes (`h4-slave run`, `h4-master run`,
+//! `h4-master loopback`) on this host: sessions over iceoryx2 and Zenoh, SIGKILL of either
+//! side, restart and re-pairing, bad messages.
+//!
+//! Every wait is bounded by a watchdog (a child that does not finish in time is killed and
+//! the test fails with its output); nothing asserts a wall-clock duration. "Safe within
+//! 20 ms" is asserted on the slave's own clock, from the silence it measured when its
+//! watchdog tripped, allowing for its own reported loop lateness in that cycle (the host
+//! stalls this VM for 3–66 ms a few times a minute).
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command as Proc, Stdio};
+use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use h4_shared::wire::{Command, Feedback, Mode, PROTOCOL_VERSION, SlaveState};
+use h4_transport::Link;
+use h4_transport::iceoryx2::{self as iox, Iceoryx2Link, Iceoryx2Options};
+use serde_json::Value;
+
+/// One process test at a time: each runs two 1 kHz loops, and the machine has two cores.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("workspace root")
+        .to_path_buf()
+}
+
+/// `target/<profile>/` of this test binary (`target/<profile>/deps/processes-…`).
+fn profile_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable");
+    let deps = exe.parent().expect("deps dir");
+    deps.parent().expect("profile dir").to_path_buf()
+}
+
+/// The h4-master and h4-slave binaries of this build, built (or brought up to date) once
+/// with the cargo that runs the tests, in the same profile and target directory.
+fn binaries() -> &'static (PathBuf, PathBuf) {
+    static BINS: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    BINS.get_or_init(|| {
+        let dir = profile_dir();
+        if let Some(cargo) = std::env::var_os("CARGO") {
+            let profile = dir.file_name().and_then(|s| s.to_str()).unwrap_or("debug");
+            let profile = if profile == "debug" { "dev" } else { profile };
+            let mut build = Proc::new(cargo);
+            without_cargo_run_env(&mut build);
+            let out = build
+                .args(["build", "-p", "h4-master", "-p", "h4-slave", "--profile"])
+                .arg(profile)
+                .arg("--manifest-path")
+                .arg(workspace().join("Cargo.toml"))
+                .arg("--target-dir")
+                .arg(dir.parent().expect("target dir"))
+                .output()
+                .expect("run cargo build");
+            assert!(
+                out.status.success(),
+                "cargo build of h4-master and h4-slave failed:\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        let exe = std::env::consts::EXE_SUFFIX;
+        let master = dir.join(format!("h4-master{exe}"));
+        let slave = dir.join(format!("h4-slave{exe}"));
+        assert!(master.is_file(), "{} missing", master.display());
+        assert!(slave.is_file(), "{} missing", slave.display());
+        (master, slave)
+    })
+}
+
+/// A scratch directory and iceoryx2 prefix of this test.
+struct Scratch {
+    dir: PathBuf,
+    prefix: String,
+}
+
+impl Scratch {
+    fn new(name: &str) -> Self {
+        let tag = format!("h4-test-{}-{name}", std::process::id());
+        let dir = std::env::temp_dir().join(&tag);
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch dir");
+        Scratch { dir, prefix: tag }
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// A child process killed when dropped (a failing test leaves nothing running).
+struct Running {
+    name: &'static str,
+    child: Option<Child>,
+    log: PathBuf,
+}
+
+impl Running {
+    fn spawn(name: &'static str, bin: &Path, args: &[String], scratch: &Scratch) -> Self {
+        let log = scratch.path(&format!("{name}.log"));
+        let child = Proc::new(bin)
+            .args(args)
+            .current_dir(workspace())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).expect("log file"))
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+        Running {
+            name,
+            child: Some(child),
+            log,
+        }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    fn pid(&self) -> i32 {
+        self.child.as_ref().map_or(0, |c| c.id() as i32)
+    }
+
+    fn signal(&self, sig: i32) {
+        // SAFETY: plain syscall on our own, not yet reaped child.
+        unsafe {
+            libc::kill(self.pid(), sig);
+        }
+    }
+
+    fn sigkill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// Waits for the exit (watchdog: `limit_s`, then the child is killed and the test
+    /// fails); returns whether it exited successfully.
+    fn wait(&mut self, limit_s: f64) -> bool {
+        let mut child = self.child.take().expect("child already reaped");
+        let t = Instant::now();
+        loop {
+            if let Some(status) = child.try_wait().expect("try_wait") {
+                return status.success();
+            }
+            if t.elapsed().as_secs_f64() > limit_s {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!(
+                    "watchdog: {} did not finish within {limit_s} s; its log:\n{}",
+                    self.name,
+                    self.log()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// SIGTERM, then an orderly exit within the watchdog.
+    fn stop(&mut self) {
+        self.signal(libc::SIGTERM);
+        let ok = self.wait(20.0);
+        assert!(ok, "{} failed; its log:\n{}", self.name, self.log());
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        self.sigkill();
+    }
+}
+
+fn read_json(path: &Path) -> Value {
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("summary {}: {e}", path.display()));
+    serde_json::from_str(&text).expect("summary JSON")
+}
+
+fn f(v: &Value, key: &str) -> f64 {
+    v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{key} missing in {v}"))
+}
+
+fn u(v: &Value, key: &str) -> u64 {
+    v[key]
+        .as_u64()
+        .unwrap_or_else(|| panic!("{key} missing in {v}"))
+}
+
+fn s(v: &[&str]) -> Vec<String> {
+    v.iter().map(|x| x.to_string()).collect()
+}
+
+/// The scripted contact used here: the wall-push session on a 20 N/mm wall, so the slave's
+/// position-mode contact stays below its force limit (80 N). Both processes get the same
+/// session: the master reads it, the slave the files `h4-master slave-config` derives.
+const SESSION: &str = "config/sessions/wall-push.toml";
+const WALL_N_PER_MM: &str = "20";
+
+/// `h4-slave run` arguments for the slave side of the session (world and passivity files
+/// written by `h4-master slave-config`).
+fn slave_args(scratch: &Scratch, extra: &[&str]) -> Vec<String> {
+    let (master, _) = binaries();
+    let world = scratch.path("world.toml");
+    let passivity = scratch.path("passivity.toml");
+    let mut cfg = s(&["slave-config", SESSION, "--set"]);
+    cfg.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    cfg.extend(["--world".into(), world.display().to_string()]);
+    cfg.extend(["--passivity".into(), passivity.display().to_string()]);
+    let out = Proc::new(master)
+        .args(&cfg)
+        .current_dir(workspace())
+        .output()
+        .expect("h4-master slave-config");
+    assert!(
+        out.status.success(),
+        "slave-config: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut a = s(&["run", "--config"]);
+    a.push(world.display().to_string());
+    a.push("--passivity-config".into());
+    a.push(passivity.display().to_string());
+    a.extend(s(&["--fifo-priority", "10", "--iceoryx2-prefix"]));
+    a.push(scratch.prefix.clone());
+    a.extend(s(extra));
+    a
+}
+
+fn master_args(scratch: &Scratch, extra: &[&str]) -> Vec<String> {
+    let mut a = s(&["run", "--config", SESSION, "--set"]);
+    a.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    a.extend(s(&["--fifo-priority", "10", "--iceoryx2-prefix"]));
+    a.push(scratch.prefix.clone());
+    a.extend(s(extra));
+    a
+}
+
+/// A third iceoryx2 node on the test's services that watches the slave's feedback.
+fn spy(scratch: &Scratch) -> Iceoryx2Link<Command, Feedback> {
+    iox::master(&Iceoryx2Options {
+        prefix: scratch.prefix.clone(),
+        ..Iceoryx2Options::new(0)
+    })
+    .expect("open the test's iceoryx2 end")
+}
+
+/// Reads feedback until `pred` holds (watchdog `limit_s`); returns the matching message.
+fn watch_until(
+    link: &mut Iceoryx2Link<Command, Feedback>,
+    limit_s: f64,
+    what: &str,
+    mut pred: impl FnMut(&Feedback) -> bool,
+) -> Feedback {
+    let t = Instant::now();
+    loop {
+        while let Some(fb) = link.try_recv().expect("receive") {
+            if pred(&fb) {
+                return fb;
+            }
+        }
+        assert!(
+            t.elapsed().as_secs_f64() < limit_s,
+            "watchdog: {what} not seen within {limit_s} s"
+        );
+        std::thread::sleep(Duration::from_micros(500));
+    }
+}
+
+fn force(fb: &Feedback) -> f64 {
+    let w = fb.wrench_measured;
+    (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt()
+}
+
+#[test]
+fn iceoryx2_loopback_runs_a_contact_and_ends_stable() {
+    let _g = serial();
+    let (master, _) = binaries();
+    let scratch = Scratch::new("loopback");
+    let summary = scratch.path("loopback.json");
+    let mut args = s(&[
+        "loopback",
+        "--duration-s",
+        "8",
+        "--fifo-priority",
+        "10",
+        "--set",
+    ]);
+    args.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    args.push("--summary".into());
+    args.push(summary.display().to_string());
+    let mut run = Running::spawn("loopback", master, &args, &scratch);
+    let ok = run.wait(60.0);
+    let v = read_json(&summary);
+    assert!(ok, "loopback said unstable: {v:#}\n{}", run.log());
+    assert_eq!(v["stable"], true, "{v:#}");
+    // A real contact happened, over a working link, in two processes.
+    assert!(f(&v, "contact_time_s") > 1.0, "{v:#}");
+    assert!(f(&v, "max_force_n") > 5.0, "{v:#}");
+    assert!(
+        f(&v, "max_force_n") <= f(&v["slave"], "force_limit_n"),
+        "{v:#}"
+    );
+    assert!(u(&v["master"], "round_trip_samples") > 1000, "{v:#}");
+    assert!(u(&v["slave"]["gate"], "accepted") > 1000, "{v:#}");
+    // A host stall can trip the slave's watchdog mid-run (a fault, not instability): every
+    // such safe stop must have re-paired.
+    assert_eq!(
+        u(&v["slave"], "repairs"),
+        u(&v["slave"], "safe_stops"),
+        "{v:#}"
+    );
+    assert_eq!(u(&v["slave"]["gate"], "wrong_version"), 0);
+    assert_eq!(u(&v["slave"], "commands_rejected_by_controller"), 0);
+}
+
+#[test]
+fn loopback_verdict_catches_a_contact_over_the_force_limit() {
+    // Negative control of the verdict above: the same session on a steel wall
+    // (2000 N/mm) with the passivity controllers off drives the true contact force past
+    // the limit (with them on, it stays below).
+    let _g = serial();
+    let (master, _) = binaries();
+    let scratch = Scratch::new("loopback-steel");
+    let summary = scratch.path("loopback.json");
+    let args = vec![
+        "loopback".to_string(),
+        "--duration-s".into(),
+        "3".into(),
+        "--fifo-priority".into(),
+        "10".into(),
+        "--set".into(),
+        "environment.material=steel".into(),
+        "--set".into(),
+        "passivity.enabled=false".into(),
+        "--summary".into(),
+        summary.display().to_string(),
+    ];
+    let mut run = Running::spawn("loopback", master, &args, &scratch);
+    let ok = run.wait(60.0);
+    let v = read_json(&summary);
+    assert!(!ok, "exit code must say unstable: {v:#}");
+    assert_eq!(v["stable"], false, "{v:#}");
+    assert!(f(&v, "max_force_n") > f(&v, "force_limit_n"), "{v:#}");
+}
+
+#[test]
+fn zenoh_processes_run_a_contact_and_end_stable() {
+    let _g = serial();
+    let (master, slave) = binaries();
+    let scratch = Scratch::new("zenoh");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("free port")
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let slave_summary = scratch.path("slave.json");
+    let master_summary = scratch.path("master.json");
+    let ss = slave_summary.display().to_string();
+    let ms = master_summary.display().to_string();
+    let mut sl = Running::spawn(
+        "slave",
+        slave,
+        &slave_args(
+            &scratch,
+            &[
+                "--transport",
+                "zenoh",
+                "--zenoh-listen",
+                &endpoint,
+                "--summary",
+                &ss,
+            ],
+        ),
+        &scratch,
+    );
+    let mut ma = Running::spawn(
+        "master",
+        master,
+        &master_args(
+            &scratch,
+            &[
+                "--transport",
+                "zenoh",
+                "--zenoh-connect",
+                &endpoint,
+                "--duration-s",
+                "8",
+                "--summary",
+                &ms,
+            ],
+        ),
+        &scratch,
+    );
+    let ok = ma.wait(60.0);
+    assert!(ok, "master failed:\n{}\nslave:\n{}", ma.log(), sl.log());
+    sl.stop();
+    let m = read_json(&master_summary);
+    let sv = read_json(&slave_summary);
+    assert!(u(&m, "round_trip_samples") > 1000, "{m:#}");
+    assert!(u(&m, "contact_cycles") > 1000, "{m:#}");
+    assert_eq!(u(&m, "feedback_invalid"), 0, "{m:#}");
+    assert!(f(&sv, "max_force_n") > 5.0, "{sv:#}");
+    assert!(f(&sv, "max_force_n") <= f(&sv, "force_limit_n"), "{sv:#}");
+    assert!(
+        f(&m, "max_rendered_force_n").is_finite() && f(&m, "max_rendered_force_n") <= 30.0 + 1e-9
+    );
+    assert_eq!(u(&sv, "commands_rejected_by_controller"), 0, "{sv:#}");
+    assert_eq!(sv["gate"]["wrong_version"], 0);
+    assert_eq!(sv["gate"]["malformed"], 0);
+}
+
+#[test]
+fn sigkill_of_the_master_in_contact_puts_the_slave_in_its_safe_state_and_a_restart_repairs() {
+    let _g = serial();
+    let (master, slave) = binaries();
+    let scratch = Scratch::new("kill-master");
+    let slave_summary = scratch.path("slave.json");
+    let ss = slave_summary.display().to_string();
+    let mut sl = Running::spawn(
+        "slave",
+        slave,
+        &slave_args(&scratch, &["--summary", &ss]),
+        &scratch,
+    );
+    let mut watch = spy(&scratch);
+    // The slave is up (its feedback flows) before the master starts.
+    watch_until(&mut watch, 20.0, "slave feedback", |_| true);
+    let mut ma = Running::spawn("master", master, &master_args(&scratch, &[]), &scratch);
+    let contact = watch_until(&mut watch, 20.0, "contact (|F| > 5 N)", |fb| {
+        fb.state == SlaveState::Active as u8 && force(fb) > 5.0
+    });
+    ma.sigkill();
+    let safe = watch_until(&mut watch, 10.0, "the slave's safe state", |fb| {
+        fb.state == SlaveState::SafeStop as u8
+    });
+    // Retract and hold: the contact force goes away.
+    let released = watch_until(&mut watch, 10.0, "force released (< 1 N)", |fb| {
+        fb.state == SlaveState::SafeStop as u8 && force(fb) < 1.0
+    });
+    assert!(released.seq > safe.seq && safe.seq > contact.seq);
+
+    // A new master re-pairs; the arm does not jump.
+    let mut ma2 = Running::spawn("master 2", master, &master_args(&scratch, &[]), &scratch);
+    let active = watch_until(&mut watch, 20.0, "re-paired (Active)", |fb| {
+        fb.state == SlaveState::Active as u8
+    });
+    let mut prev = active;
+    let mut largest_step_mm: f64 = 0.0;
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_millis(1500) {
+        while let Some(fb) = watch.try_recv().expect("receive") {
+            if fb.seq > prev.seq {
+                let d: f64 = (0..3)
+                    .map(|i| (fb.pose[i] - prev.pose[i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                largest_step_mm = largest_step_mm.max(d / (fb.seq - prev.seq) as f64);
+                prev = fb;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    ma2.stop();
+    sl.stop();
+    let v = read_json(&slave_summary);
+    assert!(u(&v, "safe_stops") >= 1, "{v:#}");
+    assert!(u(&v, "repairs") >= 1, "{v:#}");
+    assert!(u(&v["gate"], "repaired") >= 1, "{v:#}");
+    // Safe within 20 ms on the slave's own clock: the silence it measured when its watchdog
+    // tripped is at most 20 ms plus its own lateness in that cycle (+ clock-read slack).
+    let silence = f(&v, "safe_stop_entry_silence_ms");
+    let lateness = f(&v, "safe_stop_entry_lateness_ms");
+    assert!(silence >= 19.0, "tripped too early: {v:#}");
+    assert!(
+        silence <= 20.0 + lateness + 0.1,
+        "safe state too late: {v:#}"
+    );
+    // The force never exceeded the limit.
+    assert!(f(&v, "max_force_n") <= f(&v, "force_limit_n"), "{v:#}");
+    // No jump: at most one cycle's worth of the controller's speed limit (100 mm/s → 0.1 mm
+    // per 1 ms cycle), with 50 % margin.
+    assert!(largest_step_mm < 0.15, "jump of {largest_step_mm} mm/cycle");
+}
+
+#[test]
+fn sigkill_of_the_slave_fades_the_masters_force() {
+    let _g = serial();
+    let (master, slave) = binaries();
+    let scratch = Scratch::new("kill-slave");
+    let master_summary = scratch.path("master.json");
+    let ms = master_summary.display().to_string();
+    let mut sl = Running::spawn("slave", slave, &slave_args(&scratch, &[]), &scratch);
+    let mut watch = spy(&scratch);
+    watch_until(&mut watch, 20.0, "slave feedback", |_| true);
+    let mut ma = Running::spawn(
+        "master",
+        master,
+        &master_args(&scratch, &["--summary", &ms]),
+        &scratch,
+    );
+    watch_until(&mut watch, 20.0, "contact (|F| > 5 N)", |fb| {
+        fb.state == SlaveState::Active as u8 && force(fb) > 5.0
+    });
+    sl.sigkill();
+    // Feedback timeout 100 ms + fade 50 ms on the master's clock; this wait only has to be
+    // longer than that, and a host stall cannot make it shorter.
+    std::thread::sleep(Duration::from_secs(2));
+    ma.stop();
+    let v = read_json(&master_summary);
+    assert!(u(&v, "feedback_losses") >= 1, "{v:#}");
+    assert!(
+        f(&v, "max_rendered_force_n") > 2.0,
+        "never rendered a force: {v:#}"
+    );
+    assert_eq!(f(&v, "final_fade"), 0.0, "{v:#}");
+    assert!(f(&v, "final_rendered_force_n") < 1e-9, "{v:#}");
+}
+
+fn command(seq: u64, pose: [f64; 4]) -> Command {
+    Command {
+        seq,
+        send_time_ns: seq * 1_000_000,
+        pose,
+        mode: Mode::Position as u8,
+        ..Command::default()
+    }
+}
+
+#[test]
+fn bad_messages_are_rejected_counted_and_never_acted_on() {
+    let _g = serial();
+    let (_, slave) = binaries();
+    let scratch = Scratch::new("bad-messages");
+    let slave_summary = scratch.path("slave.json");
+    let ss = slave_summary.display().to_string();
+    // A long watchdog: this test speaks slowly.
+    let mut sl = Running::spawn(
+        "slave",
+        slave,
+        &slave_args(&scratch, &["--summary", &ss, "--watchdog-ms", "10000"]),
+        &scratch,
+    );
+    let mut link = spy(&scratch);
+    let first = watch_until(&mut link, 20.0, "slave feedback", |_| true);
+    let home = first.pose;
+    let far = [home[0] + 30.0, home[1] - 20.0, home[2] + 10.0, 0.0];
+    let mut seq = 0u64;
+    let mut sent_valid = 0u64;
+    let mut max_dev_mm: f64 = 0.0;
+    // Sends `bad` then a valid command holding home, and waits until the slave has
+    // answered the valid one (so the bad one, queued before it, was seen).
+    let mut exchange = |bad: Option<Command>, seq: &mut u64| {
+        if let Some(b) = bad {
+            link.publish(&b).expect("publish");
+        }
+        *seq += 1;
+        link.publish(&command(*seq, home)).expect("publish");
+        sent_valid += 1;
+        let want = *seq;
+        let fb = watch_until(&mut link, 10.0, "echo of the valid command", |fb| {
+            let d: f64 = (0..3)
+                .map(|i| (fb.pose[i] - home[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            max_dev_mm = max_dev_mm.max(d);
+            fb.echo_seq >= want
+        });
+        assert_eq!(fb.echo_seq, want);
+    };
+    for _ in 0..3 {
+        exchange(None, &mut seq);
+    }
+    // Duplicate of the last accepted command, with a far pose.
+    exchange(Some(command(seq, far)), &mut seq);
+    // Reordered (older), far.
+    exchange(Some(command(seq - 1, far)), &mut seq);
+    // Wrong protocol version, far, newest sequence number.
+    let mut v = command(seq + 1, far);
+    v.protocol_version = PROTOCOL_VERSION + 1;
+    exchange(Some(v), &mut seq);
+    seq += 1; // the wrong-version message used seq; the next valid one is newer.
+    // Malformed: NaN pose; unknown mode; unknown flag bits.
+    let mut nan = command(seq + 1, far);
+    nan.pose[2] = f64::NAN;
+    exchange(Some(nan), &mut seq);
+    seq += 1;
+    let mut mode = command(seq + 1, far);
+    mode.mode = 77;
+    exchange(Some(mode), &mut seq);
+    seq += 1;
+    let mut flags = command(seq + 1, far);
+    flags.flags = 0x8000;
+    exchange(Some(flags), &mut seq);
+    seq += 1;
+    // Another arm's command.
+    let mut arm = command(seq + 1, far);
+    arm.arm_id = 9;
+    exchange(Some(arm), &mut seq);
+    sl.stop();
+    let v = read_json(&slave_summary);
+    let g = &v["gate"];
+    assert_eq!(u(g, "accepted"), sent_valid, "{v:#}");
+    assert_eq!(u(g, "stale"), 2, "{v:#}");
+    assert_eq!(u(g, "wrong_version"), 1, "{v:#}");
+    assert_eq!(u(g, "malformed"), 3, "{v:#}");
+    assert_eq!(u(g, "wrong_arm"), 1, "{v:#}");
+    // Never acted on: the arm stayed home (the bad commands all pointed 38 mm away).
+    assert!(max_dev_mm < 0.5, "the arm moved {max_dev_mm} mm");
+}
+
+/// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
+/// some build scripts rerun when they change, so a nested `cargo build` would rebuild
+/// half the dependency tree and leave it dirty for the next ordinary build.
+fn without_cargo_run_env(cmd: &mut Proc) {
+    for (key, _) in std::env::vars_os() {
+        let Some(k) = key.to_str() else { continue };
+        if k.starts_with("CARGO_PKG_")
+            || k.starts_with("CARGO_MANIFEST_")
+            || k.starts_with("CARGO_CRATE_")
+            || k.starts_with("CARGO_BIN_")
+            || k == "CARGO_PRIMARY_PACKAGE"
+            || k == "CARGO_TARGET_TMPDIR"
+            || k == "CARGO_RUSTC_CURRENT_DIR"
+            || k == "OUT_DIR"
+        {
+            cmd.env_remove(k);
+        }
+    }
+}
