@@ -124,6 +124,9 @@ pub struct CouplingConfig {
     /// Local damping the master renders against the handle's velocity (position–force),
     /// N·s/mm.
     pub master_damping_n_s_per_mm: f64,
+    /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
+    /// (0: unfiltered).
+    pub force_filter_hz: f64,
 }
 
 impl Default for CouplingConfig {
@@ -136,7 +139,8 @@ impl Default for CouplingConfig {
             guide_stiffness_n_per_mm: 1.0,
             guide_setpoint_max_n: 50.0,
             guide_approach_depth_mm: 20.0,
-            master_damping_n_s_per_mm: 0.05,
+            master_damping_n_s_per_mm: 0.3,
+            force_filter_hz: 0.0,
         }
     }
 }
@@ -351,6 +355,13 @@ impl Validate for SessionConfig {
             0.0,
             1.0,
             "N·s/mm",
+        )?;
+        check_range(
+            "coupling.force_filter_hz",
+            c.force_filter_hz,
+            0.0,
+            500.0,
+            "Hz",
         )?;
         check_range(
             "coupling.guide_approach_depth_mm",
@@ -857,11 +868,12 @@ impl Session {
             feedback_timeout_ms: cfg.coupling.feedback_timeout_ms,
             fade_ms: cfg.coupling.fade_ms,
             passivity: pc.enabled,
-            max_damping_n_s_per_mm: pc.max_damping_n_s_per_mm,
+            passivity_params: *pc,
             guide_stiffness_n_per_mm: cfg.coupling.guide_stiffness_n_per_mm,
             guide_setpoint_max_n: cfg.coupling.guide_setpoint_max_n,
             guide_approach_depth_mm: cfg.coupling.guide_approach_depth_mm,
             master_damping_n_s_per_mm: cfg.coupling.master_damping_n_s_per_mm,
+            force_filter_hz: cfg.coupling.force_filter_hz,
             arm_id: 0,
         });
         let master = MasterSide {

@@ -45,6 +45,12 @@ pub struct PassivityParams {
     pub drift_energy_share: f64,
     /// Contact force below which the slave's controller does not act (sensor noise), N.
     pub force_floor_n: f64,
+    /// Time constant with which the master controller's damping is released after the
+    /// deficit that needed it is gone, ms (0: released at once, bang-bang).
+    pub damping_release_ms: f64,
+    /// Energy the master controller keeps in reserve: it starts damping when its observer
+    /// would fall below this, J (0: only below zero).
+    pub energy_reserve_j: f64,
 }
 
 impl Default for PassivityParams {
@@ -56,6 +62,8 @@ impl Default for PassivityParams {
             drift_gain_per_s: 2.0,
             drift_energy_share: 0.2,
             force_floor_n: 0.3,
+            damping_release_ms: 20.0,
+            energy_reserve_j: 0.0,
         }
     }
 }
@@ -97,6 +105,20 @@ impl PassivityParams {
             0.0,
             100.0,
             "N",
+        )?;
+        check_range(
+            &format!("{prefix}damping_release_ms"),
+            self.damping_release_ms,
+            0.0,
+            1e4,
+            "ms",
+        )?;
+        check_range(
+            &format!("{prefix}energy_reserve_j"),
+            self.energy_reserve_j,
+            0.0,
+            100.0,
+            "J",
         )
     }
 }
@@ -135,6 +157,11 @@ pub struct ImpedancePort {
     remote_in_j: f64,
     /// Largest damping the controller may add, N·s/mm (bounds the force of one cycle).
     pub max_damping_n_s_per_mm: f64,
+    /// Release time constant of the damping, ms (0: bang-bang).
+    pub damping_release_ms: f64,
+    /// Reserve below which the controller starts damping, J.
+    pub energy_reserve_j: f64,
+    alpha: f64,
 }
 
 /// What the master's port did this cycle.
@@ -154,6 +181,15 @@ impl ImpedancePort {
         ImpedancePort {
             max_damping_n_s_per_mm,
             ..ImpedancePort::default()
+        }
+    }
+
+    /// A port with the master-side settings of `p` (damping cap, release, reserve).
+    pub fn from_params(p: &PassivityParams) -> Self {
+        ImpedancePort {
+            damping_release_ms: p.damping_release_ms,
+            energy_reserve_j: p.energy_reserve_j,
+            ..ImpedancePort::new(p.max_damping_n_s_per_mm)
         }
     }
 
@@ -185,10 +221,28 @@ impl ImpedancePort {
         let v2 = dot3(&velocity_mm_per_s, &velocity_mm_per_s);
         let mut force = force_n;
         let mut alpha = 0.0;
-        if control && p0 > 0.0 && v2 > 1e-12 {
-            let w = self.observed_j() - p0 * dt_s * J_PER_N_MM;
-            if w < 0.0 {
-                alpha = (-w / (J_PER_N_MM * dt_s * v2)).min(self.max_damping_n_s_per_mm);
+        if control {
+            // The damping the deficit needs this cycle (acting before the observer reaches
+            // zero when a reserve is set) ...
+            let mut need = 0.0;
+            if p0 > 0.0 && v2 > 1e-12 {
+                let w = self.observed_j() - self.energy_reserve_j - p0 * dt_s * J_PER_N_MM;
+                if w < 0.0 {
+                    need = -w / (J_PER_N_MM * dt_s * v2);
+                }
+            }
+            // ... or, if more, the previous damping released with a first-order decay:
+            // extra damping only dissipates more, so passivity holds either way.
+            let decay = if self.damping_release_ms > 0.0 {
+                (-dt_s * 1e3 / self.damping_release_ms).exp()
+            } else {
+                0.0
+            };
+            alpha = need
+                .max(self.alpha * decay)
+                .min(self.max_damping_n_s_per_mm);
+            self.alpha = alpha;
+            if alpha > 0.0 {
                 for (f, v) in force.iter_mut().zip(velocity_mm_per_s.iter()) {
                     *f -= alpha * v;
                 }
@@ -431,6 +485,43 @@ mod tests {
             off.commit(s.force_n, [5.0, 0.0, 0.0], dt);
         }
         assert!(off.observed_j() < -0.04, "{}", off.observed_j());
+    }
+
+    /// With a release time the damping decays after the deficit instead of switching off:
+    /// it stays on for a while, dissipates at least as much as bang-bang, and the observer
+    /// stays ≥ 0 either way.
+    #[test]
+    fn impedance_port_damping_release_decays_and_stays_passive() {
+        let dt = 0.001;
+        let run = |release_ms: f64| {
+            let mut port = ImpedancePort::from_params(&PassivityParams {
+                damping_release_ms: release_ms,
+                ..PassivityParams::default()
+            });
+            port.receive_remote_in(0.0005);
+            let mut after = Vec::new();
+            for k in 0..200 {
+                // A 20-cycle burst that needs damping, then a small force with the handle
+                // moving (no deficit any more once energy arrives).
+                let (f, v) = if k < 20 { (10.0, 5.0) } else { (0.0, 5.0) };
+                if k == 20 {
+                    port.receive_remote_in(1.0);
+                }
+                let s = port.step([f, 0.0, 0.0], [v, 0.0, 0.0], dt, true);
+                port.commit(s.force_n, [v, 0.0, 0.0], dt);
+                assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
+                if k >= 20 {
+                    after.push(s.damping_n_s_per_mm);
+                }
+            }
+            (after, port.energy.dissipated_j)
+        };
+        let (bang, e_bang) = run(0.0);
+        let (smooth, e_smooth) = run(20.0);
+        assert!(bang.iter().all(|&a| a == 0.0), "{bang:?}");
+        assert!(smooth[0] > 0.0 && smooth[0] > smooth[30] && smooth[30] > smooth[150]);
+        assert!(smooth[150] < 0.01 * smooth[0], "{smooth:?}");
+        assert!(e_smooth > e_bang);
     }
 
     #[test]
