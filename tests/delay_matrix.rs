@@ -4,6 +4,8 @@
 //!
 //! * `negative_control_*`: with passivity control off, the detector must report the stiff
 //!   wall unstable from 20 ms round trip — the detector can fail, on real physics.
+//! * `matrix_cells_that_meet_every_target`: the 57 cells that meet every target (listed
+//!   explicitly) keep meeting them.
 //! * `matrix_passivity_on_meets_targets`: the issue's targets in every cell. Not met yet
 //!   (see docs/sessions.md, "Delay matrix"), so it is ignored with the reason; run it with
 //!   `cargo test --release -p h4-tests --test delay_matrix -- --ignored --nocapture`, which
@@ -89,9 +91,23 @@ fn session_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml")
 }
 
+/// Extra `--set` overrides for experiments (`H4_MATRIX_SET="key=value;key=value"`); the
+/// suite never sets it.
+fn extra_overrides() -> Vec<String> {
+    std::env::var("H4_MATRIX_SET")
+        .map(|v| {
+            v.split(';')
+                .filter(|s| !s.trim().is_empty())
+                .map(|s| s.trim().to_string())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
 fn run_case(c: &Case) -> Summary {
-    let cfg = session::load(&session_path(), &c.overrides())
-        .unwrap_or_else(|e| panic!("{}: {e}", c.label()));
+    let mut o = c.overrides();
+    o.extend(extra_overrides());
+    let cfg = session::load(&session_path(), &o).unwrap_or_else(|e| panic!("{}: {e}", c.label()));
     session::run(&cfg, None).unwrap_or_else(|e| panic!("{}: {e}", c.label()))
 }
 
@@ -178,8 +194,9 @@ fn matrix_cases() -> Vec<Case> {
 
 fn fmt_cell(s: &Summary, ok: bool) -> String {
     format!(
-        "{} {:.0}/{:.1}/{:.1}",
+        "{}{} {:.0}/{:.1}/{:.1}",
         if ok { "ok" } else { "**x**" },
+        if s.stable { "" } else { " U" },
         s.max_force_n,
         s.position_drift_mm,
         s.energy_min_j * 1e3
@@ -214,12 +231,30 @@ fn table(cases: &[Case], sums: &[Summary]) -> String {
 }
 
 #[test]
-#[ignore = "issue 4 targets not met in many cells (stiff wall and resin: contact chatter, \
-            drift > 2 mm, transparency > 10 %); measured table in docs/sessions.md"]
+#[ignore = "issue 4 targets met in 57 of 192 cells only (resin and stiff wall: contact \
+            chatter, force > 100 N, drift > 2 mm; transparency > 10 % in 78 of 96 cells up to \
+            100 ms); measured table in docs/sessions.md; the cells that do meet every target are \
+            guarded by matrix_cells_that_meet_every_target"]
 fn matrix_passivity_on_meets_targets() {
     let cases = matrix_cases();
     let sums = run_all(&cases);
     println!("{}", table(&cases, &sums));
+    // Per-criterion counts of the cells that miss.
+    let count = |f: &dyn Fn(&Case, &Summary) -> bool| {
+        cases.iter().zip(&sums).filter(|(c, s)| f(c, s)).count()
+    };
+    println!(
+        "cells: {}; unstable: {}; energy_min_j < -0.01: {}; max_force_n > 100: {}; \
+         position_drift_mm > 2: {}; transparency > 10 % (rtt <= 100 ms, of {}): {}",
+        cases.len(),
+        count(&|_, s| !s.stable),
+        count(&|_, s| s.energy_min_j < -0.01),
+        count(&|_, s| s.max_force_n > 100.0),
+        count(&|_, s| s.position_drift_mm > 2.0),
+        count(&|c, _| c.rtt_ms <= 100.0),
+        count(&|c, s| c.rtt_ms <= 100.0
+            && (s.force_transparency_err_pct.is_nan() || s.force_transparency_err_pct > 10.0)),
+    );
     let mut failed = Vec::new();
     for (c, s) in cases.iter().zip(&sums) {
         let m = misses(c, s);
@@ -230,6 +265,99 @@ fn matrix_passivity_on_meets_targets() {
     assert!(
         failed.is_empty(),
         "{} of {} cells miss the targets:\n{}",
+        failed.len(),
+        cases.len(),
+        failed.join("\n")
+    );
+}
+
+/// The cells that meet every target at the last measurement (docs/sessions.md), listed
+/// explicitly: (environment, loss, jitter share, round trip ms). The suite guards what works;
+/// a regression in any of them fails here.
+const CELLS_MEETING_TARGETS: [(Env, Loss, f64, f64); 57] = [
+    (Env::Soft, Loss::None, 0.0, 0.0),
+    (Env::Soft, Loss::None, 0.0, 250.0),
+    (Env::Soft, Loss::None, 0.0, 500.0),
+    (Env::Soft, Loss::None, 0.0, 1000.0),
+    (Env::Soft, Loss::None, 0.0, 2000.0),
+    (Env::Soft, Loss::None, 0.2, 0.0),
+    (Env::Soft, Loss::None, 0.2, 250.0),
+    (Env::Soft, Loss::None, 0.2, 500.0),
+    (Env::Soft, Loss::None, 0.2, 1000.0),
+    (Env::Soft, Loss::None, 0.2, 2000.0),
+    (Env::Soft, Loss::P5, 0.0, 0.0),
+    (Env::Soft, Loss::P5, 0.0, 250.0),
+    (Env::Soft, Loss::P5, 0.0, 500.0),
+    (Env::Soft, Loss::P5, 0.0, 1000.0),
+    (Env::Soft, Loss::P5, 0.0, 2000.0),
+    (Env::Soft, Loss::P5, 0.2, 0.0),
+    (Env::Soft, Loss::P5, 0.2, 250.0),
+    (Env::Soft, Loss::P5, 0.2, 500.0),
+    (Env::Soft, Loss::P5, 0.2, 1000.0),
+    (Env::Soft, Loss::P5, 0.2, 2000.0),
+    (Env::Soft, Loss::P20, 0.0, 0.0),
+    (Env::Soft, Loss::P20, 0.0, 250.0),
+    (Env::Soft, Loss::P20, 0.0, 500.0),
+    (Env::Soft, Loss::P20, 0.0, 1000.0),
+    (Env::Soft, Loss::P20, 0.0, 2000.0),
+    (Env::Soft, Loss::P20, 0.2, 0.0),
+    (Env::Soft, Loss::P20, 0.2, 250.0),
+    (Env::Soft, Loss::P20, 0.2, 500.0),
+    (Env::Soft, Loss::P20, 0.2, 1000.0),
+    (Env::Soft, Loss::P20, 0.2, 2000.0),
+    (Env::Soft, Loss::Blackout, 0.0, 250.0),
+    (Env::Soft, Loss::Blackout, 0.0, 500.0),
+    (Env::Soft, Loss::Blackout, 0.0, 1000.0),
+    (Env::Soft, Loss::Blackout, 0.0, 2000.0),
+    (Env::Soft, Loss::Blackout, 0.2, 250.0),
+    (Env::Soft, Loss::Blackout, 0.2, 500.0),
+    (Env::Soft, Loss::Blackout, 0.2, 1000.0),
+    (Env::Soft, Loss::Blackout, 0.2, 2000.0),
+    (Env::Resin, Loss::None, 0.0, 0.0),
+    (Env::Resin, Loss::None, 0.0, 250.0),
+    (Env::Resin, Loss::None, 0.2, 0.0),
+    (Env::Resin, Loss::P5, 0.0, 0.0),
+    (Env::Resin, Loss::P5, 0.0, 250.0),
+    (Env::Resin, Loss::P5, 0.2, 0.0),
+    (Env::Resin, Loss::P20, 0.0, 0.0),
+    (Env::Resin, Loss::P20, 0.0, 250.0),
+    (Env::Resin, Loss::P20, 0.2, 0.0),
+    (Env::Stiff, Loss::None, 0.0, 0.0),
+    (Env::Stiff, Loss::None, 0.0, 250.0),
+    (Env::Stiff, Loss::None, 0.2, 0.0),
+    (Env::Stiff, Loss::None, 0.2, 250.0),
+    (Env::Stiff, Loss::P5, 0.0, 0.0),
+    (Env::Stiff, Loss::P5, 0.0, 250.0),
+    (Env::Stiff, Loss::P5, 0.2, 0.0),
+    (Env::Stiff, Loss::P20, 0.0, 0.0),
+    (Env::Stiff, Loss::P20, 0.0, 250.0),
+    (Env::Stiff, Loss::P20, 0.2, 0.0),
+];
+
+#[test]
+fn matrix_cells_that_meet_every_target() {
+    let cases: Vec<Case> = CELLS_MEETING_TARGETS
+        .iter()
+        .map(|&(env, loss, jitter, rtt_ms)| Case {
+            rtt_ms,
+            jitter,
+            loss,
+            env,
+            passivity: true,
+        })
+        .collect();
+    let sums = run_all(&cases);
+    let failed: Vec<String> = cases
+        .iter()
+        .zip(&sums)
+        .filter_map(|(c, s)| {
+            let m = misses(c, s);
+            (!m.is_empty()).then(|| format!("{}: {}", c.label(), m.join(", ")))
+        })
+        .collect();
+    assert!(
+        failed.is_empty(),
+        "{} of {} cells that met every target no longer do:\n{}",
         failed.len(),
         cases.len(),
         failed.join("\n")

@@ -58,14 +58,19 @@ pub struct CouplingParams {
     pub fade_ms: f64,
     /// Passivity controller on (the observer always runs).
     pub passivity: bool,
-    /// Largest damping the master's passivity controller adds, N·s/mm.
-    pub max_damping_n_s_per_mm: f64,
+    /// The master port's passivity controller settings (damping cap, release, reserve).
+    pub passivity_params: h4_shared::passivity::PassivityParams,
     /// Force-guided: stiffness of the virtual spring the operator pushes, N/mm.
     pub guide_stiffness_n_per_mm: f64,
     /// Force-guided: largest set-point, N.
     pub guide_setpoint_max_n: f64,
     /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
     pub guide_approach_depth_mm: f64,
+    /// Local damping the master renders against the handle's velocity, N·s/mm (position–
+    /// force mode; passive, not part of the link's two-port).
+    pub master_damping_n_s_per_mm: f64,
+    /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
+    pub force_filter_hz: f64,
     /// Arm id in the commands.
     pub arm_id: u16,
 }
@@ -111,6 +116,8 @@ pub struct MasterCoupling {
     normal: [f64; 3],
     last: MasterStep,
     velocity: [f64; 3],
+    local_n: [f64; 3],
+    filtered_n: [f64; 3],
 }
 
 fn norm3(v: &[f64; 3]) -> f64 {
@@ -121,7 +128,7 @@ impl MasterCoupling {
     /// A coupling; the master's first reading becomes its anchor.
     pub fn new(p: CouplingParams) -> Self {
         MasterCoupling {
-            port: ImpedancePort::new(p.max_damping_n_s_per_mm),
+            port: ImpedancePort::from_params(&p.passivity_params),
             master_anchor: [0.0; 4],
             slave_anchor: p.slave_anchor,
             last_target: p.slave_anchor,
@@ -134,6 +141,8 @@ impl MasterCoupling {
             normal: [0.0, 0.0, 1.0],
             last: MasterStep::default(),
             velocity: [0.0; 3],
+            local_n: [0.0; 3],
+            filtered_n: [0.0; 3],
             p,
         }
     }
@@ -274,10 +283,29 @@ impl MasterCoupling {
                 }
             }
         }
+        // First-order low-pass of the force to render (the sensor's noise and the contact's
+        // high-frequency content are not rendered; a filter is passive-neutral here since the
+        // port observes the force actually applied).
+        if p.force_filter_hz > 0.0 {
+            let a = 1.0 - (-2.0 * std::f64::consts::PI * p.force_filter_hz * dt_s).exp();
+            for (f, lf) in self.filtered_n.iter_mut().zip(link_force.iter_mut()) {
+                *f += a * (*lf - *f);
+                *lf = *f;
+            }
+        }
         self.last_target = target;
         self.velocity = vel;
         let pc = self.port.step(link_force, v_m, dt_s, p.passivity);
         let mut force = pc.force_n;
+        let mut local = [0.0; 3];
+        if p.mode == CouplingMode::PositionForce && !self.clutched {
+            // Faded with the feedback: with no slave there is no loop to stabilise, and the
+            // operator holds a free handle (the feedback-loss safe state renders nothing).
+            for i in 0..3 {
+                local[i] = -p.master_damping_n_s_per_mm * self.fade * v_m[i];
+                force[i] += local[i];
+            }
+        }
         // Force-guided: the local virtual spring sets the set-point.
         if p.mode == CouplingMode::ForceGuided && !self.clutched {
             let n = self.normal;
@@ -297,8 +325,12 @@ impl MasterCoupling {
             for f in force.iter_mut() {
                 *f *= s;
             }
+            for l in local.iter_mut() {
+                *l *= s;
+            }
             step.saturated = true;
         }
+        self.local_n = local;
         step.wrench = [force[0], force[1], force[2], 0.0];
         step.link_force_n = link_force;
         step.damping_n_s_per_mm = pc.damping_n_s_per_mm;
@@ -322,7 +354,11 @@ impl MasterCoupling {
         // Only the link's share of the force passes through the two-port: in force-guided
         // mode the local spring is not the link's.
         let link = if self.p.mode == CouplingMode::PositionForce {
-            [applied[0], applied[1], applied[2]]
+            [
+                applied[0] - self.local_n[0],
+                applied[1] - self.local_n[1],
+                applied[2] - self.local_n[2],
+            ]
         } else {
             [0.0; 3]
         };

@@ -121,6 +121,12 @@ pub struct CouplingConfig {
     pub guide_setpoint_max_n: f64,
     /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
     pub guide_approach_depth_mm: f64,
+    /// Local damping the master renders against the handle's velocity (position–force),
+    /// N·s/mm.
+    pub master_damping_n_s_per_mm: f64,
+    /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
+    /// (0: unfiltered).
+    pub force_filter_hz: f64,
 }
 
 impl Default for CouplingConfig {
@@ -133,6 +139,8 @@ impl Default for CouplingConfig {
             guide_stiffness_n_per_mm: 1.0,
             guide_setpoint_max_n: 50.0,
             guide_approach_depth_mm: 20.0,
+            master_damping_n_s_per_mm: 0.3,
+            force_filter_hz: 0.0,
         }
     }
 }
@@ -340,6 +348,20 @@ impl Validate for SessionConfig {
             0.0,
             self.slave.controller.force_limit_n,
             "N (up to slave.controller.force_limit_n)",
+        )?;
+        check_range(
+            "coupling.master_damping_n_s_per_mm",
+            c.master_damping_n_s_per_mm,
+            0.0,
+            1.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            "coupling.force_filter_hz",
+            c.force_filter_hz,
+            0.0,
+            500.0,
+            "Hz",
         )?;
         check_range(
             "coupling.guide_approach_depth_mm",
@@ -859,10 +881,12 @@ impl Session {
             feedback_timeout_ms: cfg.coupling.feedback_timeout_ms,
             fade_ms: cfg.coupling.fade_ms,
             passivity: pc.enabled,
-            max_damping_n_s_per_mm: pc.max_damping_n_s_per_mm,
+            passivity_params: *pc,
             guide_stiffness_n_per_mm: cfg.coupling.guide_stiffness_n_per_mm,
             guide_setpoint_max_n: cfg.coupling.guide_setpoint_max_n,
             guide_approach_depth_mm: cfg.coupling.guide_approach_depth_mm,
+            master_damping_n_s_per_mm: cfg.coupling.master_damping_n_s_per_mm,
+            force_filter_hz: cfg.coupling.force_filter_hz,
             arm_id: 0,
         });
         let master = MasterSide {

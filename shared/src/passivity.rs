@@ -45,6 +45,12 @@ pub struct PassivityParams {
     pub drift_energy_share: f64,
     /// Contact force below which the slave's controller does not act (sensor noise), N.
     pub force_floor_n: f64,
+    /// Time constant with which the master controller's damping is released after the
+    /// deficit that needed it is gone, ms (0: released at once, bang-bang).
+    pub damping_release_ms: f64,
+    /// Energy the master controller keeps in reserve: it starts damping when its observer
+    /// would fall below this, J (0: only below zero).
+    pub energy_reserve_j: f64,
 }
 
 impl Default for PassivityParams {
@@ -55,7 +61,9 @@ impl Default for PassivityParams {
             max_correction_mm_per_s: 200.0,
             drift_gain_per_s: 2.0,
             drift_energy_share: 0.2,
-            force_floor_n: 1.0,
+            force_floor_n: 0.3,
+            damping_release_ms: 20.0,
+            energy_reserve_j: 0.0,
         }
     }
 }
@@ -97,6 +105,20 @@ impl PassivityParams {
             0.0,
             100.0,
             "N",
+        )?;
+        check_range(
+            &format!("{prefix}damping_release_ms"),
+            self.damping_release_ms,
+            0.0,
+            1e4,
+            "ms",
+        )?;
+        check_range(
+            &format!("{prefix}energy_reserve_j"),
+            self.energy_reserve_j,
+            0.0,
+            100.0,
+            "J",
         )
     }
 }
@@ -135,6 +157,11 @@ pub struct ImpedancePort {
     remote_in_j: f64,
     /// Largest damping the controller may add, N·s/mm (bounds the force of one cycle).
     pub max_damping_n_s_per_mm: f64,
+    /// Release time constant of the damping, ms (0: bang-bang).
+    pub damping_release_ms: f64,
+    /// Reserve below which the controller starts damping, J.
+    pub energy_reserve_j: f64,
+    alpha: f64,
 }
 
 /// What the master's port did this cycle.
@@ -154,6 +181,15 @@ impl ImpedancePort {
         ImpedancePort {
             max_damping_n_s_per_mm,
             ..ImpedancePort::default()
+        }
+    }
+
+    /// A port with the master-side settings of `p` (damping cap, release, reserve).
+    pub fn from_params(p: &PassivityParams) -> Self {
+        ImpedancePort {
+            damping_release_ms: p.damping_release_ms,
+            energy_reserve_j: p.energy_reserve_j,
+            ..ImpedancePort::new(p.max_damping_n_s_per_mm)
         }
     }
 
@@ -185,10 +221,28 @@ impl ImpedancePort {
         let v2 = dot3(&velocity_mm_per_s, &velocity_mm_per_s);
         let mut force = force_n;
         let mut alpha = 0.0;
-        if control && p0 > 0.0 && v2 > 1e-12 {
-            let w = self.observed_j() - p0 * dt_s * J_PER_N_MM;
-            if w < 0.0 {
-                alpha = (-w / (J_PER_N_MM * dt_s * v2)).min(self.max_damping_n_s_per_mm);
+        if control {
+            // The damping the deficit needs this cycle (acting before the observer reaches
+            // zero when a reserve is set) ...
+            let mut need = 0.0;
+            if p0 > 0.0 && v2 > 1e-12 {
+                let w = self.observed_j() - self.energy_reserve_j - p0 * dt_s * J_PER_N_MM;
+                if w < 0.0 {
+                    need = -w / (J_PER_N_MM * dt_s * v2);
+                }
+            }
+            // ... or, if more, the previous damping released with a first-order decay:
+            // extra damping only dissipates more, so passivity holds either way.
+            let decay = if self.damping_release_ms > 0.0 {
+                (-dt_s * 1e3 / self.damping_release_ms).exp()
+            } else {
+                0.0
+            };
+            alpha = need
+                .max(self.alpha * decay)
+                .min(self.max_damping_n_s_per_mm);
+            self.alpha = alpha;
+            if alpha > 0.0 {
                 for (f, v) in force.iter_mut().zip(velocity_mm_per_s.iter()) {
                     *f -= alpha * v;
                 }
@@ -233,6 +287,8 @@ pub struct AdmittancePort {
 pub struct AdmittanceStep {
     /// The commanded velocity after the controller, mm/s.
     pub velocity_mm_per_s: [f64; 3],
+    /// The position to command this cycle, mm.
+    pub target_mm: [f64; 3],
     /// Admittance the controller added, mm/(N·s).
     pub admittance_mm_per_n_s: f64,
     /// Observer after this cycle, J.
@@ -250,7 +306,7 @@ impl AdmittancePort {
             drift_gain_per_s,
             drift_energy_share,
             max_correction_mm_per_s,
-            force_floor_n: 1.0,
+            force_floor_n: 0.3,
             ..AdmittancePort::default()
         }
     }
@@ -279,63 +335,99 @@ impl AdmittancePort {
         self.remote_in_j - self.energy.out_j
     }
 
-    /// One cycle: `desired_mm_per_s` is the velocity the link asks for (the change of the
-    /// desired position), `force_n` the measured contact force on the tool (the force the
-    /// environment exerts). Returns the velocity to command; the commanded position is the
-    /// desired one plus [`AdmittancePort::drift_mm`].
-    pub fn step(
+    /// One cycle of a position-commanded arm. `commanded_mm` is where the arm was commanded
+    /// last cycle, `desired_mm` where the link asks it to be now and `desired_mm_per_s` the
+    /// link's velocity; `force_n` the measured contact force (the force the environment
+    /// exerts on the tool); `max_speed_mm_per_s` the arm's speed limit.
+    ///
+    /// Without `control` the arm is sent to `desired_mm`. With it, the motion of this cycle
+    /// starts from `commanded_mm`: the link's velocity plus a drift compensation
+    /// (`drift_gain_per_s` × the remaining gap, paid for only from `drift_energy_share` of
+    /// the observer's surplus), then limited so that the energy it puts into the contact
+    /// does not exceed what the observer holds, then, if the observer is in deficit, backed
+    /// away from the force (at most `max_correction_mm_per_s`) to dissipate the deficit.
+    /// The gap to `desired_mm` that remains is [`AdmittancePort::drift_mm`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn step_position(
         &mut self,
+        commanded_mm: [f64; 3],
+        desired_mm: [f64; 3],
         desired_mm_per_s: [f64; 3],
         force_n: [f64; 3],
+        max_speed_mm_per_s: f64,
         dt_s: f64,
         control: bool,
     ) -> AdmittanceStep {
-        let mut v = desired_mm_per_s;
-        let f2 = dot3(&force_n, &force_n);
-        // Power out of the link at this port: the commanded motion against the contact force.
-        let power = |v: &[f64; 3]| -dot3(&force_n, v);
-        let mut beta = 0.0;
-        if control {
-            // Drift compensation, paid for only from the observer's surplus.
-            let dn2 = dot3(&self.drift_mm, &self.drift_mm);
-            if dn2 > 1e-12 {
-                let mut vdc = [0.0; 3];
-                for (c, d) in vdc.iter_mut().zip(self.drift_mm.iter()) {
-                    *c = -self.drift_gain_per_s * d;
-                }
-                let budget_n_mm = (self.observed_j() - power(&v).max(0.0) * dt_s * J_PER_N_MM)
-                    .max(0.0)
-                    * self.drift_energy_share
-                    / J_PER_N_MM;
-                let extra = (power(&vdc) * dt_s).max(0.0);
-                let share = if extra > budget_n_mm {
-                    budget_n_mm / extra
-                } else {
-                    1.0
-                };
-                for (vi, c) in v.iter_mut().zip(vdc.iter()) {
-                    *vi += share * c;
-                }
+        if !control {
+            self.drift_mm = [0.0; 3];
+            let mut v = [0.0; 3];
+            for i in 0..3 {
+                v[i] = (desired_mm[i] - commanded_mm[i]) / dt_s;
             }
-            let p0 = power(&v);
-            let floor = self.force_floor_n.max(1e-6);
-            if p0 > 0.0 && f2 > floor * floor {
-                let w = self.observed_j() - p0 * dt_s * J_PER_N_MM;
-                if w < 0.0 {
-                    beta = (-w / (J_PER_N_MM * dt_s * f2))
-                        .min(self.max_correction_mm_per_s / f2.sqrt());
-                    for (vi, f) in v.iter_mut().zip(force_n.iter()) {
-                        *vi += beta * f;
-                    }
-                    self.energy.dissipated_j += beta * f2 * dt_s * J_PER_N_MM;
-                }
+            return AdmittanceStep {
+                velocity_mm_per_s: v,
+                target_mm: desired_mm,
+                admittance_mm_per_n_s: 0.0,
+                observed_j: self.observed_j(),
+            };
+        }
+        let power = |v: &[f64; 3]| -dot3(&force_n, v);
+        let f2 = dot3(&force_n, &force_n);
+        let floor = self.force_floor_n.max(1e-6);
+        let in_contact = f2 > floor * floor;
+        let budget = self.observed_j().max(0.0) / (dt_s * J_PER_N_MM);
+        // The link's motion plus the drift compensation.
+        let mut v = desired_mm_per_s;
+        let mut vc = [0.0; 3];
+        for i in 0..3 {
+            let gap = desired_mm[i] - commanded_mm[i] - desired_mm_per_s[i] * dt_s;
+            vc[i] = (self.drift_gain_per_s * gap).clamp(-gap.abs() / dt_s, gap.abs() / dt_s);
+        }
+        let pc = power(&vc);
+        let share = if in_contact && pc > 0.0 {
+            let avail = self.drift_energy_share * (budget - power(&v).max(0.0)).max(0.0);
+            (avail / pc).min(1.0)
+        } else {
+            1.0
+        };
+        for i in 0..3 {
+            v[i] += share * vc[i];
+        }
+        let speed = dot3(&v, &v).sqrt();
+        if speed > max_speed_mm_per_s && speed > 0.0 {
+            for vi in v.iter_mut() {
+                *vi *= max_speed_mm_per_s / speed;
             }
         }
+        let mut beta = 0.0;
+        // Below the noise floor the measured force's direction is noise: correcting along it
+        // would steer free motion sideways.
+        if in_contact {
+            // Limit the energy output to what the observer holds (this removes only the
+            // part of the motion that pushes into the force).
+            let p0 = power(&v);
+            if p0 > budget {
+                beta += (p0 - budget) / f2;
+            }
+            // Dissipate a deficit by backing away from the force.
+            let w = self.observed_j();
+            if w < 0.0 {
+                beta +=
+                    (-w / (J_PER_N_MM * dt_s * f2)).min(self.max_correction_mm_per_s / f2.sqrt());
+            }
+            for (vi, f) in v.iter_mut().zip(force_n.iter()) {
+                *vi += beta * f;
+            }
+            self.energy.dissipated_j += beta * f2 * dt_s * J_PER_N_MM;
+        }
+        let mut target = [0.0; 3];
         for i in 0..3 {
-            self.drift_mm[i] += (v[i] - desired_mm_per_s[i]) * dt_s;
+            target[i] = commanded_mm[i] + v[i] * dt_s;
+            self.drift_mm[i] = target[i] - desired_mm[i];
         }
         AdmittanceStep {
             velocity_mm_per_s: v,
+            target_mm: target,
             admittance_mm_per_n_s: beta,
             observed_j: self.observed_j(),
         }
@@ -395,26 +487,73 @@ mod tests {
         assert!(off.observed_j() < -0.04, "{}", off.observed_j());
     }
 
+    /// With a release time the damping decays after the deficit instead of switching off:
+    /// it stays on for a while, dissipates at least as much as bang-bang, and the observer
+    /// stays ≥ 0 either way.
     #[test]
-    fn admittance_port_backs_off_and_compensates_drift_with_budget() {
+    fn impedance_port_damping_release_decays_and_stays_passive() {
+        let dt = 0.001;
+        let run = |release_ms: f64| {
+            let mut port = ImpedancePort::from_params(&PassivityParams {
+                damping_release_ms: release_ms,
+                ..PassivityParams::default()
+            });
+            port.receive_remote_in(0.0005);
+            let mut after = Vec::new();
+            for k in 0..200 {
+                // A 20-cycle burst that needs damping, then a small force with the handle
+                // moving (no deficit any more once energy arrives).
+                let (f, v) = if k < 20 { (10.0, 5.0) } else { (0.0, 5.0) };
+                if k == 20 {
+                    port.receive_remote_in(1.0);
+                }
+                let s = port.step([f, 0.0, 0.0], [v, 0.0, 0.0], dt, true);
+                port.commit(s.force_n, [v, 0.0, 0.0], dt);
+                assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
+                if k >= 20 {
+                    after.push(s.damping_n_s_per_mm);
+                }
+            }
+            (after, port.energy.dissipated_j)
+        };
+        let (bang, e_bang) = run(0.0);
+        let (smooth, e_smooth) = run(20.0);
+        assert!(bang.iter().all(|&a| a == 0.0), "{bang:?}");
+        assert!(smooth[0] > 0.0 && smooth[0] > smooth[30] && smooth[30] > smooth[150]);
+        assert!(smooth[150] < 0.01 * smooth[0], "{smooth:?}");
+        assert!(e_smooth > e_bang);
+    }
+
+    #[test]
+    fn admittance_port_stops_at_the_budget_and_compensates_drift_when_energy_arrives() {
         let mut port = AdmittancePort::new(2.0, 0.5, 1e6);
         let dt = 0.001;
-        // Pushing into a force with no energy received: the controller stops the motion
-        // (the arm follows the corrected velocity exactly here).
-        for _ in 0..100 {
-            let s = port.step([0.0, 0.0, -5.0], [0.0, 0.0, 20.0], dt, true);
-            port.commit([0.0, 0.0, 20.0], s.velocity_mm_per_s, dt);
+        let f = [0.0, 0.0, 20.0];
+        // The link asks to push into a 20 N force at 5 mm/s with no energy received: the
+        // arm does not advance, the observer stays >= 0, the gap becomes drift.
+        let mut x = [0.0; 3];
+        for k in 1..=100 {
+            let desired = [0.0, 0.0, -0.005 * k as f64];
+            let s = port.step_position(x, desired, [0.0, 0.0, -5.0], f, 100.0, dt, true);
+            port.commit(f, s.velocity_mm_per_s, dt);
+            x = s.target_mm;
         }
-        assert!(port.observed_j() >= -1e-12);
-        assert!(port.drift_mm[2] > 0.4, "{:?}", port.drift_mm);
-        let drift = port.drift_mm[2];
-        // Energy arrives: the drift closes.
+        assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
+        assert!(x[2].abs() < 1e-9, "{x:?}");
+        assert!((port.drift_mm[2] - 0.5).abs() < 1e-9, "{:?}", port.drift_mm);
+        // Energy arrives: the drift closes, and the observer never goes negative.
         port.receive_remote_in(10.0);
+        let desired = [0.0, 0.0, -0.5];
         for _ in 0..3000 {
-            let s = port.step([0.0; 3], [0.0, 0.0, 20.0], dt, true);
-            port.commit([0.0, 0.0, 20.0], s.velocity_mm_per_s, dt);
+            let s = port.step_position(x, desired, [0.0; 3], f, 100.0, dt, true);
+            port.commit(f, s.velocity_mm_per_s, dt);
+            x = s.target_mm;
+            assert!(port.observed_j() >= -1e-12);
         }
-        assert!(port.drift_mm[2].abs() < 0.01 * drift, "{:?}", port.drift_mm);
-        assert!(port.observed_j() >= 0.0);
+        assert!(port.drift_mm[2].abs() < 0.01, "{:?}", port.drift_mm);
+        // Without control the arm is simply sent where the link asks.
+        let mut off = AdmittancePort::new(2.0, 0.5, 1e6);
+        let s = off.step_position([0.0; 3], [0.0, 0.0, -1.0], [0.0; 3], f, 100.0, dt, false);
+        assert_eq!(s.target_mm, [0.0, 0.0, -1.0]);
     }
 }

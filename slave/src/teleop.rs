@@ -326,30 +326,10 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             && mode != Mode::Hold
         {
             if !self.anchored {
-                // First command, or the first after a safe stop or a hold: the step from
-                // where the arm is commanded to the master's pose becomes drift.
-                let held = self
-                    .last_out
-                    .map_or([c.pose[0], c.pose[1], c.pose[2]], |o| {
-                        [
-                            o.commanded_pose[0],
-                            o.commanded_pose[1],
-                            o.commanded_pose[2],
-                        ]
-                    });
+                // First command, or the first after a safe stop or a hold: the link's
+                // pose becomes the desired one with no velocity; the port closes the gap
+                // from where the arm is commanded gradually (no jump).
                 self.desired = [c.pose[0], c.pose[1], c.pose[2]];
-                // In force-guided mode the controller approaches the surface at its own
-                // speed: no jump, and no drift to close.
-                let d = if mode == Mode::Position {
-                    [
-                        held[0] - self.desired[0],
-                        held[1] - self.desired[1],
-                        held[2] - self.desired[2],
-                    ]
-                } else {
-                    [0.0; 3]
-                };
-                self.port.set_drift(d);
                 self.anchored = true;
             }
             for (i, v) in v_d.iter_mut().enumerate() {
@@ -369,19 +349,34 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             ]
         });
         let control = self.p.passivity.enabled && mode == Mode::Position && !clutch;
-        let ps = self.port.step(v_d, force, dt_s, control);
+        let max_v = self.ctrl.params().max_speed_mm_per_s * self.p.speed_margin;
+        let held = self.last_out.map_or(self.desired, |o| {
+            [
+                o.commanded_pose[0],
+                o.commanded_pose[1],
+                o.commanded_pose[2],
+            ]
+        });
+        let ps = if mode == Mode::Position {
+            self.port
+                .step_position(held, self.desired, v_d, force, max_v, dt_s, control)
+        } else {
+            self.port.clear_drift();
+            AdmittanceStep {
+                velocity_mm_per_s: [cmd_vel[0], cmd_vel[1], cmd_vel[2]],
+                target_mm: self.desired,
+                admittance_mm_per_n_s: 0.0,
+                observed_j: self.port.observed_j(),
+            }
+        };
         let drift = self.port.drift_mm;
         let pose = [
-            self.desired[0] + drift[0],
-            self.desired[1] + drift[1],
-            self.desired[2] + drift[2],
+            ps.target_mm[0],
+            ps.target_mm[1],
+            ps.target_mm[2],
             self.desired_theta,
         ];
-        let max_v = self.ctrl.params().max_speed_mm_per_s * self.p.speed_margin;
-        let mut vel = [cmd_vel[0], cmd_vel[1], cmd_vel[2]];
-        if mode == Mode::Position {
-            vel = ps.velocity_mm_per_s;
-        }
+        let mut vel = ps.velocity_mm_per_s;
         let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
         if speed > max_v {
             for v in vel.iter_mut() {
@@ -470,5 +465,160 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             dissipated_j: energy.dissipated_j,
             command_seq: echo_seq,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::controller::ControllerParams;
+    use crate::plant::{MaterialPreset, PlantConfig, SensorConfig, SimArm, Surface, SurfaceShape};
+    use h4_shared::config::ArmConfig;
+    use h4_shared::kinematics::Pose;
+    use h4_transport::inproc::{self, InprocEnd};
+
+    const PERIOD_NS: u64 = 1_000_000;
+
+    fn endpoint(passivity: bool) -> SlaveTeleop<SimArm> {
+        let arm_cfg = ArmConfig::default();
+        let ws = arm_cfg.workspace();
+        let assumed = arm_cfg.stiffness().unwrap();
+        let surface = Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: [0.0, 0.0, -260.0],
+                normal: [0.0, 0.0, 1.0],
+            },
+            material: MaterialPreset::Resin.material(),
+        };
+        let arm = SimArm::new(
+            ws.params,
+            arm_cfg.actuator_stiffness_n_per_mm,
+            PlantConfig::default(),
+            SensorConfig::default(),
+            surface,
+            Pose::new(0.0, 0.0, -250.0, 0.0),
+            1,
+        )
+        .unwrap();
+        let ctrl = SlaveController::new(ws, assumed, ControllerParams::default());
+        let mut p = TeleopParams::default();
+        p.passivity.enabled = passivity;
+        SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap()
+    }
+
+    fn command(seq: u64, now_ns: u64, z: f64) -> Command {
+        Command {
+            seq,
+            send_time_ns: now_ns,
+            pose: [0.0, 0.0, z, 0.0],
+            mode: Mode::Position as u8,
+            protocol_version: PROTOCOL_VERSION,
+            ..Command::default()
+        }
+    }
+
+    struct Rig {
+        ep: SlaveTeleop<SimArm>,
+        master: InprocEnd<Command, Feedback>,
+        slave: InprocEnd<Feedback, Command>,
+        now: u64,
+        seq: u64,
+    }
+
+    impl Rig {
+        fn cycle(&mut self, send: Option<f64>) -> TeleopCycle {
+            if let Some(z) = send {
+                self.seq += 1;
+                self.master
+                    .publish(&command(self.seq, self.now, z))
+                    .unwrap();
+            }
+            let c = self.ep.step(&mut self.slave, self.now, 1e-3);
+            while self.master.try_recv().unwrap().is_some() {}
+            self.ep.arm_mut().advance(PERIOD_NS);
+            self.now += PERIOD_NS;
+            c
+        }
+    }
+
+    #[test]
+    fn watchdog_safe_stop_and_repair_without_jump() {
+        let (master, slave) = inproc::pair(64);
+        let mut r = Rig {
+            ep: endpoint(true),
+            master,
+            slave,
+            now: 0,
+            seq: 0,
+        };
+        assert_eq!(r.ep.state(), SlaveState::Idle);
+        // Follow a slow downward ramp.
+        let mut z = -250.0;
+        for _ in 0..500 {
+            z -= 0.004;
+            let c = r.cycle(Some(z));
+            assert_eq!(c.state, SlaveState::Active);
+        }
+        // Silence: the watchdog trips at 20 ms, not before.
+        let mut tripped_at = None;
+        for k in 1..=40 {
+            let c = r.cycle(None);
+            if c.tripped {
+                tripped_at = Some(k);
+            }
+        }
+        let k = tripped_at.expect("watchdog never tripped");
+        assert!((19..=21).contains(&k), "tripped after {k} silent cycles");
+        assert_eq!(r.ep.state(), SlaveState::SafeStop);
+        assert_eq!(r.ep.counters().safe_stops, 1);
+        let held = r.cycle(None).out.commanded_pose;
+        assert!(r.cycle(None).fault_flags & FAULT_COMMAND_TIMEOUT != 0);
+        // The master comes back 20 mm away: re-paired, and the commanded pose moves
+        // gradually (no jump).
+        let mut prev = held;
+        let mut repaired = false;
+        for _ in 0..300 {
+            let c = r.cycle(Some(-230.0));
+            repaired |= c.repaired;
+            let step = (c.out.commanded_pose[2] - prev[2]).abs();
+            assert!(step < 0.2, "jump of {step} mm");
+            prev = c.out.commanded_pose;
+        }
+        assert!(repaired);
+        assert_eq!(r.ep.counters().repairs, 1);
+        assert_eq!(r.ep.state(), SlaveState::Active);
+        assert!(prev[2] > held[2] + 1.0, "did not move towards the master");
+        assert_eq!(r.ep.counters().feedback_published, r.ep.counters().cycles);
+    }
+
+    #[test]
+    fn bad_commands_are_counted_not_followed() {
+        let (master, slave) = inproc::pair(64);
+        // Passivity off: the target is passed to the controller as the link asks.
+        let mut r = Rig {
+            ep: endpoint(false),
+            master,
+            slave,
+            now: 0,
+            seq: 0,
+        };
+        for _ in 0..200 {
+            r.cycle(Some(-250.0));
+        }
+        // Wrong arm and wrong version: rejected by the gate.
+        let mut wrong_arm = command(1000, r.now, -240.0);
+        wrong_arm.arm_id = 7;
+        r.master.publish(&wrong_arm).unwrap();
+        let mut wrong_version = command(1001, r.now, -240.0);
+        wrong_version.protocol_version = PROTOCOL_VERSION + 1;
+        r.master.publish(&wrong_version).unwrap();
+        let c = r.cycle(None);
+        assert!(!c.fresh);
+        assert_eq!(r.ep.gate_counters().rejected(), 2);
+        // Outside the workspace: the controller rejects it, the fault flag is raised.
+        let c = r.cycle(Some(-2000.0));
+        assert!(c.fault_flags & FAULT_COMMAND_REJECTED != 0, "{c:?}");
+        assert!(r.ep.counters().commands_rejected_by_controller >= 1);
+        assert!((c.out.commanded_pose[2] + 250.0).abs() < 0.5);
     }
 }
