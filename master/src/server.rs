@@ -118,6 +118,10 @@ pub struct MasterRunSummary {
     pub force_transparency_err_pct: f64,
     /// Largest force the slave measured, as reported in its feedback, N.
     pub max_slave_force_n: f64,
+    /// Lowest value of the master's passivity observer, J (below zero: the link generated
+    /// energy at this port).
+    #[serde(default)]
+    pub energy_min_j: f64,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
     /// CPU time the whole process used (all threads, start-up included), s.
@@ -332,6 +336,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
         link.now_ns = now;
         let m = side.step(&mut link, now)?;
         side.device.advance(period_ns * (1 + tick.missed));
+        s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
 
         let force = norm3(&m.rendered);
         s.max_rendered_force_n = s.max_rendered_force_n.max(force);

@@ -103,6 +103,10 @@ pub struct SlaveRunSummary {
     pub repairs: u64,
     /// Largest true contact force of the simulated arm, N.
     pub max_force_n: f64,
+    /// Lowest value of the slave's passivity observer, J (below zero: the link generated
+    /// energy at this port).
+    #[serde(default)]
+    pub energy_min_j: f64,
     /// The controller's force limit, N.
     pub force_limit_n: f64,
     /// Largest measured (sensor) force magnitude, N.
@@ -253,6 +257,7 @@ pub fn run<L: Link<Feedback, Command>>(
             break;
         }
         let c = teleop.step(link, now, dt_s);
+        s.energy_min_j = s.energy_min_j.min(c.port.observed_j);
         state = c.state;
         if c.tripped {
             // The trip whose silence most exceeds the loop's own lateness is the one reported.

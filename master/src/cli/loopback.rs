@@ -63,7 +63,8 @@ pub struct LoopbackSummary {
     pub name: String,
     /// The verdict on the physics: every force finite, the slave's true contact force within
     /// the slave controller's force limit, the rendered force within coupling.force_limit_n,
-    /// and a round trip completed.
+    /// both passivity observers above −detector.energy_tolerance_j, and a round trip
+    /// completed.
     pub stable: bool,
     /// Why not stable (empty when stable).
     pub unstable_reasons: Vec<String>,
@@ -91,6 +92,8 @@ pub struct LoopbackSummary {
     pub force_limit_n: f64,
     /// Largest force rendered to the operator, N.
     pub max_master_force_n: f64,
+    /// Lowest value of the two passivity observers, J.
+    pub energy_min_j: f64,
     /// Force transparency in contact, %: see `master.force_transparency_err_pct`.
     pub force_transparency_err_pct: f64,
     /// Time in contact seen by the master, s.
@@ -370,6 +373,13 @@ fn combine(
             s.max_force_n
         ));
     }
+    let energy_min_j = m.energy_min_j.min(s.energy_min_j);
+    if energy_min_j < -cfg.detector.energy_tolerance_j {
+        reasons.push(format!(
+            "energy: a passivity observer reached {energy_min_j:.4} J < -{} J (the link generated energy)",
+            cfg.detector.energy_tolerance_j
+        ));
+    }
     if m.max_rendered_force_n > cfg.coupling.force_limit_n + 1e-9 {
         reasons.push(format!(
             "master force: {:.1} N > {} N",
@@ -443,6 +453,7 @@ fn combine(
         max_force_n: s.max_force_n,
         force_limit_n: limit,
         max_master_force_n: m.max_rendered_force_n,
+        energy_min_j,
         force_transparency_err_pct: m.force_transparency_err_pct,
         contact_time_s: m.contact_cycles as f64 * 1e-3,
         master: m,
