@@ -129,6 +129,17 @@ impl StatusLine {
     }
 }
 
+/// Prints `text` and a newline on standard output. A reader that went away (a closed pipe,
+/// e.g. `| head`) is not an error: the output is simply not wanted any more. Any other write
+/// error is returned, never a panic (`println!` panics on both).
+pub fn print_stdout(text: &str) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}").and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

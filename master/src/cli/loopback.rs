@@ -218,7 +218,7 @@ impl LoopbackArgs {
 
         let summary = combine(&cfg, duration_s, master, slave);
         let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        println!("{json}");
+        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
         if let Some(p) = &self.summary {
             std::fs::write(p, format!("{json}\n"))
                 .map_err(|e| format!("cannot write {}: {e}", p.display()))?;

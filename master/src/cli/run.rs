@@ -69,7 +69,7 @@ impl RunArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         let summary = self.run_summary()?;
         let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        println!("{json}");
+        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
         if let Some(p) = &self.summary {
             std::fs::write(p, format!("{json}\n"))
                 .map_err(|e| format!("cannot write {}: {e}", p.display()))?;

@@ -35,7 +35,7 @@ impl SimArgs {
             r.finish().map_err(|e| e.to_string())?;
         }
         let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        println!("{json}");
+        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
         if let Some(p) = &self.summary {
             std::fs::write(p, format!("{json}\n"))
                 .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
