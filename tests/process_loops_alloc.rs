@@ -5,54 +5,17 @@
 //! (set-up and summary allocate, the cycles do not).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::Path;
 
 use h4_master::server::MasterRunOptions;
 use h4_master::session::{self, SessionConfig};
+use h4_shared::alloc_count::{CountingAllocator, count_allocations};
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::RunOptions;
 use h4_transport::inproc;
 
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: every call is forwarded unchanged to the system allocator; the counter is a
-// const-initialised thread-local without a destructor, which needs no allocation itself.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-        // SAFETY: the caller upholds `GlobalAlloc::alloc`'s contract.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-        // SAFETY: as for `alloc`.
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-        // SAFETY: the caller upholds `GlobalAlloc::realloc`'s contract.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: the caller upholds `GlobalAlloc::dealloc`'s contract.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn allocations_in<T>(f: impl FnOnce() -> T) -> (u64, T) {
-    let before = ALLOCATIONS.with(Cell::get);
-    let r = f();
-    (ALLOCATIONS.with(Cell::get) - before, r)
-}
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 fn config_path(rel: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
@@ -90,7 +53,7 @@ fn master_run(duration_s: f64) -> (u64, u64) {
         h4_slave::server::run(&w, &slave_opts(duration_s + 0.5), &mut s).unwrap()
     });
     let (n, summary) =
-        allocations_in(|| h4_master::server::run(&cfg, &master_opts(duration_s), m).unwrap());
+        count_allocations(|| h4_master::server::run(&cfg, &master_opts(duration_s), m).unwrap());
     helper.join().unwrap();
     (n, summary.cycles)
 }
@@ -104,7 +67,7 @@ fn slave_run(duration_s: f64) -> (u64, u64) {
         h4_master::server::run(&cfg, &master_opts(duration_s + 0.5), m).unwrap()
     });
     let (n, summary) =
-        allocations_in(|| h4_slave::server::run(&w, &slave_opts(duration_s), &mut s).unwrap());
+        count_allocations(|| h4_slave::server::run(&w, &slave_opts(duration_s), &mut s).unwrap());
     helper.join().unwrap();
     (n, summary.cycles)
 }

@@ -2,37 +2,13 @@
 //! around many lockstep cycles of an impaired session (delay, jitter, loss, contact).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use h4_master::session::{self, Session};
-
-struct Counting;
-
-static COUNTING: AtomicBool = AtomicBool::new(false);
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use h4_shared::alloc_count::{CountingAllocator, allocations_in, count_allocations};
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 #[test]
 fn master_and_slave_steps_allocate_nothing() {
@@ -48,23 +24,20 @@ fn master_and_slave_steps_allocate_nothing() {
     for _ in 0..200 {
         s.cycle().unwrap();
     }
-    let mut max_force = 0.0f64;
-    COUNTING.store(true, Ordering::SeqCst);
-    for _ in 0..4000 {
-        let (_m, sl) = s.cycle().unwrap();
-        max_force = max_force.max(sl.out.wrench_measured[2].abs());
-    }
-    COUNTING.store(false, Ordering::SeqCst);
-    let n = ALLOCS.load(Ordering::SeqCst);
+    let (n, max_force) = count_allocations(|| {
+        let mut max_force = 0.0f64;
+        for _ in 0..4000 {
+            let (_m, sl) = s.cycle().unwrap();
+            max_force = max_force.max(sl.out.wrench_measured[2].abs());
+        }
+        max_force
+    });
     assert!(
         max_force > 2.0,
         "no contact in the counted cycles: {max_force} N"
     );
     assert_eq!(n, 0, "{n} allocations in 4000 cycles");
     // The counter works: an allocation is counted.
-    COUNTING.store(true, Ordering::SeqCst);
-    let v: Vec<u64> = Vec::with_capacity(std::hint::black_box(8));
-    COUNTING.store(false, Ordering::SeqCst);
-    drop(v);
-    assert!(ALLOCS.load(Ordering::SeqCst) > 0);
+    let counted = allocations_in(|| drop(Vec::<u64>::with_capacity(std::hint::black_box(8))));
+    assert!(counted > 0);
 }

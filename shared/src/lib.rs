@@ -3,6 +3,7 @@
 //! TOML configuration helpers.
 #![deny(unsafe_code)]
 
+pub mod alloc_count;
 pub mod clock;
 pub mod config;
 pub mod kinematics;

@@ -3,57 +3,15 @@
 //! simulated arm in the loop.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicU64, Ordering};
-
+use h4_shared::alloc_count::{CountingAllocator, count_allocations};
 use h4_shared::config;
 use h4_shared::wire::Mode;
 use h4_slave::controller::{ControllerInput, SlaveCommand, SlaveController, Status};
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::plant::{ArmDriver, SimArm};
 
-struct Counting;
-
-thread_local! {
-    // Per thread: only the test's own thread is watched (the test harness's other threads
-    // may allocate at any time, which made a global flag flaky under load).
-    static ARMED: Cell<bool> = const { Cell::new(false) };
-}
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-
-fn armed() -> bool {
-    ARMED.try_with(Cell::get).unwrap_or(false)
-}
-
-fn set_armed(on: bool) {
-    ARMED.with(|a| a.set(on));
-}
-
-// SAFETY: forwards to the system allocator; only counts.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if armed() {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if armed() {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 #[test]
 fn ten_thousand_controller_steps_allocate_nothing() {
@@ -78,6 +36,7 @@ fn ten_thousand_controller_steps_allocate_nothing() {
     let mut ctrl = SlaveController::new(ws, cfg.arm.stiffness().unwrap(), cfg.controller);
     let mut statuses = std::collections::BTreeSet::new();
     let mut steps = 0u64;
+    let mut allocations = 0u64;
     for k in 0..10_000u64 {
         let reading = arm.read();
         let input = ControllerInput {
@@ -95,9 +54,8 @@ fn ten_thousand_controller_steps_allocate_nothing() {
                 clutch: false,
             },
         };
-        set_armed(true);
-        let out = ctrl.step(&input, 1e-3);
-        set_armed(false);
+        let (n, out) = count_allocations(|| ctrl.step(&input, 1e-3));
+        allocations += n;
         steps += 1;
         statuses.insert(format!("{:?}", out.status));
         arm.command(&out.actuators_cmd_mm);
@@ -113,15 +71,9 @@ fn ten_thousand_controller_steps_allocate_nothing() {
         statuses.contains(&format!("{:?}", Status::Contact)),
         "{statuses:?}"
     );
-    assert_eq!(
-        ALLOCATIONS.load(Ordering::SeqCst),
-        0,
-        "the controller step allocated"
-    );
+    assert_eq!(allocations, 0, "the controller step allocated");
     // The counter does see allocations (so the zero above means something).
-    set_armed(true);
-    let v = std::hint::black_box(vec![1u8; 16]);
-    set_armed(false);
+    let (seen, v) = count_allocations(|| std::hint::black_box(vec![1u8; 16]));
     drop(v);
-    assert!(ALLOCATIONS.load(Ordering::SeqCst) > 0);
+    assert!(seen > 0);
 }
