@@ -51,7 +51,7 @@ fn binaries() -> &'static (PathBuf, PathBuf) {
             let profile = dir.file_name().and_then(|s| s.to_str()).unwrap_or("debug");
             let profile = if profile == "debug" { "dev" } else { profile };
             let mut build = Proc::new(cargo);
-            without_cargo_run_env(&mut build);
+            h4_shared::process::without_cargo_run_env(&mut build);
             let out = build
                 .args(["build", "-p", "h4-master", "-p", "h4-slave", "--profile"])
                 .arg(profile)
@@ -649,24 +649,4 @@ fn bad_messages_are_rejected_counted_and_never_acted_on() {
     assert_eq!(u(g, "wrong_arm"), 1, "{v:#}");
     // Never acted on: the arm stayed home (the bad commands all pointed 38 mm away).
     assert!(max_dev_mm < 0.5, "the arm moved {max_dev_mm} mm");
-}
-
-/// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
-/// some build scripts rerun when they change, so a nested `cargo build` would rebuild
-/// half the dependency tree and leave it dirty for the next ordinary build.
-fn without_cargo_run_env(cmd: &mut Proc) {
-    for (key, _) in std::env::vars_os() {
-        let Some(k) = key.to_str() else { continue };
-        if k.starts_with("CARGO_PKG_")
-            || k.starts_with("CARGO_MANIFEST_")
-            || k.starts_with("CARGO_CRATE_")
-            || k.starts_with("CARGO_BIN_")
-            || k == "CARGO_PRIMARY_PACKAGE"
-            || k == "CARGO_TARGET_TMPDIR"
-            || k == "CARGO_RUSTC_CURRENT_DIR"
-            || k == "OUT_DIR"
-        {
-            cmd.env_remove(k);
-        }
-    }
 }

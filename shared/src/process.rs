@@ -140,6 +140,26 @@ pub fn print_stdout(text: &str) -> std::io::Result<()> {
     }
 }
 
+/// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
+/// some build scripts rerun when they change, so a nested `cargo build` would rebuild
+/// half the dependency tree and leave it dirty for the next ordinary build.
+pub fn without_cargo_run_env(cmd: &mut std::process::Command) {
+    for (key, _) in std::env::vars_os() {
+        let Some(k) = key.to_str() else { continue };
+        if k.starts_with("CARGO_PKG_")
+            || k.starts_with("CARGO_MANIFEST_")
+            || k.starts_with("CARGO_CRATE_")
+            || k.starts_with("CARGO_BIN_")
+            || k == "CARGO_PRIMARY_PACKAGE"
+            || k == "CARGO_TARGET_TMPDIR"
+            || k == "CARGO_RUSTC_CURRENT_DIR"
+            || k == "OUT_DIR"
+        {
+            cmd.env_remove(k);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -498,7 +498,7 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         exe.display()
     );
     let mut build = std::process::Command::new(cargo);
-    without_cargo_run_env(&mut build);
+    h4_shared::process::without_cargo_run_env(&mut build);
     let status = build
         .args([
             "build",
@@ -519,26 +519,6 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         Ok(sibling)
     } else {
         Err(hint)
-    }
-}
-
-/// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
-/// some build scripts rerun when they change, so a nested `cargo build` would rebuild
-/// half the dependency tree and leave it dirty for the next ordinary build.
-fn without_cargo_run_env(cmd: &mut std::process::Command) {
-    for (key, _) in std::env::vars_os() {
-        let Some(k) = key.to_str() else { continue };
-        if k.starts_with("CARGO_PKG_")
-            || k.starts_with("CARGO_MANIFEST_")
-            || k.starts_with("CARGO_CRATE_")
-            || k.starts_with("CARGO_BIN_")
-            || k == "CARGO_PRIMARY_PACKAGE"
-            || k == "CARGO_TARGET_TMPDIR"
-            || k == "CARGO_RUSTC_CURRENT_DIR"
-            || k == "OUT_DIR"
-        {
-            cmd.env_remove(k);
-        }
     }
 }
 
