@@ -307,12 +307,16 @@ fn iceoryx2_loopback_runs_a_contact_and_ends_stable() {
     args.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
     args.push("--summary".into());
     args.push(summary.display().to_string());
+    let recording = scratch.path("loopback.mcap");
+    args.push("--record".into());
+    args.push(recording.display().to_string());
     let mut run = Running::spawn("loopback", master, &args, &scratch);
     // The exit code also says whether the loops kept real time, which a loaded host can
     // spoil; the physics verdict is what this test judges.
     let _ = run.wait(60.0);
     let v = read_json(&summary);
     assert_eq!(v["stable"], true, "{v:#}\n{}", run.log());
+    check_merged_recording(&recording, &v);
     // A real contact happened, over a working link, in two processes.
     assert!(f(&v, "contact_time_s") > 1.0, "{v:#}");
     assert!(f(&v, "max_force_n") > 5.0, "{v:#}");
@@ -331,6 +335,49 @@ fn iceoryx2_loopback_runs_a_contact_and_ends_stable() {
     );
     assert_eq!(u(&v["slave"]["gate"], "wrong_version"), 0);
     assert_eq!(u(&v["slave"], "commands_rejected_by_controller"), 0);
+}
+
+/// One MCAP file holds both processes' cycles on one timeline, in log-time order, and the
+/// parts it was merged from are gone.
+fn check_merged_recording(path: &Path, summary: &Value) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut times: std::collections::BTreeMap<String, Vec<u64>> = Default::default();
+    let mut last = 0;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        assert!(m.log_time >= last, "log times out of order");
+        last = m.log_time;
+        times
+            .entry(m.channel.topic.clone())
+            .or_default()
+            .push(m.log_time);
+    }
+    let master = &times["/master/cycle"];
+    let slave = &times["/slave/cycle"];
+    assert_eq!(times.len(), 2, "{:?}", times.keys());
+    // Every master cycle is recorded (a full queue would count drops, none on 8 s).
+    let dropped = u(&summary["master"], "recording_dropped");
+    assert_eq!(
+        master.len() as u64 + dropped,
+        u(summary, "cycles"),
+        "{summary:#}"
+    );
+    assert!(
+        slave.len() as u64 > u(summary, "cycles") / 2,
+        "{}",
+        slave.len()
+    );
+    // One timeline: the two processes ran at the same time, so their spans overlap by most
+    // of the run (the slave starts first and stops last).
+    let (m0, m1) = (master[0], master[master.len() - 1]);
+    let (s0, s1) = (slave[0], slave[slave.len() - 1]);
+    assert!(s0 <= m0 && m1 <= s1 + 100_000_000, "{s0} {m0} {m1} {s1}");
+    assert!((m1 - m0) as f64 > 5e9, "{m0} {m1}");
+    let dir = path.parent().unwrap();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let name = e.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!name.contains(".part."), "left behind: {name}");
+    }
 }
 
 #[test]

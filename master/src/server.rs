@@ -384,7 +384,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
             trans_ref += fs;
         }
         recorder.push(
-            now,
+            clock.unix_ns(now),
             CycleRecord {
                 time_ns: now,
                 lateness_us: us(tick.lateness_ns),

@@ -15,14 +15,26 @@ pub trait Clock {
 #[derive(Clone, Copy, Debug)]
 pub struct MonotonicClock {
     origin: Instant,
+    origin_unix_ns: u64,
 }
 
 impl MonotonicClock {
     /// A clock whose origin is now.
     pub fn new() -> Self {
+        let origin_unix_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
         MonotonicClock {
             origin: Instant::now(),
+            origin_unix_ns,
         }
+    }
+
+    /// The Unix time (ns since 1970, as the system clock read it at the origin) of the clock's
+    /// `ns`: a time base that processes on one host share, for recordings that are merged.
+    /// Later steps of the system clock do not affect it.
+    pub fn unix_ns(&self, ns: u64) -> u64 {
+        self.origin_unix_ns.saturating_add(ns)
     }
 
     /// The instant that is `ns` after the origin.

@@ -3,7 +3,8 @@
 //!
 //! The file holds nothing that depends on the wall clock or the machine: the same calls
 //! with the same data give the same bytes (the determinism tests compare recordings byte
-//! for byte). Timestamps are whatever the caller passes, normally the simulated clock.
+//! for byte). Timestamps are whatever the caller passes: the simulated clock in simulations,
+//! Unix time in the processes (so [`merge`] can put both processes' files on one timeline).
 //!
 //! ```no_run
 //! use h4_shared::recording::Recorder;
@@ -243,6 +244,100 @@ impl Recorder {
     }
 }
 
+/// What [`merge`] wrote.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct MergeStats {
+    /// Messages written, per topic, in topic order.
+    pub messages_by_topic: BTreeMap<String, u64>,
+}
+
+/// Merges MCAP files into one at `out`: every channel of every input (with its schema), and
+/// every message in log-time order (ties keep the inputs' order). The inputs must share a time
+/// base, e.g. the Unix-time stamps of the process recordings
+/// ([`crate::clock::MonotonicClock::unix_ns`]).
+pub fn merge(inputs: &[&Path], out: &Path) -> Result<MergeStats, RecordingError> {
+    let io = |path: &Path| {
+        let path = path.display().to_string();
+        move |source| RecordingError::Io { path, source }
+    };
+    let mut files = Vec::with_capacity(inputs.len());
+    for path in inputs {
+        files.push(std::fs::read(path).map_err(io(path))?);
+    }
+    let mut streams = Vec::with_capacity(files.len());
+    for bytes in &files {
+        streams.push(
+            mcap::MessageStream::new(bytes)
+                .map_err(mcap_err)?
+                .peekable(),
+        );
+    }
+    let mut rec = Recorder::create(out)?;
+    let writer = rec.writer.as_mut().ok_or(RecordingError::Finished)?;
+    let mut channels: BTreeMap<(usize, u16), (u16, String)> = BTreeMap::new();
+    let mut sequence: BTreeMap<u16, u32> = BTreeMap::new();
+    let mut stats = MergeStats::default();
+    loop {
+        // The input whose next message is the earliest.
+        let mut earliest: Option<(usize, u64)> = None;
+        for (i, s) in streams.iter_mut().enumerate() {
+            match s.peek() {
+                Some(Ok(m)) if earliest.is_none_or(|(_, t)| m.log_time < t) => {
+                    earliest = Some((i, m.log_time));
+                }
+                Some(Err(_)) => {
+                    if let Some(Err(e)) = s.next() {
+                        return Err(mcap_err(e));
+                    }
+                }
+                _ => {}
+            }
+        }
+        let Some((i, _)) = earliest else { break };
+        let Some(Ok(m)) = streams.get_mut(i).and_then(Iterator::next) else {
+            break;
+        };
+        let key = (i, m.channel.id);
+        let id = match channels.get(&key) {
+            Some((id, _)) => *id,
+            None => {
+                let schema_id = match &m.channel.schema {
+                    Some(s) => writer
+                        .add_schema(&s.name, &s.encoding, &s.data)
+                        .map_err(mcap_err)?,
+                    None => 0,
+                };
+                let id = writer
+                    .add_channel(
+                        schema_id,
+                        &m.channel.topic,
+                        &m.channel.message_encoding,
+                        &m.channel.metadata,
+                    )
+                    .map_err(mcap_err)?;
+                channels.insert(key, (id, m.channel.topic.clone()));
+                id
+            }
+        };
+        let seq = sequence.entry(id).or_insert(0);
+        let header = mcap::records::MessageHeader {
+            channel_id: id,
+            sequence: *seq,
+            log_time: m.log_time,
+            publish_time: m.publish_time,
+        };
+        *seq = seq.wrapping_add(1);
+        writer
+            .write_to_known_channel(&header, &m.data)
+            .map_err(mcap_err)?;
+        if let Some((_, topic)) = channels.get(&key) {
+            *stats.messages_by_topic.entry(topic.clone()).or_insert(0) += 1;
+        }
+    }
+    rec.finish()?;
+    Ok(stats)
+}
+
 /// A recording written by its own thread: a control loop hands it one `Copy` record per cycle
 /// through a bounded queue (no allocation, no blocking; a full queue drops the record and
 /// counts it), and the thread does the JSON encoding and the file writes.
@@ -347,6 +442,53 @@ mod tests {
         assert_eq!(m.log_time, 7_000_000);
         assert_eq!(&m.data[..], br#"{"t":7.0}"#);
         assert_eq!(m.channel.topic, "/a");
+    }
+
+    #[test]
+    fn merge_interleaves_channels_in_log_time_order() {
+        let dir = std::env::temp_dir().join(format!("h4-merge-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, topic: &str, times: &[u64]| {
+            let path = dir.join(name);
+            let mut rec = Recorder::create(&path).unwrap();
+            let ch = rec
+                .add_channel(topic, topic, r#"{"type":"object"}"#)
+                .unwrap();
+            for &t in times {
+                rec.write(ch, t, &Sample { t: t as f64 }).unwrap();
+            }
+            rec.finish().unwrap();
+            path
+        };
+        let a = write("a.mcap", "/a", &[1, 3, 5, 7]);
+        let b = write("b.mcap", "/b", &[2, 3, 4, 8, 9]);
+        let out = dir.join("out.mcap");
+        let stats = merge(&[&a, &b], &out).unwrap();
+        assert_eq!(stats.messages_by_topic.get("/a"), Some(&4));
+        assert_eq!(stats.messages_by_topic.get("/b"), Some(&5));
+        let bytes = std::fs::read(&out).unwrap();
+        let got: Vec<(String, u64)> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| {
+                let m = m.unwrap();
+                (m.channel.topic.clone(), m.log_time)
+            })
+            .collect();
+        let times: Vec<u64> = got.iter().map(|g| g.1).collect();
+        assert_eq!(times, vec![1, 2, 3, 3, 4, 5, 7, 8, 9]);
+        // The tie at t = 3 keeps the inputs' order; each message keeps its channel.
+        assert_eq!(got[2], ("/a".to_string(), 3));
+        assert_eq!(got[3], ("/b".to_string(), 3));
+        assert!(got.iter().all(|(topic, t)| {
+            let from_a = [1, 3, 5, 7].contains(t) && topic == "/a";
+            let from_b = [2, 3, 4, 8, 9].contains(t) && topic == "/b";
+            from_a || from_b
+        }));
+        // A missing input is an error naming it, and nothing panics.
+        let missing = dir.join("missing.mcap");
+        let err = merge(&[&a, &missing], &dir.join("x.mcap")).unwrap_err();
+        assert!(err.to_string().contains("missing.mcap"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -282,7 +282,7 @@ pub fn run<L: Link<Feedback, Command>>(
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
         recorder.push(
-            now,
+            clock.unix_ns(now),
             CycleRecord {
                 time_ns: now,
                 state: c.state as u8,

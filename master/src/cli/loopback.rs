@@ -29,8 +29,10 @@ pub struct LoopbackArgs {
     /// Write the summary as JSON here (it is also printed on stdout).
     #[arg(long)]
     pub summary: Option<PathBuf>,
-    /// Record every cycle of the master here (MCAP); the slave's cycles go to a second file
-    /// next to it, `<name>.slave.mcap`.
+    /// Record every cycle of both processes here, one MCAP file: topics `/master/cycle` and
+    /// `/slave/cycle` on one timeline (Unix time). Each process writes its part next to it
+    /// while running (`<name>.master.part.mcap`, `<name>.slave.part.mcap`); they are merged
+    /// and removed at the end.
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// The session file: operator script, master arm, coupling, and the slave's world
@@ -147,8 +149,9 @@ impl LoopbackArgs {
                 std::fs::File::create(&slave_log)
                     .map_err(|e| format!("{}: {e}", slave_log.display()))?,
             );
-        if let Some(r) = &self.record {
-            cmd.arg("--record").arg(slave_recording(r));
+        let parts = self.record.as_deref().map(RecordingParts::next_to);
+        if let Some(p) = &parts {
+            cmd.arg("--record").arg(&p.slave);
         }
         if let Some(p) = self.fifo_priority {
             cmd.arg("--fifo-priority").arg(p.to_string());
@@ -186,7 +189,7 @@ impl LoopbackArgs {
             duration_s: Some(duration_s),
             wait_for_slave_s: 20.0,
             summary: None,
-            record: self.record.clone(),
+            record: parts.as_ref().map(|p| p.master.clone()),
             fifo_priority: self.fifo_priority,
             lock_memory: false,
         };
@@ -215,6 +218,9 @@ impl LoopbackArgs {
             eprintln!("h4-slave said:\n{}", log.trim_end());
         }
         let _ = std::fs::remove_dir_all(&work);
+        if let (Some(out), Some(p)) = (&self.record, &parts) {
+            p.merge_into(out)?;
+        }
 
         let summary = combine(&cfg, duration_s, master, slave);
         let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
@@ -239,13 +245,39 @@ fn with_log(msg: String, log: &str) -> String {
     }
 }
 
-/// `out.mcap` → `out.slave.mcap`.
-fn slave_recording(master: &Path) -> PathBuf {
-    let stem = master
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "recording".into());
-    master.with_file_name(format!("{stem}.slave.mcap"))
+/// The two processes' recordings while they run, next to the final file.
+struct RecordingParts {
+    master: PathBuf,
+    slave: PathBuf,
+}
+
+impl RecordingParts {
+    /// `out.mcap` → `out.master.part.mcap`, `out.slave.part.mcap`.
+    fn next_to(out: &Path) -> Self {
+        let stem = out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "recording".into());
+        RecordingParts {
+            master: out.with_file_name(format!("{stem}.master.part.mcap")),
+            slave: out.with_file_name(format!("{stem}.slave.part.mcap")),
+        }
+    }
+
+    /// Merges both parts into `out` and removes them; on failure they stay, and the error
+    /// names them.
+    fn merge_into(&self, out: &Path) -> Result<(), String> {
+        h4_shared::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
+            format!(
+                "{e} (the parts {} and {} are kept)",
+                self.master.display(),
+                self.slave.display()
+            )
+        })?;
+        let _ = std::fs::remove_file(&self.master);
+        let _ = std::fs::remove_file(&self.slave);
+        Ok(())
+    }
 }
 
 /// SIGTERM, then up to 10 s for an orderly stop; SIGKILL after that (an error).
