@@ -1,12 +1,13 @@
 //! 1 kHz loop lateness of the `rt::Pacer` (sleep to 200 µs before the deadline, then spin),
-//! against plain `thread::sleep` to the deadline, idle and with the other cores busy.
+//! against plain `thread::sleep` to the deadline, the pacer with Linux's default timer slack
+//! and with a wider spin margin, idle and with the other cores busy.
 //! `cargo bench -p h4-shared --bench loop_lateness [-- SECONDS]` (default 10 s per case).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use h4_shared::rt::{Histogram, Pacer, set_fifo_priority};
+use h4_shared::rt::{Histogram, Pacer, set_fifo_priority, set_timer_slack_ns};
 
 fn report(name: &str, h: &Histogram, misses: u64) {
     println!(
@@ -19,17 +20,39 @@ fn report(name: &str, h: &Histogram, misses: u64) {
     );
 }
 
-fn pacer_case(name: &str, seconds: u64, fifo: bool) {
+/// How a pacer case is set up.
+#[derive(Clone, Copy)]
+struct Setup {
+    fifo: bool,
+    spin_us: u64,
+    /// Put the timer slack back to Linux's default for a normal thread (50 µs) after the
+    /// pacer set its own, to show what the pacer's slack setting buys.
+    default_slack: bool,
+}
+
+const PACER: Setup = Setup {
+    fifo: false,
+    spin_us: 200,
+    default_slack: false,
+};
+
+fn pacer_case(name: &str, seconds: u64, setup: Setup) {
     let handle = std::thread::spawn(move || {
-        let fifo_ok = fifo && set_fifo_priority(80).is_ok();
-        let mut p = Pacer::new(Duration::from_millis(1), Duration::from_micros(200));
+        let fifo_ok = setup.fifo && set_fifo_priority(80).is_ok();
+        let mut p = Pacer::new(
+            Duration::from_millis(1),
+            Duration::from_micros(setup.spin_us),
+        );
+        if setup.default_slack {
+            let _ = set_timer_slack_ns(50_000);
+        }
         for _ in 0..seconds * 1000 {
             p.wait();
         }
         (p.lateness, p.misses, fifo_ok)
     });
     if let Ok((h, misses, fifo_ok)) = handle.join() {
-        let label = if fifo && !fifo_ok {
+        let label = if setup.fifo && !fifo_ok {
             format!("{name} (FIFO refused)")
         } else {
             name.to_string()
@@ -60,8 +83,35 @@ fn main() {
         .find_map(|a| a.parse().ok())
         .unwrap_or(10);
     sleep_case("thread::sleep to deadline, idle", seconds);
-    pacer_case("pacer (sleep + 200us spin), idle", seconds, false);
-    pacer_case("pacer, SCHED_FIFO 80, idle", seconds, true);
+    pacer_case(
+        "pacer, default 50us timer slack, idle",
+        seconds,
+        Setup {
+            default_slack: true,
+            ..PACER
+        },
+    );
+    pacer_case(
+        "pacer (sleep + 200us spin, 1us slack), idle",
+        seconds,
+        PACER,
+    );
+    pacer_case(
+        "pacer, 300us spin, idle",
+        seconds,
+        Setup {
+            spin_us: 300,
+            ..PACER
+        },
+    );
+    pacer_case(
+        "pacer, SCHED_FIFO 80, idle",
+        seconds,
+        Setup {
+            fifo: true,
+            ..PACER
+        },
+    );
     let stop = Arc::new(AtomicBool::new(false));
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let burners: Vec<_> = (0..cores)
@@ -76,8 +126,15 @@ fn main() {
             })
         })
         .collect();
-    pacer_case("pacer, all cores busy", seconds, false);
-    pacer_case("pacer, SCHED_FIFO 80, all cores busy", seconds, true);
+    pacer_case("pacer, all cores busy", seconds, PACER);
+    pacer_case(
+        "pacer, SCHED_FIFO 80, all cores busy",
+        seconds,
+        Setup {
+            fifo: true,
+            ..PACER
+        },
+    );
     stop.store(true, Ordering::Relaxed);
     for b in burners {
         let _ = b.join();
