@@ -2,8 +2,10 @@
 //! and, in the same run, bare library ping-pongs and a plain UDP loopback baseline.
 //!
 //! Ping (the master) runs on the main thread, paced at 1 kHz by `h4_shared::rt::Pacer`; after
-//! each publish it busy-polls for the reply. Pong (the slave) runs on its own thread and
-//! busy-polls its receive side, answering each message at once. Figures are µs.
+//! each publish it waits for the reply. Pong (the slave) runs on its own thread or process and
+//! answers each message at once. Both wait by busy-polling, except on the "event wake-up"
+//! paths, where every send notifies an iceoryx2 event and the receiver blocks on its listener
+//! (iceoryx2's own wake-up). Figures are µs; processes' CPU is % of one core.
 //!
 //! ```text
 //! CARGO_TARGET_DIR=/work/target-transport cargo bench -p h4-transport --bench round_trip
@@ -38,12 +40,20 @@ struct Outcome {
     rtt_ns: Histogram,
     lost: u64,
     late_cycles: u64,
+    /// CPU of the ping process and of the pong process over the measured cycles, % of one
+    /// core (processes only).
+    cpu_pct: Option<(f64, f64)>,
 }
 
 /// One side of a ping-pong: send a 64-bit sequence number with a payload, poll for one.
 trait Endpoint {
     fn send(&mut self, seq: u64);
     fn poll(&mut self) -> Option<u64>;
+    /// Waits until something may have arrived, at most `timeout`: busy-polling endpoints
+    /// return at once (the caller polls again), event-driven ones block on their event.
+    fn wait(&mut self, _timeout: Duration) {
+        spin_loop();
+    }
 }
 
 fn command(seq: u64) -> Command {
@@ -110,7 +120,7 @@ fn serve(pong: &mut dyn Endpoint, stop: &AtomicBool) {
         while let Some(seq) = pong.poll() {
             pong.send(seq);
         }
-        spin_loop();
+        pong.wait(Duration::from_millis(10));
     }
 }
 
@@ -144,10 +154,11 @@ fn measure(name: &'static str, cycles: u64, ping: &mut dyn Endpoint) -> Outcome 
             {
                 break Some(t0.elapsed());
             }
-            if t0.elapsed() > REPLY_TIMEOUT {
+            let waited = t0.elapsed();
+            if waited > REPLY_TIMEOUT {
                 break None;
             }
-            spin_loop();
+            ping.wait(REPLY_TIMEOUT - waited);
         };
         if seq > WARM_UP {
             late_cycles += tick.missed;
@@ -162,6 +173,7 @@ fn measure(name: &'static str, cycles: u64, ping: &mut dyn Endpoint) -> Outcome 
         rtt_ns,
         lost,
         late_cycles,
+        cpu_pct: None,
     }
 }
 
@@ -209,19 +221,39 @@ fn in_processes<P: Endpoint>(
         .spawn()
         .expect("spawn pong process");
     let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("child stdout"))
-        .read_line(&mut line)
-        .expect("pong ready line");
+    let mut from_child = BufReader::new(child.stdout.take().expect("child stdout"));
+    from_child.read_line(&mut line).expect("pong ready line");
     let info = line
         .trim()
         .strip_prefix("ready")
         .expect("ready line")
-        .trim();
-    let mut ping = make_ping(info);
-    let outcome = measure(name, cycles, &mut ping);
-    drop(child.stdin.take()); // EOF: the child stops serving and exits
+        .trim()
+        .to_string();
+    let mut ping = make_ping(&info);
+    // CPU over the whole measurement (connect, warm-up and measured cycles): the child
+    // reports its own at the start of the run and when it stops.
+    let wall = Instant::now();
+    let ping_cpu = h4_shared::process::cpu_time_s();
+    writeln!(child.stdin.as_mut().expect("child stdin"), "cpu?").expect("ask the pong");
+    let pong_cpu = read_cpu(&mut from_child);
+    let mut outcome = measure(name, cycles, &mut ping);
+    let ping_cpu = h4_shared::process::cpu_time_s() - ping_cpu;
+    drop(child.stdin.take()); // EOF: the child reports its CPU, stops serving and exits
+    let pong_cpu = read_cpu(&mut from_child) - pong_cpu;
+    let wall = wall.elapsed().as_secs_f64();
     let _ = child.wait();
+    outcome.cpu_pct = Some((100.0 * ping_cpu / wall, 100.0 * pong_cpu / wall));
     outcome
+}
+
+/// Reads a `cpu <seconds>` line from the pong process.
+fn read_cpu(from_child: &mut impl BufRead) -> f64 {
+    let mut line = String::new();
+    from_child.read_line(&mut line).expect("pong cpu line");
+    line.trim()
+        .strip_prefix("cpu")
+        .and_then(|v| v.trim().parse().ok())
+        .expect("cpu line")
 }
 
 /// The child side of [`in_processes`].
@@ -236,6 +268,8 @@ fn pong_main(args: &[String]) {
         }
         #[cfg(feature = "iceoryx2")]
         "iceoryx2-bare" => Box::new(bare_iceoryx2::End::new(&arg(1), &arg(2))),
+        #[cfg(feature = "iceoryx2")]
+        "iceoryx2-event" => Box::new(bare_iceoryx2::EventEnd::new(&arg(1), &arg(2))),
         #[cfg(feature = "iceoryx2")]
         "iceoryx2-link" => Box::new(SlaveEnd(
             h4_transport::iceoryx2::slave(&iox_options(arg(1))).expect("slave"),
@@ -262,14 +296,20 @@ fn pong_main(args: &[String]) {
     {
         let stop = Arc::clone(&stop);
         thread::spawn(move || {
+            // Each line asks for the CPU used so far; EOF asks for it and stops.
             let mut sink = String::new();
-            while std::io::stdin().read_line(&mut sink).is_ok_and(|n| n > 0) {}
+            while std::io::stdin().read_line(&mut sink).is_ok_and(|n| n > 0) {
+                println!("cpu {}", h4_shared::process::cpu_time_s());
+                std::io::stdout().flush().expect("flush");
+            }
             stop.store(true, Ordering::Relaxed);
         });
     }
     println!("ready {info}");
     std::io::stdout().flush().expect("flush");
     serve(pong.as_mut(), &stop);
+    println!("cpu {}", h4_shared::process::cpu_time_s());
+    std::io::stdout().flush().expect("flush");
 }
 
 // ---- plain UDP loopback ----
@@ -321,6 +361,8 @@ impl Endpoint for Udp {
 
 #[cfg(feature = "iceoryx2")]
 mod bare_iceoryx2 {
+    use iceoryx2::port::listener::Listener;
+    use iceoryx2::port::notifier::Notifier;
     use iceoryx2::port::publisher::Publisher;
     use iceoryx2::port::subscriber::Subscriber;
     use iceoryx2::prelude::*;
@@ -374,6 +416,48 @@ mod bare_iceoryx2 {
                 .receive()
                 .expect("receive")
                 .map(|sample| sample.payload()[0])
+        }
+    }
+
+    /// The same publish-subscribe pair plus an event service per direction: every send
+    /// notifies, and waiting blocks on the listener (iceoryx2's wake-up path) instead of
+    /// busy-polling.
+    pub struct EventEnd {
+        end: End,
+        notifier: Notifier<ipc::Service>,
+        listener: Listener<ipc::Service>,
+    }
+
+    impl EventEnd {
+        pub fn new(out: &str, inp: &str) -> EventEnd {
+            let end = End::new(out, inp);
+            let event = |name: &str| {
+                end._node
+                    .service_builder(&format!("{name}/event").as_str().try_into().expect("name"))
+                    .event()
+                    .open_or_create()
+                    .expect("iceoryx2 event service")
+            };
+            let notifier = event(out).notifier_builder().create().expect("notifier");
+            let listener = event(inp).listener_builder().create().expect("listener");
+            EventEnd {
+                end,
+                notifier,
+                listener,
+            }
+        }
+    }
+
+    impl super::Endpoint for EventEnd {
+        fn send(&mut self, seq: u64) {
+            self.end.send(seq);
+            self.notifier.notify().expect("notify");
+        }
+        fn poll(&mut self) -> Option<u64> {
+            self.end.poll()
+        }
+        fn wait(&mut self, timeout: core::time::Duration) {
+            self.listener.timed_wait(|_| {}, timeout).expect("wait");
         }
     }
 }
@@ -483,6 +567,19 @@ fn main() {
                     move || bare_iceoryx2::End::new(&b2, &a2),
                 )
             });
+            run("threads: iceoryx2 bare, event wake-up", &|name| {
+                let (a, b) = (
+                    format!("h4bench/{pid}/te/ping"),
+                    format!("h4bench/{pid}/te/pong"),
+                );
+                let (a2, b2) = (a.clone(), b.clone());
+                in_threads(
+                    name,
+                    cycles,
+                    move || bare_iceoryx2::EventEnd::new(&a, &b),
+                    move || bare_iceoryx2::EventEnd::new(&b2, &a2),
+                )
+            });
             run("threads: iceoryx2 link (Iceoryx2Link)", &|name| {
                 let opts = iox_options(format!("h4bench-{pid}-t"));
                 let opts2 = opts.clone();
@@ -560,6 +657,16 @@ fn main() {
                     bare_iceoryx2::End::new(&a, &b)
                 })
             });
+            run("processes: iceoryx2 bare, event wake-up", &|name| {
+                let (a, b) = (
+                    format!("h4bench/{pid}/pe/ping"),
+                    format!("h4bench/{pid}/pe/pong"),
+                );
+                let pong_args = ["iceoryx2-event".into(), b.clone(), a.clone()];
+                in_processes(name, cycles, &pong_args, move |_| {
+                    bare_iceoryx2::EventEnd::new(&a, &b)
+                })
+            });
             run("processes: iceoryx2 link (Iceoryx2Link)", &|name| {
                 let prefix = format!("h4bench-{pid}-p");
                 let pong_args = ["iceoryx2-link".into(), prefix.clone()];
@@ -599,12 +706,15 @@ fn main() {
         "\n{cycles} round trips per path at 1 kHz, µs; {} vCPU",
         thread::available_parallelism().map_or(0, |n| n.get())
     );
-    println!("| path | p50 | p99 | p99.9 | max | lost | late cycles |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| path | p50 | p99 | p99.9 | max | lost | late cycles | CPU ping / pong, % |");
+    println!("|---|---|---|---|---|---|---|---|");
     for o in &outcomes {
         let h = &o.rtt_ns;
+        let cpu = o
+            .cpu_pct
+            .map_or_else(|| "–".to_string(), |(a, b)| format!("{a:.0} / {b:.0}"));
         println!(
-            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} |",
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} | {cpu} |",
             o.name,
             us(h.quantile(0.5)),
             us(h.quantile(0.99)),
