@@ -1,5 +1,5 @@
 //! The link conformance suite (`tests/common`) over Zenoh (peer mode, TCP loopback, a free port
-//! per test), plus what only the byte path has: raw payloads that do not decode are counted and never
+//! per test; and again with both ends clients of a router), plus what only the byte path has: raw payloads that do not decode are counted and never
 //! delivered, and a client-mode end works like a peer.
 #![cfg(feature = "zenoh")]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -46,6 +46,60 @@ impl Transport for ZenohPeers {
 }
 
 conformance_suite!(ZenohPeers);
+
+/// The deployment across hosts: a Zenoh router (started here, in this process, as a session in
+/// router mode on a fresh loopback port) and every end a client of it, as `h4-slave run
+/// --zenoh-mode client --zenoh-connect …` and `h4-master run` would be with `zenohd`.
+mod via_router {
+    use super::*;
+
+    /// Clients of one router per test.
+    struct ZenohRouterClients;
+
+    /// A router on `tcp/127.0.0.1:<port>`; it lives until the test process ends.
+    fn router(port: u16) {
+        let mut config = ::zenoh::Config::default();
+        config.insert_json5("mode", "\"router\"").unwrap();
+        config
+            .insert_json5("listen/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
+            .unwrap();
+        config
+            .insert_json5("scouting/multicast/enabled", "false")
+            .unwrap();
+        let session = ::zenoh::open(config).wait().expect("router");
+        std::mem::forget(session);
+    }
+
+    fn client(port: u16) -> ZenohConfig {
+        ZenohConfig {
+            mode: ZenohMode::Client,
+            ..ZenohConfig::connect_to_loopback(port)
+        }
+    }
+
+    impl Transport for ZenohRouterClients {
+        type Master = MasterZenohLink;
+        type Slave = SlaveZenohLink;
+
+        fn open(arms: &[u16]) -> Vec<(MasterZenohLink, SlaveZenohLink)> {
+            let port = common::free_port();
+            router(port);
+            arms.iter()
+                .map(|&arm| {
+                    let slave = SlaveZenohLink::open(arm, &client(port)).expect("slave end");
+                    let master = MasterZenohLink::open(arm, &client(port)).expect("master end");
+                    (master, slave)
+                })
+                .collect()
+        }
+
+        fn refused_by_slave_end(slave: &SlaveZenohLink) -> u64 {
+            slave.undecodable()
+        }
+    }
+
+    conformance_suite!(ZenohRouterClients);
+}
 
 #[test]
 fn undecodable_payloads_are_counted_never_delivered() {
