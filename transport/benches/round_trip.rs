@@ -448,6 +448,39 @@ mod bare_iceoryx2 {
         }
     }
 
+    /// Service names of a bare ping-pong: `(ping's out, pong's out)`, unique per process and tag.
+    fn names(tag: &str) -> (String, String) {
+        let pid = std::process::id();
+        (
+            format!("h4bench/{pid}/{tag}/ping"),
+            format!("h4bench/{pid}/{tag}/pong"),
+        )
+    }
+
+    /// A bare ping-pong of `E`s in two threads.
+    pub fn in_threads<E: super::Endpoint + 'static>(
+        name: &'static str,
+        cycles: u64,
+        tag: &str,
+        make: fn(&str, &str) -> E,
+    ) -> super::Outcome {
+        let (a, b) = names(tag);
+        let (a2, b2) = (a.clone(), b.clone());
+        super::in_threads(name, cycles, move || make(&a, &b), move || make(&b2, &a2))
+    }
+
+    /// A bare ping-pong of `E`s in two processes; `kind` names the pong's `E` for the child.
+    pub fn in_processes<E: super::Endpoint>(
+        name: &'static str,
+        cycles: u64,
+        kind: &str,
+        make: fn(&str, &str) -> E,
+    ) -> super::Outcome {
+        let (a, b) = names(kind);
+        let pong_args = [kind.to_string(), b.clone(), a.clone()];
+        super::in_processes(name, cycles, &pong_args, move |_| make(&a, &b))
+    }
+
     impl super::Endpoint for EventEnd {
         fn send(&mut self, seq: u64) {
             self.end.send(seq);
@@ -555,30 +588,10 @@ fn main() {
         #[cfg(feature = "iceoryx2")]
         {
             run("threads: iceoryx2 bare", &|name| {
-                let (a, b) = (
-                    format!("h4bench/{pid}/t/ping"),
-                    format!("h4bench/{pid}/t/pong"),
-                );
-                let (a2, b2) = (a.clone(), b.clone());
-                in_threads(
-                    name,
-                    cycles,
-                    move || bare_iceoryx2::End::new(&a, &b),
-                    move || bare_iceoryx2::End::new(&b2, &a2),
-                )
+                bare_iceoryx2::in_threads(name, cycles, "t", bare_iceoryx2::End::new)
             });
             run("threads: iceoryx2 bare, event wake-up", &|name| {
-                let (a, b) = (
-                    format!("h4bench/{pid}/te/ping"),
-                    format!("h4bench/{pid}/te/pong"),
-                );
-                let (a2, b2) = (a.clone(), b.clone());
-                in_threads(
-                    name,
-                    cycles,
-                    move || bare_iceoryx2::EventEnd::new(&a, &b),
-                    move || bare_iceoryx2::EventEnd::new(&b2, &a2),
-                )
+                bare_iceoryx2::in_threads(name, cycles, "te", bare_iceoryx2::EventEnd::new)
             });
             run("threads: iceoryx2 link (Iceoryx2Link)", &|name| {
                 let opts = iox_options(format!("h4bench-{pid}-t"));
@@ -648,24 +661,15 @@ fn main() {
         #[cfg(feature = "iceoryx2")]
         {
             run("processes: iceoryx2 bare", &|name| {
-                let (a, b) = (
-                    format!("h4bench/{pid}/p/ping"),
-                    format!("h4bench/{pid}/p/pong"),
-                );
-                let pong_args = ["iceoryx2-bare".into(), b.clone(), a.clone()];
-                in_processes(name, cycles, &pong_args, move |_| {
-                    bare_iceoryx2::End::new(&a, &b)
-                })
+                bare_iceoryx2::in_processes(name, cycles, "iceoryx2-bare", bare_iceoryx2::End::new)
             });
             run("processes: iceoryx2 bare, event wake-up", &|name| {
-                let (a, b) = (
-                    format!("h4bench/{pid}/pe/ping"),
-                    format!("h4bench/{pid}/pe/pong"),
-                );
-                let pong_args = ["iceoryx2-event".into(), b.clone(), a.clone()];
-                in_processes(name, cycles, &pong_args, move |_| {
-                    bare_iceoryx2::EventEnd::new(&a, &b)
-                })
+                bare_iceoryx2::in_processes(
+                    name,
+                    cycles,
+                    "iceoryx2-event",
+                    bare_iceoryx2::EventEnd::new,
+                )
             });
             run("processes: iceoryx2 link (Iceoryx2Link)", &|name| {
                 let prefix = format!("h4bench-{pid}-p");
