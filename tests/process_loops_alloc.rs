@@ -55,7 +55,7 @@ fn master_run(duration_s: f64) -> (u64, u64) {
     let (n, summary) =
         count_allocations(|| h4_master::server::run(&cfg, &master_opts(duration_s), m).unwrap());
     helper.join().unwrap();
-    (n, summary.cycles)
+    (n, summary.run.cycles)
 }
 
 /// The slave loop on this thread for `duration_s`, a master loop on a helper thread.
@@ -69,7 +69,7 @@ fn slave_run(duration_s: f64) -> (u64, u64) {
     let (n, summary) =
         count_allocations(|| h4_slave::server::run(&w, &slave_opts(duration_s), &mut s).unwrap());
     helper.join().unwrap();
-    (n, summary.cycles)
+    (n, summary.run.cycles)
 }
 
 #[test]

@@ -15,7 +15,7 @@ use std::time::Duration;
 use h4_shared::clock::{Clock, MonotonicClock};
 use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{Histogram, Pacer};
+use h4_shared::rt::{Histogram, LoopReport, Pacer};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::{Link, LinkError};
 use serde::{Deserialize, Serialize};
@@ -63,18 +63,10 @@ impl Default for MasterRunOptions {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct MasterRunSummary {
-    /// Loop cycles run.
-    pub cycles: u64,
-    /// Deadlines missed (the loop woke more than a whole period late).
-    pub deadline_misses: u64,
-    /// Lateness of the loop's wake-up, µs.
-    pub lateness_p50_us: f64,
-    /// p99 lateness, µs.
-    pub lateness_p99_us: f64,
-    /// p99.9 lateness, µs.
-    pub lateness_p999_us: f64,
-    /// Largest lateness, µs.
-    pub lateness_max_us: f64,
+    /// Cycles, deadline misses, lateness, CPU and run time (from the end of the wait for the
+    /// slave) of the loop (fields flattened into this summary).
+    #[serde(flatten)]
+    pub run: LoopReport,
     /// Round trips measured: a command's send time to the master cycle that first receives
     /// feedback echoing it (includes the phase of both 1 kHz loops), count.
     pub round_trip_samples: u64,
@@ -124,14 +116,8 @@ pub struct MasterRunSummary {
     pub energy_min_j: f64,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
-    /// CPU time the whole process used (all threads, start-up included), s.
-    pub cpu_time_s: f64,
-    /// `cpu_time_s` over `run_time_s`, % of one core.
-    pub cpu_percent: f64,
     /// Time spent waiting for the slave's first feedback, s.
     pub waited_for_slave_s: f64,
-    /// Seconds run, by the master's clock (from the end of the wait).
-    pub run_time_s: f64,
 }
 
 /// Why the master could not run.
@@ -290,6 +276,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
 
     h4_slave::server::apply_realtime(opts.fifo_priority, opts.lock_memory);
     let mut s = MasterRunSummary::default();
+    let mut cycles = 0u64;
 
     // Wait for the slave (its feedback) before the operator's script starts.
     let wait = std::time::Instant::now();
@@ -398,7 +385,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
                 round_trip_us: us(link.last_round_trip_ns),
             },
         );
-        s.cycles += 1;
+        cycles += 1;
         if status_line.due(now) {
             use std::fmt::Write;
             text.clear();
@@ -406,7 +393,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
                 text,
                 "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | rtt p99 {:>7.1} us | F {:>6.2} N | fade {:.2} | slave {}",
                 opts.arm_id,
-                s.cycles,
+                cycles,
                 us(pacer.lateness.quantile(0.99)),
                 pacer.misses,
                 us(link.round_trip.quantile(0.99)),
@@ -421,12 +408,6 @@ pub fn run_then<L: Link<Command, Feedback>>(
     }
     at_loop_end();
     status_line.finish();
-    s.deadline_misses = pacer.misses;
-    let h = &pacer.lateness;
-    s.lateness_p50_us = us(h.quantile(0.5));
-    s.lateness_p99_us = us(h.quantile(0.99));
-    s.lateness_p999_us = us(h.quantile(0.999));
-    s.lateness_max_us = us(h.max());
     let r = &link.round_trip;
     s.round_trip_samples = r.count();
     s.round_trip_p50_us = us(r.quantile(0.5));
@@ -441,13 +422,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
     } else {
         0.0
     };
-    s.run_time_s = clock.now_ns() as f64 / 1e9;
-    s.cpu_time_s = h4_shared::process::cpu_time_s();
-    s.cpu_percent = if s.run_time_s > 0.0 {
-        100.0 * s.cpu_time_s / s.run_time_s
-    } else {
-        0.0
-    };
+    s.run = LoopReport::new(cycles, &pacer, clock.now_ns() as f64 / 1e9);
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(MasterRunError::Recording)?;
     Ok(s)

@@ -207,6 +207,57 @@ impl Pacer {
     }
 }
 
+/// What a process's 1 kHz loop reports when it stops: its timing and its cost. Both process
+/// summaries (`h4-slave run`, `h4-master run`) carry it flattened, so the JSON fields are the
+/// same in both.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct LoopReport {
+    /// Loop cycles run.
+    pub cycles: u64,
+    /// Deadlines missed (the loop woke more than a whole period late).
+    pub deadline_misses: u64,
+    /// Lateness of the loop's wake-up, p50, µs.
+    pub lateness_p50_us: f64,
+    /// p99 lateness, µs.
+    pub lateness_p99_us: f64,
+    /// p99.9 lateness, µs.
+    pub lateness_p999_us: f64,
+    /// Largest lateness, µs.
+    pub lateness_max_us: f64,
+    /// CPU time the whole process used (all threads, start-up included), s.
+    pub cpu_time_s: f64,
+    /// `cpu_time_s` over `run_time_s`, % of one core.
+    pub cpu_percent: f64,
+    /// Seconds run, by the loop's clock.
+    pub run_time_s: f64,
+}
+
+impl LoopReport {
+    /// The report of a loop that ran `cycles` cycles paced by `pacer` for `run_time_s`; reads
+    /// the process's CPU time now.
+    pub fn new(cycles: u64, pacer: &Pacer, run_time_s: f64) -> Self {
+        let us = |ns: u64| ns as f64 / 1e3;
+        let h = &pacer.lateness;
+        let cpu_time_s = crate::process::cpu_time_s();
+        LoopReport {
+            cycles,
+            deadline_misses: pacer.misses,
+            lateness_p50_us: us(h.quantile(0.5)),
+            lateness_p99_us: us(h.quantile(0.99)),
+            lateness_p999_us: us(h.quantile(0.999)),
+            lateness_max_us: us(h.max()),
+            cpu_time_s,
+            cpu_percent: if run_time_s > 0.0 {
+                100.0 * cpu_time_s / run_time_s
+            } else {
+                0.0
+            },
+            run_time_s,
+        }
+    }
+}
+
 /// Why a real-time setting could not be applied.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum RtError {

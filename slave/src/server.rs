@@ -15,7 +15,7 @@ use h4_shared::clock::{Clock, MonotonicClock};
 use h4_shared::passivity::PassivityParams;
 use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{Histogram, Pacer, lock_memory, set_fifo_priority};
+use h4_shared::rt::{LoopReport, Pacer, lock_memory, set_fifo_priority};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
@@ -73,18 +73,10 @@ impl Default for RunOptions {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SlaveRunSummary {
-    /// Loop cycles run.
-    pub cycles: u64,
-    /// Deadlines missed (the loop woke more than a whole period late).
-    pub deadline_misses: u64,
-    /// Lateness of the loop's wake-up, µs.
-    pub lateness_p50_us: f64,
-    /// p99 lateness, µs.
-    pub lateness_p99_us: f64,
-    /// p99.9 lateness, µs.
-    pub lateness_p999_us: f64,
-    /// Largest lateness, µs.
-    pub lateness_max_us: f64,
+    /// Cycles, deadline misses, lateness, CPU and run time of the loop (fields flattened
+    /// into this summary).
+    #[serde(flatten)]
+    pub run: LoopReport,
     /// What the receive gate accepted and rejected.
     pub gate: GateCounters,
     /// Commands the controller rejected (workspace, limits): never passed to the actuators.
@@ -119,12 +111,6 @@ pub struct SlaveRunSummary {
     pub final_state: String,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
-    /// CPU time the whole process used (all threads, start-up included), s.
-    pub cpu_time_s: f64,
-    /// `cpu_time_s` over `run_time_s`, % of one core.
-    pub cpu_percent: f64,
-    /// Seconds run, by the slave's clock.
-    pub run_time_s: f64,
 }
 
 /// Why the slave could not run.
@@ -317,13 +303,10 @@ pub fn run<L: Link<Feedback, Command>>(
     }
     status_line.finish();
     let k = *teleop.counters();
-    s.cycles = k.cycles;
     s.commands_rejected_by_controller = k.commands_rejected_by_controller;
     s.link_errors = k.link_errors;
     s.safe_stops = k.safe_stops;
     s.repairs = k.repairs;
-    s.deadline_misses = pacer.misses;
-    fill_lateness(&mut s, &pacer.lateness);
     s.gate = *teleop.gate_counters();
     s.force_error_mean_n = if s.contact_cycles > 0 {
         error_sum / s.contact_cycles as f64
@@ -331,13 +314,7 @@ pub fn run<L: Link<Feedback, Command>>(
         0.0
     };
     s.final_state = format!("{state:?}");
-    s.run_time_s = clock.now_ns() as f64 / 1e9;
-    s.cpu_time_s = h4_shared::process::cpu_time_s();
-    s.cpu_percent = if s.run_time_s > 0.0 {
-        100.0 * s.cpu_time_s / s.run_time_s
-    } else {
-        0.0
-    };
+    s.run = LoopReport::new(k.cycles, &pacer, clock.now_ns() as f64 / 1e9);
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
@@ -345,13 +322,6 @@ pub fn run<L: Link<Feedback, Command>>(
 
 fn norm3(v: &[f64]) -> f64 {
     v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
-}
-
-fn fill_lateness(s: &mut SlaveRunSummary, h: &Histogram) {
-    s.lateness_p50_us = us(h.quantile(0.5));
-    s.lateness_p99_us = us(h.quantile(0.99));
-    s.lateness_p999_us = us(h.quantile(0.999));
-    s.lateness_max_us = us(h.max());
 }
 
 /// Command-line options shared by `h4-slave run`, `h4-master run` and `h4-master loopback`:

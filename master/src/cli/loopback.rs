@@ -440,8 +440,8 @@ fn combine(
     }
     let mut realtime_ok = true;
     for (who, cycles, misses) in [
-        ("master", m.cycles, m.deadline_misses),
-        ("slave", s.cycles, s.deadline_misses),
+        ("master", m.run.cycles, m.run.deadline_misses),
+        ("slave", s.run.cycles, s.run.deadline_misses),
     ] {
         let share = misses as f64 / (cycles + misses).max(1) as f64;
         if share > MAX_MISSED_SHARE {
@@ -454,11 +454,11 @@ fn combine(
         }
     }
     let expected = (duration_s * 1000.0).round() as u64;
-    if (m.cycles as f64) < MIN_CYCLE_SHARE * expected as f64 {
+    if (m.run.cycles as f64) < MIN_CYCLE_SHARE * expected as f64 {
         realtime_ok = false;
         faults.push(format!(
             "real time: the master ran {} of {expected} cycles (< {:.0} %)",
-            m.cycles,
+            m.run.cycles,
             100.0 * MIN_CYCLE_SHARE
         ));
     }
@@ -477,9 +477,9 @@ fn combine(
         unstable_reasons: reasons,
         realtime_ok,
         faults,
-        cycles: m.cycles,
-        deadline_misses: m.deadline_misses + s.deadline_misses,
-        lateness_p99_us: m.lateness_p99_us.max(s.lateness_p99_us),
+        cycles: m.run.cycles,
+        deadline_misses: m.run.deadline_misses + s.run.deadline_misses,
+        lateness_p99_us: m.run.lateness_p99_us.max(s.run.lateness_p99_us),
         round_trip_p50_us: m.round_trip_p50_us,
         round_trip_p99_us: m.round_trip_p99_us,
         max_force_n: s.max_force_n,
@@ -557,16 +557,23 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use h4_shared::rt::LoopReport;
 
     fn summaries(misses: u64, cycles: u64) -> (MasterRunSummary, SlaveRunSummary) {
         let m = MasterRunSummary {
-            cycles,
-            deadline_misses: misses,
+            run: LoopReport {
+                cycles,
+                deadline_misses: misses,
+                ..LoopReport::default()
+            },
             round_trip_samples: 100,
             ..MasterRunSummary::default()
         };
         let s = SlaveRunSummary {
-            cycles,
+            run: LoopReport {
+                cycles,
+                ..LoopReport::default()
+            },
             force_limit_n: 80.0,
             max_force_n: 10.0,
             ..SlaveRunSummary::default()
