@@ -17,6 +17,7 @@ use std::sync::Once;
 use ::iceoryx2::port::publisher::Publisher;
 use ::iceoryx2::port::subscriber::Subscriber;
 use ::iceoryx2::prelude::*;
+use ::iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use h4_shared::wire::{Command, Feedback, WireMessage};
 
 use crate::{Link, LinkError};
@@ -108,6 +109,30 @@ where
     }
 }
 
+/// Opens (or creates) the publish-subscribe service `<prefix>/<arm_id>/<topic>` of `Shm<M>`.
+fn service<M>(
+    node: &Node<ipc::Service>,
+    opts: &Iceoryx2Options,
+    topic: &str,
+) -> Result<PortFactory<ipc::Service, Shm<M>, ()>, String>
+where
+    Shm<M>: ZeroCopySend,
+    M: std::fmt::Debug + 'static,
+{
+    let name = format!("{}/{}/{}", opts.prefix, opts.arm_id, topic);
+    let name = ServiceName::new(&name).map_err(|e| format!("service name {name}: {e:?}"))?;
+    node.service_builder(&name)
+        .publish_subscribe::<Shm<M>>()
+        .history_size(1)
+        .subscriber_max_buffer_size(opts.buffer.max(1))
+        .enable_safe_overflow(true)
+        .max_publishers(4)
+        .max_subscribers(4)
+        .max_nodes(8)
+        .open_or_create()
+        .map_err(|e| format!("{e:?}"))
+}
+
 static QUIET: Once = Once::new();
 
 fn open<Out, In>(
@@ -128,32 +153,14 @@ where
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<ipc::Service>()
         .map_err(|e| err("node")(&e))?;
-    let service = |topic: &str| -> Result<ServiceName, Iceoryx2Error> {
-        let name = format!("{}/{}/{}", opts.prefix, opts.arm_id, topic);
-        ServiceName::new(&name).map_err(|e| err("service name")(&e))
-    };
-    let out_service = node
-        .service_builder(&service(out_topic)?)
-        .publish_subscribe::<Shm<Out>>()
-        .history_size(1)
-        .subscriber_max_buffer_size(opts.buffer.max(1))
-        .enable_safe_overflow(true)
-        .max_publishers(4)
-        .max_subscribers(4)
-        .max_nodes(8)
-        .open_or_create()
-        .map_err(|e| err("open or create the outgoing service")(&e))?;
-    let in_service = node
-        .service_builder(&service(in_topic)?)
-        .publish_subscribe::<Shm<In>>()
-        .history_size(1)
-        .subscriber_max_buffer_size(opts.buffer.max(1))
-        .enable_safe_overflow(true)
-        .max_publishers(4)
-        .max_subscribers(4)
-        .max_nodes(8)
-        .open_or_create()
-        .map_err(|e| err("open or create the incoming service")(&e))?;
+    let out_service = service::<Out>(&node, opts, out_topic).map_err(|detail| Iceoryx2Error {
+        what: "open or create the outgoing service",
+        detail,
+    })?;
+    let in_service = service::<In>(&node, opts, in_topic).map_err(|detail| Iceoryx2Error {
+        what: "open or create the incoming service",
+        detail,
+    })?;
     let publisher = out_service
         .publisher_builder()
         .create()
