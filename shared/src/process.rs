@@ -140,6 +140,21 @@ pub fn print_stdout(text: &str) -> std::io::Result<()> {
     }
 }
 
+/// Prints a command's summary as pretty JSON on standard output ([`print_stdout`]) and, with
+/// `path` (the command's `--summary`), writes the same text there.
+pub fn emit_summary<T: serde::Serialize>(
+    summary: &T,
+    path: Option<&std::path::Path>,
+) -> Result<(), String> {
+    let json = serde_json::to_string_pretty(summary).map_err(|e| format!("summary: {e}"))?;
+    print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
+    if let Some(p) = path {
+        std::fs::write(p, format!("{json}\n"))
+            .map_err(|e| format!("--summary {}: {e}", p.display()))?;
+    }
+    Ok(())
+}
+
 /// Removes the variables cargo sets for the program it runs (`CARGO_PKG_*`, `OUT_DIR`, …):
 /// some build scripts rerun when they change, so a nested `cargo build` would rebuild
 /// half the dependency tree and leave it dirty for the next ordinary build.

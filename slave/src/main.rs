@@ -57,12 +57,7 @@ impl ExperimentArgs {
         if let Some(rec) = recorder {
             rec.finish().map_err(|e| e.to_string())?;
         }
-        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
-        if let Some(path) = &self.summary {
-            std::fs::write(path, format!("{json}\n"))
-                .map_err(|e| format!("--summary {}: {e}", path.display()))?;
-        }
+        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
         Ok(())
     }
 }

@@ -464,6 +464,28 @@ pub mod cli {
         }
     }
 
+    /// What both `run` commands take about their loop: how long, where the summary and the
+    /// recording go, real-time settings.
+    #[derive(Clone, Debug, Default, Args)]
+    pub struct LoopArgs {
+        /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
+        #[arg(long)]
+        pub duration_s: Option<f64>,
+        /// Write the summary as JSON here (it is also printed on stdout).
+        #[arg(long)]
+        pub summary: Option<PathBuf>,
+        /// Write an MCAP recording of every cycle here.
+        #[arg(long)]
+        pub record: Option<PathBuf>,
+        /// Run the loop under SCHED_FIFO at this priority (1–99; needs root or
+        /// CAP_SYS_NICE, otherwise a warning and normal scheduling).
+        #[arg(long)]
+        pub fifo_priority: Option<i32>,
+        /// Lock all memory (mlockall; refused ⇒ a warning).
+        #[arg(long)]
+        pub lock_memory: bool,
+    }
+
     /// `h4-slave run`.
     #[derive(Clone, Debug, Args)]
     pub struct RunArgs {
@@ -478,24 +500,12 @@ pub mod cli {
         /// Transport.
         #[command(flatten)]
         pub transport: TransportArgs,
-        /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
-        #[arg(long)]
-        pub duration_s: Option<f64>,
-        /// Write the summary as JSON here (it is also printed on stdout).
-        #[arg(long)]
-        pub summary: Option<PathBuf>,
-        /// Write an MCAP recording here.
-        #[arg(long)]
-        pub record: Option<PathBuf>,
+        /// Duration, summary, recording, real-time settings.
+        #[command(flatten)]
+        pub run: LoopArgs,
         /// No valid command for this long puts the arm in its safe state, ms.
         #[arg(long, default_value_t = 20.0)]
         pub watchdog_ms: f64,
-        /// Run the loop under SCHED_FIFO at this priority (1–99).
-        #[arg(long)]
-        pub fifo_priority: Option<i32>,
-        /// Lock all memory (mlockall).
-        #[arg(long)]
-        pub lock_memory: bool,
         /// The slave's passivity settings: a TOML file with the keys of a session file's
         /// `[passivity]` section (docs/sessions.md); default: the defaults there.
         #[arg(long, value_name = "FILE")]
@@ -533,20 +543,14 @@ pub mod cli {
                 passivity,
                 arm_id: self.transport.arm_id,
                 watchdog_ms: self.watchdog_ms,
-                fifo_priority: self.fifo_priority,
-                lock_memory: self.lock_memory,
-                duration_s: self.duration_s,
-                record: self.record.clone(),
+                fifo_priority: self.run.fifo_priority,
+                lock_memory: self.run.lock_memory,
+                duration_s: self.run.duration_s,
+                record: self.run.record.clone(),
                 ..super::RunOptions::default()
             };
             let summary = super::run(&cfg, &opts, &mut link).map_err(|e| e.to_string())?;
-            let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-            println!("{json}");
-            if let Some(path) = &self.summary {
-                std::fs::write(path, format!("{json}\n"))
-                    .map_err(|e| format!("{}: {e}", path.display()))?;
-            }
-            Ok(())
+            h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())
         }
     }
 }

@@ -16,7 +16,7 @@ use h4_slave::experiment::{
     TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
-use h4_slave::server::cli::{TransportArgs, TransportKind};
+use h4_slave::server::cli::{LoopArgs, TransportArgs, TransportKind};
 use serde::Serialize;
 
 /// Run the slave and the master as two processes over iceoryx2 for a fixed time and print a
@@ -186,12 +186,14 @@ impl LoopbackArgs {
             config: self.config.clone(),
             set: self.set.clone(),
             transport,
-            duration_s: Some(duration_s),
+            run: LoopArgs {
+                duration_s: Some(duration_s),
+                summary: None,
+                record: parts.as_ref().map(|p| p.master.clone()),
+                fifo_priority: self.fifo_priority,
+                lock_memory: false,
+            },
             wait_for_slave_s: 20.0,
-            summary: None,
-            record: parts.as_ref().map(|p| p.master.clone()),
-            fifo_priority: self.fifo_priority,
-            lock_memory: false,
         };
         // The slave is told to stop the moment the master's loop ends, before its watchdog
         // sees the master's silence.
@@ -223,12 +225,7 @@ impl LoopbackArgs {
         }
 
         let summary = combine(&cfg, duration_s, master, slave);
-        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
-        if let Some(p) = &self.summary {
-            std::fs::write(p, format!("{json}\n"))
-                .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
-        }
+        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
         Ok(if summary.stable && summary.realtime_ok {
             ExitCode::SUCCESS
         } else {

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use h4_master::server::{self, MasterRunOptions, MasterRunSummary};
 use h4_master::session;
-use h4_slave::server::cli::TransportArgs;
+use h4_slave::server::cli::{LoopArgs, TransportArgs};
 
 /// Run the master process: the simulated master arm and the scripted operator of a session
 /// file, at 1 kHz, against a slave process (`h4-slave run`) over iceoryx2 or Zenoh.
@@ -21,24 +21,12 @@ pub struct RunArgs {
     /// Transport.
     #[command(flatten)]
     pub transport: TransportArgs,
-    /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
-    #[arg(long)]
-    pub duration_s: Option<f64>,
+    /// Duration, summary, recording, real-time settings.
+    #[command(flatten)]
+    pub run: LoopArgs,
     /// Wait this long for the slave's first feedback before the operator's script starts, s.
     #[arg(long, default_value_t = 10.0)]
     pub wait_for_slave_s: f64,
-    /// Write the summary as JSON here (it is also printed on stdout).
-    #[arg(long)]
-    pub summary: Option<PathBuf>,
-    /// Write an MCAP recording of every cycle here.
-    #[arg(long)]
-    pub record: Option<PathBuf>,
-    /// Run the loop under SCHED_FIFO at this priority (1–99).
-    #[arg(long)]
-    pub fifo_priority: Option<i32>,
-    /// Lock all memory (mlockall).
-    #[arg(long)]
-    pub lock_memory: bool,
 }
 
 impl RunArgs {
@@ -55,11 +43,11 @@ impl RunArgs {
         let link = self.transport.open_master()?;
         let opts = MasterRunOptions {
             arm_id: self.transport.arm_id,
-            fifo_priority: self.fifo_priority,
-            lock_memory: self.lock_memory,
-            duration_s: self.duration_s,
+            fifo_priority: self.run.fifo_priority,
+            lock_memory: self.run.lock_memory,
+            duration_s: self.run.duration_s,
             wait_for_slave_s: self.wait_for_slave_s,
-            record: self.record.clone(),
+            record: self.run.record.clone(),
             ..MasterRunOptions::default()
         };
         server::run_then(&cfg, &opts, link, at_loop_end).map_err(|e| e.to_string())
@@ -68,12 +56,7 @@ impl RunArgs {
     /// Runs the master process; prints and writes the summary.
     pub fn run(self) -> Result<ExitCode, String> {
         let summary = self.run_summary()?;
-        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
-        if let Some(p) = &self.summary {
-            std::fs::write(p, format!("{json}\n"))
-                .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
-        }
+        h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
         Ok(ExitCode::SUCCESS)
     }
 }
