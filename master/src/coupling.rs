@@ -71,8 +71,218 @@ pub struct CouplingParams {
     pub master_damping_n_s_per_mm: f64,
     /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
     pub force_filter_hz: f64,
+    /// Model-mediated rendering (position–force): the master renders a local model of the
+    /// slave's contact instead of the delayed measured force.
+    pub model: ModelParams,
     /// Arm id in the commands.
     pub arm_id: u16,
+}
+
+/// Settings of the master's local contact model (`coupling.model_*`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModelParams {
+    /// Render the local model (position–force only; `false`: the delayed slave force).
+    pub enabled: bool,
+    /// Largest stiffness the master renders, N/mm at the handle.
+    pub stiffness_max_n_per_mm: f64,
+    /// Stiffness assumed before the first estimate, N/mm at the slave.
+    pub stiffness_initial_n_per_mm: f64,
+    /// Slave force along the normal above which a feedback sample counts as contact, N.
+    pub contact_n: f64,
+    /// Time constant of the stiffness estimator's forgetting, s.
+    pub estimator_time_constant_s: f64,
+    /// Largest speed at which the rendered plane moves towards the operator where that
+    /// pushes the handle out, mm/s at the slave (a newly learnt or moved surface is not
+    /// rendered as a force step).
+    pub plane_rate_mm_per_s: f64,
+}
+
+impl Default for ModelParams {
+    fn default() -> Self {
+        ModelParams {
+            enabled: true,
+            stiffness_max_n_per_mm: 50.0,
+            stiffness_initial_n_per_mm: 5.0,
+            contact_n: 1.0,
+            estimator_time_constant_s: 0.05,
+            plane_rate_mm_per_s: 2.0,
+        }
+    }
+}
+
+/// The master's local model of the slave's contact: a plane (normal, position) and its
+/// stiffness, estimated from the feedback (measured slave pose and force); no wire
+/// change. In contact the plane used for rendering is placed so that the model reproduces
+/// the latest measured force at the latest measured position (with the rendered
+/// stiffness); out of contact the last estimated plane is kept until the slave is seen
+/// beyond it without a force.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ContactModel {
+    normal: [f64; 3],
+    has_normal: bool,
+    /// Estimated stiffness, N/mm (slave); 0 = none yet.
+    pub k_hat: f64,
+    origin: [f64; 3],
+    contact: bool,
+    s_meas: f64,
+    f_meas: f64,
+    plane: f64,
+    plane_valid: bool,
+    p_used: f64,
+    used_valid: bool,
+    last_fb_ns: Option<u64>,
+    /// Model force along the normal rendered last cycle, N (slave).
+    pub force_n: f64,
+}
+
+fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+impl ContactModel {
+    /// Learns from one accepted feedback message (slave frame): `commanded_mm` is the slave
+    /// position the master sent in the command the feedback echoes (the position the
+    /// slave's force answers to, servo and arm compliance included).
+    pub fn observe(&mut self, mp: &ModelParams, fb: &Feedback, commanded_mm: [f64; 3]) {
+        let fv = [
+            fb.wrench_measured[0],
+            fb.wrench_measured[1],
+            fb.wrench_measured[2],
+        ];
+        let pos = commanded_mm;
+        if !fv.iter().chain(pos.iter()).all(|x| x.is_finite()) {
+            return;
+        }
+        let dt_s = self
+            .last_fb_ns
+            .map_or(1e-3, |t| fb.send_time_ns.saturating_sub(t) as f64 * 1e-9)
+            .clamp(1e-4, 1.0);
+        self.last_fb_ns = Some(fb.send_time_ns);
+        let fmag = norm3(&fv);
+        if fmag > mp.contact_n {
+            let u = [fv[0] / fmag, fv[1] / fmag, fv[2] / fmag];
+            if !self.has_normal {
+                self.normal = u;
+                self.has_normal = true;
+            } else {
+                let a = (dt_s / NORMAL_TIME_CONSTANT_S).min(1.0) * (fmag / (fmag + 5.0));
+                let mut n = [0.0; 3];
+                for i in 0..3 {
+                    n[i] = self.normal[i] + a * (u[i] - self.normal[i]);
+                }
+                let l = norm3(&n);
+                if l > 1e-9 {
+                    self.normal = [n[0] / l, n[1] / l, n[2] / l];
+                }
+            }
+            if !self.contact {
+                // A new touch: the force crossed the contact threshold here; positions
+                // along the normal are measured from this point (a projection of the
+                // absolute position would move with every small turn of the normal).
+                self.origin = pos;
+            }
+            let rel = [
+                pos[0] - self.origin[0],
+                pos[1] - self.origin[1],
+                pos[2] - self.origin[2],
+            ];
+            let s = dot3(&self.normal, &rel);
+            let f = dot3(&self.normal, &fv);
+            // Secant stiffness from the touch point (quasi-static, robust to the contact's
+            // dynamics), low-passed; kept across touches until new data replaces it.
+            let depth = -s;
+            if depth > 0.02 && f > 2.0 * mp.contact_n {
+                let k = ((f - mp.contact_n) / depth).clamp(0.05, 1e4);
+                if self.k_hat > 0.0 {
+                    let a = (dt_s / mp.estimator_time_constant_s.max(1e-3)).min(1.0);
+                    self.k_hat += a * (k - self.k_hat);
+                } else {
+                    self.k_hat = k;
+                }
+            }
+            self.contact = true;
+            self.s_meas = s;
+            self.f_meas = f.max(0.0);
+            let k = self.k_est(mp);
+            self.plane = s + self.f_meas / k;
+            self.plane_valid = true;
+        } else {
+            self.contact = false;
+            let rel = [
+                pos[0] - self.origin[0],
+                pos[1] - self.origin[1],
+                pos[2] - self.origin[2],
+            ];
+            if self.plane_valid && dot3(&self.normal, &rel) < self.plane - 0.5 {
+                // Beyond the remembered surface with no force: it is not there (any more).
+                self.plane_valid = false;
+            }
+        }
+    }
+
+    /// The estimated surface normal (unit; meaningless before the first contact).
+    pub fn normal(&self) -> [f64; 3] {
+        self.normal
+    }
+
+    /// A surface is known (in contact now, or remembered).
+    pub fn valid(&self) -> bool {
+        self.plane_valid && self.has_normal
+    }
+
+    /// Forgets where the rendered plane was (it is placed again at the handle).
+    pub fn reset_used(&mut self) {
+        self.used_valid = false;
+    }
+
+    fn k_est(&self, mp: &ModelParams) -> f64 {
+        if self.k_hat > 0.0 {
+            self.k_hat
+        } else {
+            mp.stiffness_initial_n_per_mm
+        }
+    }
+
+    /// The model's force on the slave at the slave position `desired_mm` (slave frame),
+    /// as a vector along the normal, N; `k_max_slave` the largest stiffness rendered
+    /// (N/mm at the slave).
+    pub fn force_at(
+        &mut self,
+        mp: &ModelParams,
+        desired_mm: &[f64; 3],
+        k_max_slave: f64,
+        dt_s: f64,
+    ) -> [f64; 3] {
+        if !self.plane_valid || !self.has_normal {
+            self.force_n = 0.0;
+            self.used_valid = false;
+            return [0.0; 3];
+        }
+        let k_r = self.k_est(mp).min(k_max_slave).max(1e-3);
+        let p_r = if self.contact {
+            self.s_meas + self.f_meas / k_r
+        } else {
+            self.plane
+        };
+        let rel = [
+            desired_mm[0] - self.origin[0],
+            desired_mm[1] - self.origin[1],
+            desired_mm[2] - self.origin[2],
+        ];
+        let s_d = dot3(&self.normal, &rel);
+        // The plane used moves inwards at once (less force) and outwards freely up to the
+        // handle's position (no force is created); beyond that, where it would push the
+        // handle out, at most `plane_rate_mm_per_s`.
+        if !self.used_valid || p_r <= self.p_used {
+            self.p_used = if self.used_valid { p_r } else { p_r.min(s_d) };
+            self.used_valid = true;
+        } else {
+            self.p_used = p_r.min((self.p_used + mp.plane_rate_mm_per_s * dt_s).max(s_d));
+        }
+        let f = (k_r * (self.p_used - s_d)).max(0.0);
+        self.force_n = f;
+        [f * self.normal[0], f * self.normal[1], f * self.normal[2]]
+    }
 }
 
 /// One cycle of the master.
@@ -118,7 +328,24 @@ pub struct MasterCoupling {
     velocity: [f64; 3],
     local_n: [f64; 3],
     filtered_n: [f64; 3],
+    /// The local contact model (model-mediated rendering).
+    pub model: ContactModel,
+    tangential_n: [f64; 3],
+    /// The slave targets sent, by sequence number (ring; allocated once).
+    sent: Vec<(u64, [f64; 3])>,
 }
+
+/// Render the tangential (friction) force measured at the slave with the model.
+const RENDER_TANGENTIAL: bool = false;
+
+/// Time constant of the contact model's normal estimate, s.
+const NORMAL_TIME_CONSTANT_S: f64 = 0.5;
+
+/// Cut-off of the low-pass on the tangential (friction) force rendered with the model, Hz.
+const TANGENTIAL_FILTER_HZ: f64 = 5.0;
+
+/// Commands remembered for the contact model (≥ the longest round trip in cycles).
+const SENT_HISTORY: usize = 8192;
 
 fn norm3(v: &[f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
@@ -143,6 +370,9 @@ impl MasterCoupling {
             velocity: [0.0; 3],
             local_n: [0.0; 3],
             filtered_n: [0.0; 3],
+            model: ContactModel::default(),
+            tangential_n: [0.0; 3],
+            sent: vec![(0, [0.0; 3]); SENT_HISTORY],
             p,
         }
     }
@@ -165,6 +395,10 @@ impl MasterCoupling {
     /// Hands the coupling a feedback message the gate accepted at `now_ns`.
     pub fn receive(&mut self, fb: &Feedback, now_ns: u64) {
         self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        let slot = &self.sent[(fb.echo_seq % SENT_HISTORY as u64) as usize];
+        if slot.0 == fb.echo_seq && fb.echo_seq > 0 {
+            self.model.observe(&self.p.model, fb, slot.1);
+        }
         self.feedback = Some(*fb);
         self.last_feedback_ns = Some(now_ns);
     }
@@ -275,7 +509,36 @@ impl MasterCoupling {
                     *v *= s;
                 }
             }
-            if p.mode == CouplingMode::PositionForce
+            if p.mode == CouplingMode::PositionForce && p.model.enabled && self.model.valid() {
+                if self.fade < 1.0 {
+                    // Feedback silent: on its return the plane is placed where the handle
+                    // is and moves out only at the plane rate (no force step).
+                    self.model.reset_used();
+                }
+                let k_max_slave = p.model.stiffness_max_n_per_mm / (p.force_scale * p.motion_scale);
+                let d = [target[0], target[1], target[2]];
+                let f = self.model.force_at(&p.model, &d, k_max_slave, dt_s);
+                // Along the surface (friction) the measured force is rendered as it comes:
+                // the model covers the normal direction only.
+                let mut ft = [0.0; 3];
+                if let (true, Some(fb)) = (RENDER_TANGENTIAL, &self.feedback) {
+                    let n = self.model.normal();
+                    let w = [
+                        fb.wrench_measured[0],
+                        fb.wrench_measured[1],
+                        fb.wrench_measured[2],
+                    ];
+                    let wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2];
+                    for i in 0..3 {
+                        ft[i] = w[i] - wn * n[i];
+                    }
+                }
+                let a = 1.0 - (-2.0 * std::f64::consts::PI * TANGENTIAL_FILTER_HZ * dt_s).exp();
+                for i in 0..3 {
+                    self.tangential_n[i] += a * (ft[i] - self.tangential_n[i]);
+                    link_force[i] = p.force_scale * (f[i] + self.tangential_n[i]) * self.fade;
+                }
+            } else if p.mode == CouplingMode::PositionForce
                 && let Some(fb) = &self.feedback
             {
                 for (lf, w) in link_force.iter_mut().zip(fb.wrench_measured.iter()) {
@@ -373,6 +636,7 @@ impl MasterCoupling {
             }
         };
         let t = self.last.slave_target;
+        self.sent[(self.seq % SENT_HISTORY as u64) as usize] = (self.seq, [t[0], t[1], t[2]]);
         Command {
             seq: self.seq,
             send_time_ns: now_ns,
@@ -388,5 +652,67 @@ impl MasterCoupling {
             reserved: 0,
             flags: if self.clutched { CMD_FLAG_CLUTCH } else { 0 },
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn feedback(seq: u64, z_force_n: f64) -> Feedback {
+        Feedback {
+            seq,
+            send_time_ns: seq * 1_000_000,
+            echo_seq: seq,
+            wrench_measured: [0.0, 0.0, z_force_n, 0.0],
+            ..Feedback::default()
+        }
+    }
+
+    /// The model learns a 100 N/mm plane from commanded positions and measured forces,
+    /// renders it locally, keeps it out of contact, forgets it when the slave is seen
+    /// beyond it without a force, and never pushes the handle out faster than the plane
+    /// rate.
+    #[test]
+    fn contact_model_learns_renders_and_forgets_a_plane() {
+        let mp = ModelParams {
+            enabled: true,
+            ..ModelParams::default()
+        };
+        let wall = |z: f64| (100.0 * (-250.0 - z)).max(0.0);
+        let mut m = ContactModel::default();
+        let mut seq = 0;
+        // Pressing in slowly: 0.001 mm per message down to 0.2 mm deep.
+        let mut z = -249.9;
+        while z > -250.2 {
+            seq += 1;
+            m.observe(&mp, &feedback(seq, wall(z)), [0.0, 0.0, z]);
+            z -= 0.001;
+        }
+        assert!((m.k_hat - 100.0).abs() < 10.0, "{}", m.k_hat);
+        assert!(m.valid());
+        // Rendered where the handle is above the plane: nothing; 0.1 mm deep: ~10 N.
+        let dt = 1e-3;
+        let f = m.force_at(&mp, &[0.0, 0.0, -249.0], 1e3, dt);
+        assert_eq!(f, [0.0; 3]);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt);
+        assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
+        // Lifted off: the plane is remembered.
+        seq += 1;
+        m.observe(&mp, &feedback(seq, 0.0), [0.0, 0.0, -249.0]);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt);
+        assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
+        // Placed again at the handle (e.g. after a feedback gap): the force grows only at
+        // the plane rate while the handle holds still.
+        m.reset_used();
+        let f0 = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt)[2];
+        let f1 = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt)[2];
+        assert!(f0.abs() < 1e-9, "{f0}");
+        assert!(f1 <= 100.0 * mp.plane_rate_mm_per_s * dt + 1e-9, "{f1}");
+        // The slave is seen 1 mm beyond the plane with no force: the surface is gone.
+        seq += 1;
+        m.observe(&mp, &feedback(seq, 0.0), [0.0, 0.0, -251.0]);
+        assert!(!m.valid());
+        assert_eq!(m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt), [0.0; 3]);
     }
 }
