@@ -95,6 +95,9 @@ pub struct ModelParams {
     /// pushes the handle out, mm/s at the slave (a newly learnt or moved surface is not
     /// rendered as a force step).
     pub plane_rate_mm_per_s: f64,
+    /// Feedback silence after which the model's force fades (instead of
+    /// `CouplingParams::feedback_timeout_ms`), ms.
+    pub hold_ms: f64,
 }
 
 impl Default for ModelParams {
@@ -106,6 +109,7 @@ impl Default for ModelParams {
             contact_n: 1.0,
             estimator_time_constant_s: 0.05,
             plane_rate_mm_per_s: 2.0,
+            hold_ms: 500.0,
         }
     }
 }
@@ -443,7 +447,14 @@ impl MasterCoupling {
             .last_feedback_ns
             .map_or(f64::INFINITY, |t| now_ns.saturating_sub(t) as f64 * 1e-6);
         let rate = dt_s * 1e3 / p.fade_ms.max(1e-3);
-        self.fade = if silent_ms > p.feedback_timeout_ms {
+        // The local model needs no fresh feedback to render the contact: it holds through
+        // a longer silence than the delayed force would.
+        let timeout_ms = if p.mode == CouplingMode::PositionForce && p.model.enabled {
+            p.model.hold_ms
+        } else {
+            p.feedback_timeout_ms
+        };
+        self.fade = if silent_ms > timeout_ms {
             (self.fade - rate).max(0.0)
         } else {
             (self.fade + rate).min(1.0)

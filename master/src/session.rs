@@ -139,6 +139,8 @@ pub struct CouplingConfig {
     pub model_estimator_time_constant_s: f64,
     /// Largest speed at which the model's plane pushes the handle out, mm/s at the slave.
     pub model_plane_rate_mm_per_s: f64,
+    /// Feedback silence after which the model's force fades out, ms.
+    pub model_hold_ms: f64,
 }
 
 impl Default for CouplingConfig {
@@ -159,6 +161,7 @@ impl Default for CouplingConfig {
             model_contact_n: ModelParams::default().contact_n,
             model_estimator_time_constant_s: ModelParams::default().estimator_time_constant_s,
             model_plane_rate_mm_per_s: ModelParams::default().plane_rate_mm_per_s,
+            model_hold_ms: ModelParams::default().hold_ms,
         }
     }
 }
@@ -416,6 +419,7 @@ impl Validate for SessionConfig {
             1e4,
             "mm/s",
         )?;
+        check_range("coupling.model_hold_ms", c.model_hold_ms, 1.0, 1e5, "ms")?;
         check_range(
             "coupling.guide_approach_depth_mm",
             c.guide_approach_depth_mm,
@@ -947,6 +951,7 @@ impl Session {
                 contact_n: cfg.coupling.model_contact_n,
                 estimator_time_constant_s: cfg.coupling.model_estimator_time_constant_s,
                 plane_rate_mm_per_s: cfg.coupling.model_plane_rate_mm_per_s,
+                hold_ms: cfg.coupling.model_hold_ms,
             },
             arm_id: 0,
         });
