@@ -127,6 +127,9 @@ pub struct ContactModel {
     /// Estimated stiffness, N/mm (slave); 0 = none yet.
     pub k_hat: f64,
     origin: [f64; 3],
+    /// Estimated servo compliance of the slave (measured minus commanded position per
+    /// newton along the normal), mm/N.
+    pub servo_mm_per_n: f64,
     contact: bool,
     s_meas: f64,
     f_meas: f64,
@@ -144,17 +147,26 @@ fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 }
 
 impl ContactModel {
-    /// Learns from one accepted feedback message (slave frame): `commanded_mm` is the slave
-    /// position the master sent in the command the feedback echoes (the position the
-    /// slave's force answers to, servo and arm compliance included).
+    /// Learns from one accepted feedback message (slave frame): the measured pose and
+    /// force it carries, and `commanded_mm`, the slave position the master sent in the
+    /// command the feedback echoes. The surface (plane and stiffness) is estimated from the
+    /// measured pose, which is right even when the slave could not go where it was sent
+    /// (passivity drift, force guard); the slave's position-servo compliance (measured
+    /// minus commanded per newton) from the two when they agree, so that the model
+    /// relates force to the *commanded* position the master controls.
     pub fn observe(&mut self, mp: &ModelParams, fb: &Feedback, commanded_mm: [f64; 3]) {
         let fv = [
             fb.wrench_measured[0],
             fb.wrench_measured[1],
             fb.wrench_measured[2],
         ];
-        let pos = commanded_mm;
-        if !fv.iter().chain(pos.iter()).all(|x| x.is_finite()) {
+        let pos = [fb.pose[0], fb.pose[1], fb.pose[2]];
+        if !fv
+            .iter()
+            .chain(pos.iter())
+            .chain(commanded_mm.iter())
+            .all(|x| x.is_finite())
+        {
             return;
         }
         let dt_s = self
@@ -185,24 +197,26 @@ impl ContactModel {
                 // absolute position would move with every small turn of the normal).
                 self.origin = pos;
             }
-            let rel = [
-                pos[0] - self.origin[0],
-                pos[1] - self.origin[1],
-                pos[2] - self.origin[2],
-            ];
-            let s = dot3(&self.normal, &rel);
+            let s = self.along_normal(&pos);
+            let s_ref = self.along_normal(&commanded_mm);
             let f = dot3(&self.normal, &fv);
             // Secant stiffness from the touch point (quasi-static, robust to the contact's
             // dynamics), low-passed; kept across touches until new data replaces it.
+            let a = (dt_s / mp.estimator_time_constant_s.max(1e-3)).min(1.0);
             let depth = -s;
             if depth > 0.02 && f > 2.0 * mp.contact_n {
                 let k = ((f - mp.contact_n) / depth).clamp(0.05, 1e4);
                 if self.k_hat > 0.0 {
-                    let a = (dt_s / mp.estimator_time_constant_s.max(1e-3)).min(1.0);
                     self.k_hat += a * (k - self.k_hat);
                 } else {
                     self.k_hat = k;
                 }
+            }
+            // Servo compliance, while the slave is where it was sent (no drift).
+            let lag = s - s_ref;
+            if f > 2.0 * mp.contact_n && lag.abs() < SERVO_AGREEMENT_MM {
+                let c = (lag / f).clamp(0.0, SERVO_COMPLIANCE_MAX_MM_PER_N);
+                self.servo_mm_per_n += a * (c - self.servo_mm_per_n);
             }
             self.contact = true;
             self.s_meas = s;
@@ -212,16 +226,20 @@ impl ContactModel {
             self.plane_valid = true;
         } else {
             self.contact = false;
-            let rel = [
-                pos[0] - self.origin[0],
-                pos[1] - self.origin[1],
-                pos[2] - self.origin[2],
-            ];
-            if self.plane_valid && dot3(&self.normal, &rel) < self.plane - 0.5 {
+            if self.plane_valid && self.along_normal(&pos) < self.plane - 0.5 {
                 // Beyond the remembered surface with no force: it is not there (any more).
                 self.plane_valid = false;
             }
         }
+    }
+
+    fn along_normal(&self, p: &[f64; 3]) -> f64 {
+        let rel = [
+            p[0] - self.origin[0],
+            p[1] - self.origin[1],
+            p[2] - self.origin[2],
+        ];
+        dot3(&self.normal, &rel)
     }
 
     /// The estimated surface normal (unit; meaningless before the first contact).
@@ -262,18 +280,18 @@ impl ContactModel {
             self.used_valid = false;
             return [0.0; 3];
         }
-        let k_r = self.k_est(mp).min(k_max_slave).max(1e-3);
+        // Stiffness from the commanded position to the force: the surface in series with
+        // the slave's servo compliance.
+        let k_series = 1.0 / (1.0 / self.k_est(mp) + self.servo_mm_per_n);
+        let k_r = k_series.min(k_max_slave).max(1e-3);
         let p_r = if self.contact {
-            self.s_meas + self.f_meas / k_r
+            // The model gives the measured force where the slave would be commanded to
+            // measure it.
+            self.s_meas - self.servo_mm_per_n * self.f_meas + self.f_meas / k_r
         } else {
             self.plane
         };
-        let rel = [
-            desired_mm[0] - self.origin[0],
-            desired_mm[1] - self.origin[1],
-            desired_mm[2] - self.origin[2],
-        ];
-        let s_d = dot3(&self.normal, &rel);
+        let s_d = self.along_normal(desired_mm);
         // The plane used moves inwards at once (less force) and outwards freely up to the
         // handle's position (no force is created); beyond that, where it would push the
         // handle out, at most `plane_rate_mm_per_s`.
@@ -342,8 +360,15 @@ pub struct MasterCoupling {
 /// Render the tangential (friction) force measured at the slave with the model.
 const RENDER_TANGENTIAL: bool = false;
 
+/// The commanded and measured slave positions agree within this when the servo
+/// compliance is learnt (more: drift or a force guard), mm.
+const SERVO_AGREEMENT_MM: f64 = 0.3;
+
+/// Largest servo compliance the model accepts, mm/N.
+const SERVO_COMPLIANCE_MAX_MM_PER_N: f64 = 0.02;
+
 /// Time constant of the contact model's normal estimate, s.
-const NORMAL_TIME_CONSTANT_S: f64 = 0.5;
+const NORMAL_TIME_CONSTANT_S: f64 = 2.0;
 
 /// Cut-off of the low-pass on the tangential (friction) force rendered with the model, Hz.
 const TANGENTIAL_FILTER_HZ: f64 = 5.0;
@@ -670,11 +695,14 @@ impl MasterCoupling {
 mod tests {
     use super::*;
 
-    fn feedback(seq: u64, z_force_n: f64) -> Feedback {
+    /// Feedback with the slave measured at `z_mm` (a servo compliance of 0.002 mm/N
+    /// behind the commanded position) under a force `z_force_n`.
+    fn feedback(seq: u64, z_force_n: f64, z_mm: f64) -> Feedback {
         Feedback {
             seq,
             send_time_ns: seq * 1_000_000,
             echo_seq: seq,
+            pose: [0.0, 0.0, z_mm, 0.0],
             wrench_measured: [0.0, 0.0, z_force_n, 0.0],
             ..Feedback::default()
         }
@@ -693,37 +721,50 @@ mod tests {
         let wall = |z: f64| (100.0 * (-250.0 - z)).max(0.0);
         let mut m = ContactModel::default();
         let mut seq = 0;
-        // Pressing in slowly: 0.001 mm per message down to 0.2 mm deep.
-        let mut z = -249.9;
-        while z > -250.2 {
+        // Pressing in slowly: the commanded position 0.001 mm per message down to about
+        // 0.2 mm deep; the measured one lags it by the servo compliance (the force makes
+        // the position it is measured at: solved by a few fixed-point steps).
+        let servo = 0.002;
+        let mut z_cmd = -249.9;
+        let mut z_meas = z_cmd;
+        while z_cmd > -250.25 {
+            for _ in 0..20 {
+                z_meas = z_cmd + servo * wall(z_meas);
+            }
             seq += 1;
-            m.observe(&mp, &feedback(seq, wall(z)), [0.0, 0.0, z]);
-            z -= 0.001;
+            m.observe(&mp, &feedback(seq, wall(z_meas), z_meas), [0.0, 0.0, z_cmd]);
+            z_cmd -= 0.001;
         }
         assert!((m.k_hat - 100.0).abs() < 10.0, "{}", m.k_hat);
+        assert!(
+            (m.servo_mm_per_n - servo).abs() < 5e-4,
+            "{}",
+            m.servo_mm_per_n
+        );
         assert!(m.valid());
-        // Rendered where the handle is above the plane: nothing; 0.1 mm deep: ~10 N.
+        // Rendered where the handle is above the plane: nothing; commanded 0.12 mm deep:
+        // the series stiffness (100 N/mm with 0.002 mm/N: 83 N/mm), ~10 N.
         let dt = 1e-3;
         let f = m.force_at(&mp, &[0.0, 0.0, -249.0], 1e3, dt);
         assert_eq!(f, [0.0; 3]);
-        let f = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt);
         assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
         // Lifted off: the plane is remembered.
         seq += 1;
-        m.observe(&mp, &feedback(seq, 0.0), [0.0, 0.0, -249.0]);
-        let f = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt);
+        m.observe(&mp, &feedback(seq, 0.0, -249.0), [0.0, 0.0, -249.0]);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt);
         assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
         // Placed again at the handle (e.g. after a feedback gap): the force grows only at
         // the plane rate while the handle holds still.
         m.reset_used();
-        let f0 = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt)[2];
-        let f1 = m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt)[2];
+        let f0 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt)[2];
+        let f1 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt)[2];
         assert!(f0.abs() < 1e-9, "{f0}");
         assert!(f1 <= 100.0 * mp.plane_rate_mm_per_s * dt + 1e-9, "{f1}");
         // The slave is seen 1 mm beyond the plane with no force: the surface is gone.
         seq += 1;
-        m.observe(&mp, &feedback(seq, 0.0), [0.0, 0.0, -251.0]);
+        m.observe(&mp, &feedback(seq, 0.0, -251.0), [0.0, 0.0, -251.0]);
         assert!(!m.valid());
-        assert_eq!(m.force_at(&mp, &[0.0, 0.0, -250.1], 1e3, dt), [0.0; 3]);
+        assert_eq!(m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt), [0.0; 3]);
     }
 }
