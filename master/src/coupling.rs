@@ -107,7 +107,7 @@ impl Default for ModelParams {
             stiffness_max_n_per_mm: 50.0,
             stiffness_initial_n_per_mm: 5.0,
             contact_n: 1.0,
-            estimator_time_constant_s: 0.05,
+            estimator_time_constant_s: 0.3,
             plane_rate_mm_per_s: 2.0,
             hold_ms: 500.0,
         }
