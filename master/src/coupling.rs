@@ -735,6 +735,11 @@ mod tests {
             m.observe(&mp, &feedback(seq, wall(z_meas), z_meas), [0.0, 0.0, z_cmd]);
             z_cmd -= 0.001;
         }
+        // Held there for a second (the estimator's time constant is 0.3 s).
+        for _ in 0..1000 {
+            seq += 1;
+            m.observe(&mp, &feedback(seq, wall(z_meas), z_meas), [0.0, 0.0, z_cmd]);
+        }
         assert!((m.k_hat - 100.0).abs() < 10.0, "{}", m.k_hat);
         assert!(
             (m.servo_mm_per_n - servo).abs() < 5e-4,
