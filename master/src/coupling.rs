@@ -87,7 +87,7 @@ pub struct ModelParams {
     pub stiffness_max_n_per_mm: f64,
     /// Stiffness assumed before the first estimate, N/mm at the slave.
     pub stiffness_initial_n_per_mm: f64,
-    /// Slave force along the normal above which a feedback sample counts as contact, N.
+    /// Measured slave force above which a feedback sample counts as contact, N.
     pub contact_n: f64,
     /// Time constant of the stiffness estimator's forgetting, s.
     pub estimator_time_constant_s: f64,
@@ -115,11 +115,12 @@ impl Default for ModelParams {
 }
 
 /// The master's local model of the slave's contact: a plane (normal, position) and its
-/// stiffness, estimated from the feedback (measured slave pose and force); no wire
-/// change. In contact the plane used for rendering is placed so that the model reproduces
-/// the latest measured force at the latest measured position (with the rendered
-/// stiffness); out of contact the last estimated plane is kept until the slave is seen
-/// beyond it without a force.
+/// stiffness, estimated from the feedback (measured slave pose and force, and the command
+/// it echoes); no wire change. In contact the plane used for rendering is placed so that
+/// the model reproduces the latest measured force at the commanded position that produced
+/// it (with the rendered stiffness: the surface in series with the slave's servo, capped);
+/// out of contact the last estimated plane is kept until the slave is seen beyond it
+/// without a force. A plane that would push the handle out moves at most at the plane rate.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ContactModel {
     normal: [f64; 3],
@@ -242,11 +243,6 @@ impl ContactModel {
         dot3(&self.normal, &rel)
     }
 
-    /// The estimated surface normal (unit; meaningless before the first contact).
-    pub fn normal(&self) -> [f64; 3] {
-        self.normal
-    }
-
     /// A surface is known (in contact now, or remembered).
     pub fn valid(&self) -> bool {
         self.plane_valid && self.has_normal
@@ -352,13 +348,9 @@ pub struct MasterCoupling {
     filtered_n: [f64; 3],
     /// The local contact model (model-mediated rendering).
     pub model: ContactModel,
-    tangential_n: [f64; 3],
     /// The slave targets sent, by sequence number (ring; allocated once).
     sent: Vec<(u64, [f64; 3])>,
 }
-
-/// Render the tangential (friction) force measured at the slave with the model.
-const RENDER_TANGENTIAL: bool = false;
 
 /// The commanded and measured slave positions agree within this when the servo
 /// compliance is learnt (more: drift or a force guard), mm.
@@ -369,9 +361,6 @@ const SERVO_COMPLIANCE_MAX_MM_PER_N: f64 = 0.02;
 
 /// Time constant of the contact model's normal estimate, s.
 const NORMAL_TIME_CONSTANT_S: f64 = 2.0;
-
-/// Cut-off of the low-pass on the tangential (friction) force rendered with the model, Hz.
-const TANGENTIAL_FILTER_HZ: f64 = 5.0;
 
 /// Commands remembered for the contact model (≥ the longest round trip in cycles).
 const SENT_HISTORY: usize = 8192;
@@ -400,7 +389,6 @@ impl MasterCoupling {
             local_n: [0.0; 3],
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
-            tangential_n: [0.0; 3],
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
             p,
         }
@@ -554,25 +542,10 @@ impl MasterCoupling {
                 let k_max_slave = p.model.stiffness_max_n_per_mm / (p.force_scale * p.motion_scale);
                 let d = [target[0], target[1], target[2]];
                 let f = self.model.force_at(&p.model, &d, k_max_slave, dt_s);
-                // Along the surface (friction) the measured force is rendered as it comes:
-                // the model covers the normal direction only.
-                let mut ft = [0.0; 3];
-                if let (true, Some(fb)) = (RENDER_TANGENTIAL, &self.feedback) {
-                    let n = self.model.normal();
-                    let w = [
-                        fb.wrench_measured[0],
-                        fb.wrench_measured[1],
-                        fb.wrench_measured[2],
-                    ];
-                    let wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2];
-                    for i in 0..3 {
-                        ft[i] = w[i] - wn * n[i];
-                    }
-                }
-                let a = 1.0 - (-2.0 * std::f64::consts::PI * TANGENTIAL_FILTER_HZ * dt_s).exp();
-                for i in 0..3 {
-                    self.tangential_n[i] += a * (ft[i] - self.tangential_n[i]);
-                    link_force[i] = p.force_scale * (f[i] + self.tangential_n[i]) * self.fade;
+                // Along the normal only: friction along the surface is not rendered (the
+                // delayed measured friction, tried, made the handle wander sideways).
+                for (lf, fi) in link_force.iter_mut().zip(f.iter()) {
+                    *lf = p.force_scale * fi * self.fade;
                 }
             } else if p.mode == CouplingMode::PositionForce
                 && let Some(fb) = &self.feedback
