@@ -71,8 +71,236 @@ pub struct CouplingParams {
     pub master_damping_n_s_per_mm: f64,
     /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
     pub force_filter_hz: f64,
+    /// Model-mediated rendering (position–force): the master renders a local model of the
+    /// slave's contact instead of the delayed measured force.
+    pub model: ModelParams,
     /// Arm id in the commands.
     pub arm_id: u16,
+}
+
+/// Settings of the master's local contact model (`coupling.model_*`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModelParams {
+    /// Render the local model (position–force only; `false`: the delayed slave force).
+    pub enabled: bool,
+    /// Largest stiffness the master renders, N/mm at the handle.
+    pub stiffness_max_n_per_mm: f64,
+    /// Stiffness assumed before the first estimate, N/mm at the slave.
+    pub stiffness_initial_n_per_mm: f64,
+    /// Measured slave force above which a feedback sample counts as contact, N.
+    pub contact_n: f64,
+    /// Time constant of the stiffness estimator's forgetting, s.
+    pub estimator_time_constant_s: f64,
+    /// Largest speed at which the rendered plane moves towards the operator where that
+    /// pushes the handle out, mm/s at the slave (a newly learnt or moved surface is not
+    /// rendered as a force step).
+    pub plane_rate_mm_per_s: f64,
+    /// Feedback silence after which the model's force fades (instead of
+    /// `CouplingParams::feedback_timeout_ms`), ms.
+    pub hold_ms: f64,
+}
+
+impl Default for ModelParams {
+    fn default() -> Self {
+        ModelParams {
+            enabled: true,
+            stiffness_max_n_per_mm: 50.0,
+            stiffness_initial_n_per_mm: 5.0,
+            contact_n: 1.0,
+            estimator_time_constant_s: 0.3,
+            plane_rate_mm_per_s: 2.0,
+            hold_ms: 500.0,
+        }
+    }
+}
+
+/// The master's local model of the slave's contact: a plane (normal, position) and its
+/// stiffness, estimated from the feedback (measured slave pose and force, and the command
+/// it echoes); no wire change. In contact the plane used for rendering is placed so that
+/// the model reproduces the latest measured force at the commanded position that produced
+/// it (with the rendered stiffness: the surface in series with the slave's servo, capped);
+/// out of contact the last estimated plane is kept until the slave is seen beyond it
+/// without a force. A plane that would push the handle out moves at most at the plane rate.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ContactModel {
+    normal: [f64; 3],
+    has_normal: bool,
+    /// Estimated stiffness, N/mm (slave); 0 = none yet.
+    pub k_hat: f64,
+    origin: [f64; 3],
+    /// Estimated servo compliance of the slave (measured minus commanded position per
+    /// newton along the normal), mm/N.
+    pub servo_mm_per_n: f64,
+    contact: bool,
+    s_meas: f64,
+    f_meas: f64,
+    plane: f64,
+    plane_valid: bool,
+    p_used: f64,
+    used_valid: bool,
+    last_fb_ns: Option<u64>,
+    /// Model force along the normal rendered last cycle, N (slave).
+    pub force_n: f64,
+}
+
+fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+impl ContactModel {
+    /// Learns from one accepted feedback message (slave frame): the measured pose and
+    /// force it carries, and `commanded_mm`, the slave position the master sent in the
+    /// command the feedback echoes. The surface (plane and stiffness) is estimated from the
+    /// measured pose, which is right even when the slave could not go where it was sent
+    /// (passivity drift, force guard); the slave's position-servo compliance (measured
+    /// minus commanded per newton) from the two when they agree, so that the model
+    /// relates force to the *commanded* position the master controls.
+    pub fn observe(&mut self, mp: &ModelParams, fb: &Feedback, commanded_mm: [f64; 3]) {
+        let fv = [
+            fb.wrench_measured[0],
+            fb.wrench_measured[1],
+            fb.wrench_measured[2],
+        ];
+        let pos = [fb.pose[0], fb.pose[1], fb.pose[2]];
+        if !fv
+            .iter()
+            .chain(pos.iter())
+            .chain(commanded_mm.iter())
+            .all(|x| x.is_finite())
+        {
+            return;
+        }
+        let dt_s = self
+            .last_fb_ns
+            .map_or(1e-3, |t| fb.send_time_ns.saturating_sub(t) as f64 * 1e-9)
+            .clamp(1e-4, 1.0);
+        self.last_fb_ns = Some(fb.send_time_ns);
+        let fmag = norm3(&fv);
+        if fmag > mp.contact_n {
+            let u = [fv[0] / fmag, fv[1] / fmag, fv[2] / fmag];
+            if !self.has_normal {
+                self.normal = u;
+                self.has_normal = true;
+            } else {
+                let a = (dt_s / NORMAL_TIME_CONSTANT_S).min(1.0) * (fmag / (fmag + 5.0));
+                let mut n = [0.0; 3];
+                for i in 0..3 {
+                    n[i] = self.normal[i] + a * (u[i] - self.normal[i]);
+                }
+                let l = norm3(&n);
+                if l > 1e-9 {
+                    self.normal = [n[0] / l, n[1] / l, n[2] / l];
+                }
+            }
+            if !self.contact {
+                // A new touch: the force crossed the contact threshold here; positions
+                // along the normal are measured from this point (a projection of the
+                // absolute position would move with every small turn of the normal).
+                self.origin = pos;
+            }
+            let s = self.along_normal(&pos);
+            let s_ref = self.along_normal(&commanded_mm);
+            let f = dot3(&self.normal, &fv);
+            // Secant stiffness from the touch point (quasi-static, robust to the contact's
+            // dynamics), low-passed; kept across touches until new data replaces it.
+            let a = (dt_s / mp.estimator_time_constant_s.max(1e-3)).min(1.0);
+            let depth = -s;
+            if depth > 0.02 && f > 2.0 * mp.contact_n {
+                let k = ((f - mp.contact_n) / depth).clamp(0.05, 1e4);
+                if self.k_hat > 0.0 {
+                    self.k_hat += a * (k - self.k_hat);
+                } else {
+                    self.k_hat = k;
+                }
+            }
+            // Servo compliance, while the slave is where it was sent (no drift).
+            let lag = s - s_ref;
+            if f > 2.0 * mp.contact_n && lag.abs() < SERVO_AGREEMENT_MM {
+                let c = (lag / f).clamp(0.0, SERVO_COMPLIANCE_MAX_MM_PER_N);
+                self.servo_mm_per_n += a * (c - self.servo_mm_per_n);
+            }
+            self.contact = true;
+            self.s_meas = s;
+            self.f_meas = f.max(0.0);
+            let k = self.k_est(mp);
+            self.plane = s + self.f_meas / k;
+            self.plane_valid = true;
+        } else {
+            self.contact = false;
+            if self.plane_valid && self.along_normal(&pos) < self.plane - 0.5 {
+                // Beyond the remembered surface with no force: it is not there (any more).
+                self.plane_valid = false;
+            }
+        }
+    }
+
+    fn along_normal(&self, p: &[f64; 3]) -> f64 {
+        let rel = [
+            p[0] - self.origin[0],
+            p[1] - self.origin[1],
+            p[2] - self.origin[2],
+        ];
+        dot3(&self.normal, &rel)
+    }
+
+    /// A surface is known (in contact now, or remembered).
+    pub fn valid(&self) -> bool {
+        self.plane_valid && self.has_normal
+    }
+
+    /// Forgets where the rendered plane was (it is placed again at the handle).
+    pub fn reset_used(&mut self) {
+        self.used_valid = false;
+    }
+
+    fn k_est(&self, mp: &ModelParams) -> f64 {
+        if self.k_hat > 0.0 {
+            self.k_hat
+        } else {
+            mp.stiffness_initial_n_per_mm
+        }
+    }
+
+    /// The model's force on the slave at the slave position `desired_mm` (slave frame),
+    /// as a vector along the normal, N; `k_max_slave` the largest stiffness rendered
+    /// (N/mm at the slave).
+    pub fn force_at(
+        &mut self,
+        mp: &ModelParams,
+        desired_mm: &[f64; 3],
+        k_max_slave: f64,
+        dt_s: f64,
+    ) -> [f64; 3] {
+        if !self.plane_valid || !self.has_normal {
+            self.force_n = 0.0;
+            self.used_valid = false;
+            return [0.0; 3];
+        }
+        // Stiffness from the commanded position to the force: the surface in series with
+        // the slave's servo compliance.
+        let k_series = 1.0 / (1.0 / self.k_est(mp) + self.servo_mm_per_n);
+        let k_r = k_series.min(k_max_slave).max(1e-3);
+        let p_r = if self.contact {
+            // The model gives the measured force where the slave would be commanded to
+            // measure it.
+            self.s_meas - self.servo_mm_per_n * self.f_meas + self.f_meas / k_r
+        } else {
+            self.plane
+        };
+        let s_d = self.along_normal(desired_mm);
+        // The plane used moves inwards at once (less force) and outwards freely up to the
+        // handle's position (no force is created); beyond that, where it would push the
+        // handle out, at most `plane_rate_mm_per_s`.
+        if !self.used_valid || p_r <= self.p_used {
+            self.p_used = if self.used_valid { p_r } else { p_r.min(s_d) };
+            self.used_valid = true;
+        } else {
+            self.p_used = p_r.min((self.p_used + mp.plane_rate_mm_per_s * dt_s).max(s_d));
+        }
+        let f = (k_r * (self.p_used - s_d)).max(0.0);
+        self.force_n = f;
+        [f * self.normal[0], f * self.normal[1], f * self.normal[2]]
+    }
 }
 
 /// One cycle of the master.
@@ -118,7 +346,24 @@ pub struct MasterCoupling {
     velocity: [f64; 3],
     local_n: [f64; 3],
     filtered_n: [f64; 3],
+    /// The local contact model (model-mediated rendering).
+    pub model: ContactModel,
+    /// The slave targets sent, by sequence number (ring; allocated once).
+    sent: Vec<(u64, [f64; 3])>,
 }
+
+/// The commanded and measured slave positions agree within this when the servo
+/// compliance is learnt (more: drift or a force guard), mm.
+const SERVO_AGREEMENT_MM: f64 = 0.3;
+
+/// Largest servo compliance the model accepts, mm/N.
+const SERVO_COMPLIANCE_MAX_MM_PER_N: f64 = 0.02;
+
+/// Time constant of the contact model's normal estimate, s.
+const NORMAL_TIME_CONSTANT_S: f64 = 2.0;
+
+/// Commands remembered for the contact model (≥ the longest round trip in cycles).
+const SENT_HISTORY: usize = 8192;
 
 fn norm3(v: &[f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
@@ -143,6 +388,8 @@ impl MasterCoupling {
             velocity: [0.0; 3],
             local_n: [0.0; 3],
             filtered_n: [0.0; 3],
+            model: ContactModel::default(),
+            sent: vec![(0, [0.0; 3]); SENT_HISTORY],
             p,
         }
     }
@@ -165,6 +412,10 @@ impl MasterCoupling {
     /// Hands the coupling a feedback message the gate accepted at `now_ns`.
     pub fn receive(&mut self, fb: &Feedback, now_ns: u64) {
         self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        let slot = &self.sent[(fb.echo_seq % SENT_HISTORY as u64) as usize];
+        if slot.0 == fb.echo_seq && fb.echo_seq > 0 {
+            self.model.observe(&self.p.model, fb, slot.1);
+        }
         self.feedback = Some(*fb);
         self.last_feedback_ns = Some(now_ns);
     }
@@ -209,7 +460,14 @@ impl MasterCoupling {
             .last_feedback_ns
             .map_or(f64::INFINITY, |t| now_ns.saturating_sub(t) as f64 * 1e-6);
         let rate = dt_s * 1e3 / p.fade_ms.max(1e-3);
-        self.fade = if silent_ms > p.feedback_timeout_ms {
+        // The local model needs no fresh feedback to render the contact: it holds through
+        // a longer silence than the delayed force would.
+        let timeout_ms = if p.mode == CouplingMode::PositionForce && p.model.enabled {
+            p.model.hold_ms
+        } else {
+            p.feedback_timeout_ms
+        };
+        self.fade = if silent_ms > timeout_ms {
             (self.fade - rate).max(0.0)
         } else {
             (self.fade + rate).min(1.0)
@@ -275,7 +533,21 @@ impl MasterCoupling {
                     *v *= s;
                 }
             }
-            if p.mode == CouplingMode::PositionForce
+            if p.mode == CouplingMode::PositionForce && p.model.enabled && self.model.valid() {
+                if self.fade < 1.0 {
+                    // Feedback silent: on its return the plane is placed where the handle
+                    // is and moves out only at the plane rate (no force step).
+                    self.model.reset_used();
+                }
+                let k_max_slave = p.model.stiffness_max_n_per_mm / (p.force_scale * p.motion_scale);
+                let d = [target[0], target[1], target[2]];
+                let f = self.model.force_at(&p.model, &d, k_max_slave, dt_s);
+                // Along the normal only: friction along the surface is not rendered (the
+                // delayed measured friction, tried, made the handle wander sideways).
+                for (lf, fi) in link_force.iter_mut().zip(f.iter()) {
+                    *lf = p.force_scale * fi * self.fade;
+                }
+            } else if p.mode == CouplingMode::PositionForce
                 && let Some(fb) = &self.feedback
             {
                 for (lf, w) in link_force.iter_mut().zip(fb.wrench_measured.iter()) {
@@ -373,6 +645,7 @@ impl MasterCoupling {
             }
         };
         let t = self.last.slave_target;
+        self.sent[(self.seq % SENT_HISTORY as u64) as usize] = (self.seq, [t[0], t[1], t[2]]);
         Command {
             seq: self.seq,
             send_time_ns: now_ns,
@@ -388,5 +661,88 @@ impl MasterCoupling {
             reserved: 0,
             flags: if self.clutched { CMD_FLAG_CLUTCH } else { 0 },
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Feedback with the slave measured at `z_mm` (a servo compliance of 0.002 mm/N
+    /// behind the commanded position) under a force `z_force_n`.
+    fn feedback(seq: u64, z_force_n: f64, z_mm: f64) -> Feedback {
+        Feedback {
+            seq,
+            send_time_ns: seq * 1_000_000,
+            echo_seq: seq,
+            pose: [0.0, 0.0, z_mm, 0.0],
+            wrench_measured: [0.0, 0.0, z_force_n, 0.0],
+            ..Feedback::default()
+        }
+    }
+
+    /// The model learns a 100 N/mm plane from commanded positions and measured forces,
+    /// renders it locally, keeps it out of contact, forgets it when the slave is seen
+    /// beyond it without a force, and never pushes the handle out faster than the plane
+    /// rate.
+    #[test]
+    fn contact_model_learns_renders_and_forgets_a_plane() {
+        let mp = ModelParams {
+            enabled: true,
+            ..ModelParams::default()
+        };
+        let wall = |z: f64| (100.0 * (-250.0 - z)).max(0.0);
+        let mut m = ContactModel::default();
+        let mut seq = 0;
+        // Pressing in slowly: the commanded position 0.001 mm per message down to about
+        // 0.2 mm deep; the measured one lags it by the servo compliance (the force makes
+        // the position it is measured at: solved by a few fixed-point steps).
+        let servo = 0.002;
+        let mut z_cmd = -249.9;
+        let mut z_meas = z_cmd;
+        while z_cmd > -250.25 {
+            for _ in 0..20 {
+                z_meas = z_cmd + servo * wall(z_meas);
+            }
+            seq += 1;
+            m.observe(&mp, &feedback(seq, wall(z_meas), z_meas), [0.0, 0.0, z_cmd]);
+            z_cmd -= 0.001;
+        }
+        // Held there for a second (the estimator's time constant is 0.3 s).
+        for _ in 0..1000 {
+            seq += 1;
+            m.observe(&mp, &feedback(seq, wall(z_meas), z_meas), [0.0, 0.0, z_cmd]);
+        }
+        assert!((m.k_hat - 100.0).abs() < 10.0, "{}", m.k_hat);
+        assert!(
+            (m.servo_mm_per_n - servo).abs() < 5e-4,
+            "{}",
+            m.servo_mm_per_n
+        );
+        assert!(m.valid());
+        // Rendered where the handle is above the plane: nothing; commanded 0.12 mm deep:
+        // the series stiffness (100 N/mm with 0.002 mm/N: 83 N/mm), ~10 N.
+        let dt = 1e-3;
+        let f = m.force_at(&mp, &[0.0, 0.0, -249.0], 1e3, dt);
+        assert_eq!(f, [0.0; 3]);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt);
+        assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
+        // Lifted off: the plane is remembered.
+        seq += 1;
+        m.observe(&mp, &feedback(seq, 0.0, -249.0), [0.0, 0.0, -249.0]);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt);
+        assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
+        // Placed again at the handle (e.g. after a feedback gap): the force grows only at
+        // the plane rate while the handle holds still.
+        m.reset_used();
+        let f0 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt)[2];
+        let f1 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt)[2];
+        assert!(f0.abs() < 1e-9, "{f0}");
+        assert!(f1 <= 100.0 * mp.plane_rate_mm_per_s * dt + 1e-9, "{f1}");
+        // The slave is seen 1 mm beyond the plane with no force: the surface is gone.
+        seq += 1;
+        m.observe(&mp, &feedback(seq, 0.0, -251.0), [0.0, 0.0, -251.0]);
+        assert!(!m.valid());
+        assert_eq!(m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt), [0.0; 3]);
     }
 }

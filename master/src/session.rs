@@ -27,7 +27,7 @@ use h4_transport::impair::{Impaired, ImpairmentConfig, LinkEvent};
 use h4_transport::inproc::{self, InprocEnd};
 use serde::{Deserialize, Serialize};
 
-use crate::coupling::{CouplingMode, CouplingParams, MasterCoupling, MasterStep};
+use crate::coupling::{CouplingMode, CouplingParams, MasterCoupling, MasterStep, ModelParams};
 use crate::device::{HapticDevice, MasterArmConfig, SimMasterArm};
 use crate::operator::{HandConfig, IntentError, IntentSegment, Operator, Script};
 
@@ -127,6 +127,20 @@ pub struct CouplingConfig {
     /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
     /// (0: unfiltered).
     pub force_filter_hz: f64,
+    /// Model-mediated rendering (position–force): a local model of the slave's contact.
+    pub model: bool,
+    /// Largest stiffness the local model renders at the handle, N/mm.
+    pub model_stiffness_max_n_per_mm: f64,
+    /// Stiffness the model assumes before its first estimate, N/mm at the slave.
+    pub model_stiffness_initial_n_per_mm: f64,
+    /// Slave force above which feedback counts as contact for the model, N.
+    pub model_contact_n: f64,
+    /// Forgetting time constant of the model's stiffness estimator, s.
+    pub model_estimator_time_constant_s: f64,
+    /// Largest speed at which the model's plane pushes the handle out, mm/s at the slave.
+    pub model_plane_rate_mm_per_s: f64,
+    /// Feedback silence after which the model's force fades out, ms.
+    pub model_hold_ms: f64,
 }
 
 impl Default for CouplingConfig {
@@ -141,6 +155,13 @@ impl Default for CouplingConfig {
             guide_approach_depth_mm: 20.0,
             master_damping_n_s_per_mm: 0.3,
             force_filter_hz: 0.0,
+            model: ModelParams::default().enabled,
+            model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
+            model_stiffness_initial_n_per_mm: ModelParams::default().stiffness_initial_n_per_mm,
+            model_contact_n: ModelParams::default().contact_n,
+            model_estimator_time_constant_s: ModelParams::default().estimator_time_constant_s,
+            model_plane_rate_mm_per_s: ModelParams::default().plane_rate_mm_per_s,
+            model_hold_ms: ModelParams::default().hold_ms,
         }
     }
 }
@@ -363,6 +384,42 @@ impl Validate for SessionConfig {
             500.0,
             "Hz",
         )?;
+        check_range(
+            "coupling.model_stiffness_max_n_per_mm",
+            c.model_stiffness_max_n_per_mm,
+            0.01,
+            1000.0,
+            "N/mm",
+        )?;
+        check_range(
+            "coupling.model_stiffness_initial_n_per_mm",
+            c.model_stiffness_initial_n_per_mm,
+            0.01,
+            1e4,
+            "N/mm",
+        )?;
+        check_range(
+            "coupling.model_contact_n",
+            c.model_contact_n,
+            0.01,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            "coupling.model_estimator_time_constant_s",
+            c.model_estimator_time_constant_s,
+            0.001,
+            100.0,
+            "s",
+        )?;
+        check_range(
+            "coupling.model_plane_rate_mm_per_s",
+            c.model_plane_rate_mm_per_s,
+            0.0,
+            1e4,
+            "mm/s",
+        )?;
+        check_range("coupling.model_hold_ms", c.model_hold_ms, 1.0, 1e5, "ms")?;
         check_range(
             "coupling.guide_approach_depth_mm",
             c.guide_approach_depth_mm,
@@ -887,6 +944,15 @@ impl Session {
             guide_approach_depth_mm: cfg.coupling.guide_approach_depth_mm,
             master_damping_n_s_per_mm: cfg.coupling.master_damping_n_s_per_mm,
             force_filter_hz: cfg.coupling.force_filter_hz,
+            model: ModelParams {
+                enabled: cfg.coupling.model,
+                stiffness_max_n_per_mm: cfg.coupling.model_stiffness_max_n_per_mm,
+                stiffness_initial_n_per_mm: cfg.coupling.model_stiffness_initial_n_per_mm,
+                contact_n: cfg.coupling.model_contact_n,
+                estimator_time_constant_s: cfg.coupling.model_estimator_time_constant_s,
+                plane_rate_mm_per_s: cfg.coupling.model_plane_rate_mm_per_s,
+                hold_ms: cfg.coupling.model_hold_ms,
+            },
             arm_id: 0,
         });
         let master = MasterSide {

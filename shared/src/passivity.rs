@@ -59,7 +59,7 @@ impl Default for PassivityParams {
             enabled: true,
             max_damping_n_s_per_mm: 2.0,
             max_correction_mm_per_s: 200.0,
-            drift_gain_per_s: 2.0,
+            drift_gain_per_s: 10.0,
             drift_energy_share: 0.2,
             force_floor_n: 0.3,
             damping_release_ms: 20.0,
