@@ -26,7 +26,7 @@
 
 use h4_shared::kinematics::{ActuatorStiffness, KinError, Pose, Workspace};
 use h4_shared::wire::Mode;
-use nalgebra::{Matrix3, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 use serde::{Deserialize, Serialize};
 
 use crate::filter::Butterworth2;
@@ -364,7 +364,8 @@ enum SafeStopPhase {
 #[derive(Clone, Debug)]
 pub struct SlaveController {
     ws: Workspace,
-    stiffness: ActuatorStiffness,
+    /// 1/k of each actuator (the assumed stiffness), mm/N.
+    actuator_compliance: [f64; 4],
     p: ControllerParams,
     initialised: bool,
     cycles: u64,
@@ -420,7 +421,7 @@ impl SlaveController {
         let c_env = 1.0 / params.initial_env_stiffness_n_per_mm.max(1e-6);
         SlaveController {
             ws,
-            stiffness: assumed_stiffness,
+            actuator_compliance: assumed_stiffness.n_per_mm.map(|k| 1.0 / k).into(),
             p: params,
             initialised: false,
             cycles: 0,
@@ -571,7 +572,7 @@ impl SlaveController {
 
         // Compliance of the arm at the measured pose (assumed actuator stiffness).
         let full_lambda = if self.p.compliance_model {
-            self.ws.params.compliance(&pose_fk, &self.stiffness).ok()
+            self.compliance(&pose_fk)
         } else {
             None
         };
@@ -581,10 +582,7 @@ impl SlaveController {
         let guard_lambda: Option<Matrix3<f64>> = match lambda {
             Some(l) => Some(l),
             None => self
-                .ws
-                .params
-                .compliance(&pose_fk, &self.stiffness)
-                .ok()
+                .compliance(&pose_fk)
                 .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned()),
         };
         let measured_pose = match &full_lambda {
@@ -945,7 +943,9 @@ impl SlaveController {
         // stiff surface ω_m is far above the filter's cut-off and the tuned gains pass;
         // on a soft one ω_m sits at the cut-off: the proportional gain (which acts at
         // high frequency) goes first, then the integral gain.
-        let c_arm_s = self.arm_compliance(lambda.as_ref()).max(1e-9);
+        // The arm's compliance along the (updated) normal, from the model.
+        let c_arm = self.arm_compliance(lambda.as_ref());
+        let c_arm_s = c_arm.max(1e-9);
         let k_par = 1.0 / c_arm_s + 1.0 / self.c_env.max(1e-9);
         let omega_m = (1000.0 * k_par / self.p.tool_mass_kg.max(1e-6)).sqrt();
         let w_f = omega_m / (2.0 * std::f64::consts::PI * self.p.sensor_filter_cutoff_hz.max(1.0));
@@ -966,7 +966,6 @@ impl SlaveController {
         let d_sp = self.sp2 - sp_prev;
 
         // Compliance along the normal: the arm's (model) plus the environment's (estimate).
-        let c_arm = self.arm_compliance(lambda.as_ref());
         if self.p.estimate_env_stiffness && self.contact_cycles as usize > win {
             let d_f = self.hist_f[self.hist_head].dot(&n) - self.hist_f[old].dot(&n);
             let xo = self.hist_x[old];
@@ -1083,8 +1082,12 @@ impl SlaveController {
         // compliance (the contact up to twice as stiff as measured) instead of a rigid one.
         let c_measured = if self.p.estimate_env_stiffness && self.est_updates >= GUARD_TRUST_UPDATES
         {
-            GUARD_MEASURED_COMPLIANCE_SHARE
-                * (self.arm_compliance(guard_lambda.as_ref()) + self.c_env)
+            let c_arm_guard = if self.p.compliance_model {
+                c_arm
+            } else {
+                self.arm_compliance(guard_lambda.as_ref())
+            };
+            GUARD_MEASURED_COMPLIANCE_SHARE * (c_arm_guard + self.c_env)
         } else {
             0.0
         };
@@ -1137,7 +1140,7 @@ impl SlaveController {
     ) -> bool {
         let n = self.normal;
         let c_rigid = (match lambda {
-            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            Some(l) => quad_form(l, &n).max(0.0),
             None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
         } / GUARD_ARM_STIFFNESS_MARGIN)
             .max(c_measured);
@@ -1174,7 +1177,7 @@ impl SlaveController {
     ) -> bool {
         let n = f3 / f_mag;
         let c_rigid = match lambda {
-            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            Some(l) => quad_form(l, &n).max(0.0),
             None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
         } / GUARD_ARM_STIFFNESS_MARGIN;
         // 5 % of the limit is kept for the sensor's filter lag and noise.
@@ -1192,11 +1195,29 @@ impl SlaveController {
         true
     }
 
+    /// The arm's compliance `Λ = J⁻¹ diag(1/k) J⁻ᵀ` at `pose` for the assumed actuator
+    /// stiffness (as [`h4_shared::kinematics::H4Params::compliance`], written out: the
+    /// symmetric product of a 4×4 matrix, ten entries).
+    fn compliance(&self, pose: &Pose) -> Option<Matrix4<f64>> {
+        let inv = self.ws.params.jacobian_inverse(pose).ok()?;
+        let c = &self.actuator_compliance;
+        let mut lam = Matrix4::zeros();
+        for i in 0..4 {
+            for j in i..4 {
+                let v = inv[(i, 0)] * c[0] * inv[(j, 0)]
+                    + inv[(i, 1)] * c[1] * inv[(j, 1)]
+                    + inv[(i, 2)] * c[2] * inv[(j, 2)]
+                    + inv[(i, 3)] * c[3] * inv[(j, 3)];
+                lam[(i, j)] = v;
+                lam[(j, i)] = v;
+            }
+        }
+        Some(lam)
+    }
+
     fn arm_compliance(&self, lambda: Option<&Matrix3<f64>>) -> f64 {
         match lambda {
-            Some(l) if self.normal.norm() > 0.5 => {
-                (self.normal.transpose() * l * self.normal)[(0, 0)].max(0.0)
-            }
+            Some(l) if self.normal.norm_squared() > 0.25 => quad_form(l, &self.normal).max(0.0),
             _ => 0.0,
         }
     }
@@ -1210,7 +1231,7 @@ impl SlaveController {
     ) {
         let dir = f3 / f_mag;
         let c = match lambda {
-            Some(l) => (dir.transpose() * l * dir)[(0, 0)].max(0.0),
+            Some(l) => quad_form(l, &dir).max(0.0),
             None => 0.0,
         } + self.c_env;
         let step = (c * (f_mag - self.p.force_limit_n)).min(self.p.max_speed_mm_per_s * 0.001);
@@ -1297,4 +1318,14 @@ impl SlaveController {
             }
         }
     }
+}
+
+/// `nᵀ L n`.
+#[inline]
+fn quad_form(l: &Matrix3<f64>, n: &Vector3<f64>) -> f64 {
+    let mut s = 0.0;
+    for i in 0..3 {
+        s += n[i] * (l[(i, 0)] * n[0] + l[(i, 1)] * n[1] + l[(i, 2)] * n[2]);
+    }
+    s
 }
