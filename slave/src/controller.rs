@@ -314,6 +314,24 @@ const ONSET_CYCLES: u32 = 20;
 /// filtered sensor shows it (a sine of amplitude A near 100 Hz swings ≈ 0.4 A per 1 ms,
 /// and the 80 Hz filter shows ≈ 0.55 A of it).
 const GUARD_PEAK_PER_SWING: f64 = 5.0;
+/// Share of `contact_threshold_n` that counts as contact when the force stays above it
+/// for [`CONTACT_ONSET_CYCLES`] cycles (10 × the filtered noise's standard deviation).
+const CONTACT_ONSET_FRACTION: f64 = 0.5;
+/// Consecutive cycles above the onset level that count as contact.
+const CONTACT_ONSET_CYCLES: u32 = 3;
+/// Length of the input shaper's history, cycles (its longest span, a full period of the
+/// contact mode, is at most `SHAPER_LEN − 2`: modes down to ≈ 33 Hz).
+const SHAPER_LEN: usize = 32;
+/// Share of the contact mode's stiffness held by the environment up to which the motion
+/// into the surface is fully shaped (k_env ≤ k_arm / 9: 5–35 N/mm on the prototype).
+const SHAPER_FULL_SHARE: f64 = 0.1;
+/// Share from which it is not shaped at all (k_env ≥ 0.43 k_arm: ≈ 140 N/mm and stiffer).
+const SHAPER_NONE_SHARE: f64 = 0.3;
+/// Touch-down estimate: the force along the normal below which the approach counts as not
+/// yet touching (≈ 5 × the filtered noise), N.
+const TOUCHDOWN_FLOOR_N: f64 = 0.2;
+/// Touch-down estimate: fewest cycles of force build-up before the contact threshold.
+const TOUCHDOWN_MIN_CYCLES: usize = 10;
 /// Force guard: the arm may be this much stiffer than assumed.
 const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
 /// Force guard: estimator updates on this contact before its figure is used.
@@ -404,7 +422,14 @@ pub struct SlaveController {
     hist_x: [[f64; 3]; WINDOW_MAX],
     hist_f: [Vector3<f64>; WINDOW_MAX],
     hist_head: usize,
+    /// Past increments of the motion into the surface (input shaper), newest at
+    /// `shaper_head`, mm.
+    shaper_hist: [f64; SHAPER_LEN],
+    shaper_head: usize,
     contact_cycles: u32,
+    /// Consecutive approach cycles with the force above [`CONTACT_ONSET_FRACTION`] of the
+    /// contact threshold.
+    onset_cycles: u32,
     safe: SafeStopPhase,
     last: ControllerOutput,
 }
@@ -456,7 +481,10 @@ impl SlaveController {
             hist_x: [[0.0; 3]; WINDOW_MAX],
             hist_f: [Vector3::zeros(); WINDOW_MAX],
             hist_head: 0,
+            shaper_hist: [0.0; SHAPER_LEN],
+            shaper_head: 0,
             contact_cycles: 0,
+            onset_cycles: 0,
             safe: SafeStopPhase::Inactive,
             last: ControllerOutput {
                 actuators_cmd_mm: [0.0; 4],
@@ -785,8 +813,18 @@ impl SlaveController {
         next[3] += dth;
         let status;
         if !self.in_contact {
-            if f_mag > self.p.contact_threshold_n {
+            // Contact: the force crosses the threshold, or it has stayed above half of it
+            // for a few cycles in a row (a soft surface, on which the force builds up
+            // slowly: 0.8 N takes ≈ 80 ms of the approach on 5 N/mm). A stiff surface
+            // crosses the threshold itself within a cycle or two.
+            if f_mag > CONTACT_ONSET_FRACTION * self.p.contact_threshold_n {
+                self.onset_cycles = self.onset_cycles.saturating_add(1);
+            } else {
+                self.onset_cycles = 0;
+            }
+            if f_mag > self.p.contact_threshold_n || self.onset_cycles >= CONTACT_ONSET_CYCLES {
                 // First touch (or touch again): bumpless start of the force loop.
+                self.onset_cycles = 0;
                 self.in_contact = true;
                 self.ever_contact = true;
                 self.lost = false;
@@ -798,11 +836,16 @@ impl SlaveController {
                 self.e_prev = 0.0;
                 self.de_prev = 0.0;
                 self.depth_step_mm = 0.0;
+                self.shaper_hist = [0.0; SHAPER_LEN];
                 self.contact_cycles = 0;
                 self.track_speed = 0.0;
                 self.p_rls = 100.0;
                 self.est_updates = 0;
-                self.c_tot = self.arm_compliance(lambda.as_ref()) + self.c_env;
+                let c_arm_touch = self.arm_compliance(lambda.as_ref());
+                self.c_tot = c_arm_touch + self.c_env;
+                if self.p.estimate_env_stiffness {
+                    self.seed_from_touchdown(c_arm_touch);
+                }
                 status = Status::Contact;
             } else {
                 // Approach: towards the commanded point, or along the last normal.
@@ -1059,6 +1102,15 @@ impl SlaveController {
             d_depth = d_depth.clamp(self.depth_step_mm - amax, self.depth_step_mm + amax);
         }
         self.depth_step_mm = d_depth;
+        // The motion into the surface, shaped so that it does not ring the contact mode
+        // (soft surfaces only; a force-limit back-off goes out unshaped).
+        let env_share = (1.0 / self.c_env.max(1e-9)) / k_par;
+        let d_shaped = self.shape_normal(d_depth, omega_m, env_share, dt);
+        let d_depth = if status == Status::ForceLimited {
+            d_depth
+        } else {
+            d_shaped
+        };
         let mut mv = -n * d_depth;
         // Motion along the surface only while the force is established.
         // The speed along the surface ramps with the tracking acceleration limit, so the
@@ -1193,6 +1245,73 @@ impl SlaveController {
             self.v_ref[i] -= n[i] * v_into;
         }
         true
+    }
+
+    /// Input shaper (zero vibration and derivative, ZVD) of the motion into the surface:
+    /// the increment `d` is spread over three impulses half a period of the contact mode
+    /// apart, weighted for the mode's damping ([`MODE_Q`]), so that the motion's corners (the
+    /// speed and acceleration limits, the set-point's start) leave no vibration of the tool
+    /// on the arm's stiffness. Only where the mode is the arm's own, lightly damped one:
+    /// fully where the environment holds at most [`SHAPER_FULL_SHARE`] of the mode's
+    /// stiffness, blended out up to [`SHAPER_NONE_SHARE`] (a stiffer surface damps the mode
+    /// itself, and the delay would only cost phase). A weighted mean of past increments, so
+    /// the speed and acceleration limits still hold. Returns the shaped increment.
+    fn shape_normal(&mut self, d: f64, omega_m: f64, env_share: f64, dt: f64) -> f64 {
+        self.shaper_head = (self.shaper_head + 1) % SHAPER_LEN;
+        self.shaper_hist[self.shaper_head] = d;
+        let blend = ((SHAPER_NONE_SHARE - env_share) / (SHAPER_NONE_SHARE - SHAPER_FULL_SHARE))
+            .clamp(0.0, 1.0);
+        if blend.is_nan() || blend <= 0.0 {
+            return d;
+        }
+        let max_half = 0.5 * (SHAPER_LEN as f64 - 2.0);
+        let half = (std::f64::consts::PI / (omega_m.max(1e-6) * dt)).clamp(0.0, max_half);
+        let k = (-std::f64::consts::PI / (4.0 * MODE_Q * MODE_Q - 1.0).sqrt()).exp();
+        let norm = 1.0 / ((1.0 + k) * (1.0 + k));
+        let zvd = norm * (d + 2.0 * k * self.shaper_at(half) + k * k * self.shaper_at(2.0 * half));
+        d + blend * (zvd - d)
+    }
+
+    /// The shaper's input `delay_cycles` ago, linearly interpolated.
+    fn shaper_at(&self, delay_cycles: f64) -> f64 {
+        let whole = delay_cycles.floor();
+        let frac = delay_cycles - whole;
+        let i = whole as usize;
+        let at =
+            |back: usize| self.shaper_hist[(self.shaper_head + SHAPER_LEN - back) % SHAPER_LEN];
+        at(i) + (at(i + 1) - at(i)) * frac
+    }
+
+    /// On a soft surface the force builds up over many cycles of the approach before it
+    /// crosses the contact threshold: the force and the (filtered, like the force) position
+    /// since the force left the noise floor measure the contact's total compliance at
+    /// touch-down, long before the estimator's window has data after it. Used only when the
+    /// build-up lasted at least [`TOUCHDOWN_MIN_CYCLES`] (a stiff surface crosses the
+    /// threshold within a cycle or two, too few to measure); the estimate then counts as
+    /// measured for the force guard.
+    fn seed_from_touchdown(&mut self, c_arm: f64) {
+        let n = self.normal;
+        let head = self.hist_head;
+        let f_now = self.hist_f[head].dot(&n);
+        let onset = (1..WINDOW_MAX)
+            .map(|back| (back, (head + WINDOW_MAX - back) % WINDOW_MAX))
+            .find(|&(_, idx)| self.hist_f[idx].dot(&n) < TOUCHDOWN_FLOOR_N);
+        let Some((cycles, idx)) = onset else {
+            return;
+        };
+        if cycles < TOUCHDOWN_MIN_CYCLES || self.cycles < WINDOW_MAX as u64 {
+            return;
+        }
+        let d_f = f_now - self.hist_f[idx].dot(&n);
+        let (xn, xo) = (self.hist_x[head], self.hist_x[idx]);
+        let d_p = -(n[0] * (xn[0] - xo[0]) + n[1] * (xn[1] - xo[1]) + n[2] * (xn[2] - xo[2]));
+        if d_f > 0.0 && d_p > 0.0 {
+            let c_min = 1.0 / self.p.env_stiffness_max_n_per_mm.max(1e-6);
+            let c_max = 1.0 / self.p.env_stiffness_min_n_per_mm.max(1e-6);
+            self.c_env = (d_p / d_f - c_arm).clamp(c_min, c_max);
+            self.c_tot = c_arm + self.c_env;
+            self.est_updates = GUARD_TRUST_UPDATES;
+        }
     }
 
     /// The arm's compliance `Λ = J⁻¹ diag(1/k) J⁻ᵀ` at `pose` for the assumed actuator
