@@ -316,7 +316,7 @@ const ONSET_CYCLES: u32 = 20;
 const GUARD_PEAK_PER_SWING: f64 = 5.0;
 /// Share of `contact_threshold_n` that counts as contact when the force stays above it
 /// for [`CONTACT_ONSET_CYCLES`] cycles (10 × the filtered noise's standard deviation).
-const CONTACT_ONSET_FRACTION: f64 = 0.5;
+const CONTACT_ONSET_FRACTION: f64 = 0.375;
 /// Consecutive cycles above the onset level that count as contact.
 const CONTACT_ONSET_CYCLES: u32 = 3;
 /// Length of the input shaper's history, cycles (its longest span, a full period of the
