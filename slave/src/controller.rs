@@ -614,7 +614,7 @@ impl SlaveController {
                 .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned()),
         };
         let measured_pose = match &full_lambda {
-            Some(full) => pose_fk + full * wrench,
+            Some(full) => pose_fk + mat4_vec(full, [wrench[0], wrench[1], wrench[2], wrench[3]]),
             None => pose_fk,
         };
 
@@ -1049,7 +1049,7 @@ impl SlaveController {
             Some(full) => {
                 // The normal force's deflection only: friction's share is left alone, so
                 // the compensation cannot drag the tool and feed friction back into itself.
-                let d = full * Vector4::new(n[0] * f_comp, n[1] * f_comp, n[2] * f_comp, 0.0);
+                let d = mat4_vec(full, [n[0] * f_comp, n[1] * f_comp, n[2] * f_comp, 0.0]);
                 let d3 = Vector3::new(d[0], d[1], d[2]);
                 let dt3 = d3 - n * d3.dot(&n);
                 Pose::new(-dt3[0], -dt3[1], -dt3[2], -d[3])
@@ -1437,6 +1437,13 @@ impl SlaveController {
             }
         }
     }
+}
+
+/// `M v` (written out: nalgebra's generic product is not inlined here).
+#[inline]
+fn mat4_vec(m: &Matrix4<f64>, v: [f64; 4]) -> Vector4<f64> {
+    let row = |i: usize| m[(i, 0)] * v[0] + m[(i, 1)] * v[1] + m[(i, 2)] * v[2] + m[(i, 3)] * v[3];
+    Vector4::new(row(0), row(1), row(2), row(3))
 }
 
 /// `nᵀ L n`.

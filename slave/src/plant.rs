@@ -534,21 +534,17 @@ impl SimArm {
 
     /// The kernel of [`SimArm::substeps`] for a plane: the same physics as
     /// [`SimArm::substeps_with`] (which the curved surfaces use), arranged for speed; only
-    /// the rounding differs.
-    ///
-    /// The step is a chain: every quantity depends on the one before, so its length, not
-    /// the arithmetic, sets the time. Two things shorten it:
-    ///
-    /// * The platform's velocity is kept in the plane's frame `V = [v·n, v·t1, v·t2, θ̇]`
-    ///   (the normal is fixed): the friction solve reads its tangential part directly and
-    ///   scales it, and the contact depth is the normal displacement.
-    /// * The velocity before contact of the next period, `W' = V∘decay − A f'` (`A`: the
-    ///   legs' forces through Jᵀ, per unit mass and period), with the structural forces
-    ///   `f' = (k dt + c)∘(J V) + base` (`base`: the carriages' side, known before the
-    ///   contact is solved), is `W' = M V − A base` with `M = diag(decay) − A diag(k dt + c) J`
-    ///   fixed per block. Friction only scales V's tangential part, so `M V` is computed
-    ///   before the friction's square root and scaled after it: the chain through the
-    ///   friction is one multiply-add, not two matrix products.
+    /// the rounding differs. The plane's normal is fixed, so the platform's velocity is kept
+    /// in the plane's frame, `V = [v·n, v·t1, v·t2, θ̇]`: the contact reads its normal part
+    /// and the friction solve scales its tangential part directly, the contact depth is the
+    /// normal displacement, and every product with the Jacobian is one 4×4 matrix (`J` in
+    /// that frame, projected once per block) on four-wide vectors, which the compiler
+    /// vectorises. The leg rates of the tangential velocity are computed before the
+    /// friction's square root is known and scaled after it, and the structural force is
+    /// one multiply-add of the leg rate (`base`, the carriages' share, is known earlier).
+    /// Measured variants (docs/slave-results.md, "Speed"): this one was the fastest; one
+    /// that also propagated the velocity through a precomputed `M V` (a shorter chain,
+    /// more arithmetic) and one with the fewest operations were both slower.
     fn substeps_plane(&mut self, n: u32, point_mm: [f64; 3], nrm: [f64; 3]) {
         let dt = self.substep_s;
         let cfg = self.cfg;
@@ -609,18 +605,6 @@ impl SimArm {
         for i in 0..4 {
             k_dt_cs[i] = k[i] * dt + cs[i];
         }
-        // `m[c]`: the column of M for velocity component c.
-        let mut m = [[0.0f64; 4]; 4];
-        for c in 0..4 {
-            for c2 in 0..4 {
-                let mut s = 0.0;
-                for r in 0..4 {
-                    s += a[r][c2] * k_dt_cs[r] * jb[c][r];
-                }
-                m[c][c2] = if c == c2 { decay[c2] } else { 0.0 } - s;
-            }
-        }
-
         // State at the start of the block.
         let mut pose = [self.pose[0], self.pose[1], self.pose[2], self.pose[3]];
         let v3 = [self.vel[0], self.vel[1], self.vel[2]];
@@ -704,16 +688,9 @@ impl SimArm {
             let v0 = w[0] + dv_n;
             let (w1, w2, w3) = (w[1], w[2], w[3]);
             last_slip = [w1 * removed, w2 * removed];
-            // Next period: W' = M V − A base, V = [v0, w1 (1 − removed), w2 (1 − removed), w3].
-            let mut w_next = [0.0f64; 4];
-            for c in 0..4 {
-                let fixed = m[0][c] * v0 + m[3][c] * w3;
-                let slid = m[1][c] * w1 + m[2][c] * w2;
-                let legs = (a[0][c] * base[0] + a[1][c] * base[1])
-                    + (a[2][c] * base[2] + a[3][c] * base[3]);
-                w_next[c] = (fixed - legs) + (slid - removed * slid);
-            }
-            // Leg rates J V, the structural forces and leg lengths of the next period.
+            // Leg rates J V (the tangential part's computed before the friction's square
+            // root is known, then scaled), the structural forces and leg lengths of the
+            // next period.
             for r in 0..4 {
                 let fixed = jb[0][r] * v0 + jb[3][r] * w3;
                 let slid = jb[1][r] * w1 + jb[2][r] * w2;
@@ -722,6 +699,13 @@ impl SimArm {
                 l[r] += ld[r] * dt;
             }
             vb = [v0, w1 - removed * w1, w2 - removed * w2, w3];
+            // The next period's velocity before contact: the legs act through Jᵀ
+            // (explicit), plus joint/air damping.
+            let mut w_next = [0.0f64; 4];
+            for c in 0..4 {
+                w_next[c] = vb[c] * decay[c]
+                    - ((a[0][c] * f[0] + a[1][c] * f[1]) + (a[2][c] * f[2] + a[3][c] * f[3]));
+            }
             for c in 0..4 {
                 disp[c] += vb[c] * dt;
             }
