@@ -315,7 +315,8 @@ const ONSET_CYCLES: u32 = 20;
 /// and the 80 Hz filter shows ≈ 0.55 A of it).
 const GUARD_PEAK_PER_SWING: f64 = 5.0;
 /// Share of `contact_threshold_n` that counts as contact when the force stays above it
-/// for [`CONTACT_ONSET_CYCLES`] cycles (10 × the filtered noise's standard deviation).
+/// for [`CONTACT_ONSET_CYCLES`] cycles (0.3 N at the default: ≈ 7 × the standard deviation
+/// of the filtered sensor noise per axis).
 const CONTACT_ONSET_FRACTION: f64 = 0.375;
 /// Consecutive cycles above the onset level that count as contact.
 const CONTACT_ONSET_CYCLES: u32 = 3;
@@ -813,7 +814,7 @@ impl SlaveController {
         next[3] += dth;
         let status;
         if !self.in_contact {
-            // Contact: the force crosses the threshold, or it has stayed above half of it
+            // Contact: the force crosses the threshold, or it has stayed above 3/8 of it
             // for a few cycles in a row (a soft surface, on which the force builds up
             // slowly: 0.8 N takes ≈ 80 ms of the approach on 5 N/mm). A stiff surface
             // crosses the threshold itself within a cycle or two.
