@@ -325,6 +325,9 @@ pub struct SimArm {
     filters: [Butterworth2; 4],
     filtered: [f64; 4],
     kinematics_faults: u64,
+    /// Tests only: run planes through the generic kernel (to compare the two).
+    #[cfg(test)]
+    generic_kernel: bool,
 }
 
 impl SimArm {
@@ -411,6 +414,8 @@ impl SimArm {
             filters,
             filtered: [0.0; 4],
             kinematics_faults: 0,
+            #[cfg(test)]
+            generic_kernel: false,
         };
         arm.update_contact_damping();
         for (i, f) in arm.filters.iter_mut().enumerate() {
@@ -524,12 +529,25 @@ impl SimArm {
     /// specialised per surface shape.
     fn substeps(&mut self, n: u32) {
         match self.surface.shape {
-            SurfaceShape::Plane { point_mm, normal } => self.substeps_plane(n, point_mm, normal),
+            SurfaceShape::Plane { point_mm, normal } if !self.generic_kernel_forced() => {
+                self.substeps_plane(n, point_mm, normal)
+            }
             _ => {
                 let s = self.surface;
                 self.substeps_with(n, move |p: &Vector3<f64>| s.penetration(p));
             }
         }
+    }
+
+    #[cfg(test)]
+    fn generic_kernel_forced(&self) -> bool {
+        self.generic_kernel
+    }
+
+    #[cfg(not(test))]
+    #[inline(always)]
+    fn generic_kernel_forced(&self) -> bool {
+        false
     }
 
     /// The kernel of [`SimArm::substeps`] for a plane: the same physics as
@@ -1091,6 +1109,62 @@ mod tests {
         }
         assert!(slid, "the tool never slid: the test proves nothing");
         assert!(worst <= 1.0 + 1e-9, "|F_t| reached {worst} × μ F_n");
+    }
+
+    /// The plane kernel is the generic kernel's physics rearranged: pressing into a tilted
+    /// plane with friction and jerking sideways (sliding and sticking), both give the same
+    /// motion and forces to rounding.
+    #[test]
+    fn plane_kernel_matches_the_generic_kernel() {
+        let params = H4Params::PROTOTYPE;
+        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let t = 10f64.to_radians();
+        let surface = Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: [0.0, 0.0, -250.0],
+                normal: [t.sin(), 0.0, t.cos()],
+            },
+            material: Material {
+                stiffness_n_per_mm: 500.0,
+                damping_ratio: 0.2,
+                friction_coefficient: 0.3,
+            },
+        };
+        let make = |generic: bool| {
+            let mut arm = SimArm::new(
+                params,
+                [100.0; 4],
+                PlantConfig::default(),
+                quiet_sensor(),
+                surface,
+                pose0,
+                1,
+            )
+            .unwrap();
+            arm.generic_kernel = generic;
+            arm
+        };
+        let (mut fast, mut generic) = (make(false), make(true));
+        let (mut worst_f, mut worst_x): (f64, f64) = (0.0, 0.0);
+        let mut peak_f: f64 = 0.0;
+        for k in 0..800u32 {
+            let s = f64::from(k) * 1e-3;
+            let side = if k < 150 { 0.0 } else { 0.5 * (s * 30.0).sin() };
+            let target = Pose::new(side, 0.4 * side, -250.4, 0.02 * side);
+            let l = params.ik_checked(&target).unwrap();
+            for arm in [&mut fast, &mut generic] {
+                arm.command(&[l[0], l[1], l[2], l[3]]);
+                arm.advance(1_000_000);
+            }
+            let (wa, wb) = (fast.true_contact_wrench(), generic.true_contact_wrench());
+            let (pa, pb) = (fast.true_pose(), generic.true_pose());
+            peak_f = peak_f.max(wb.norm());
+            worst_f = worst_f.max((wa - wb).norm());
+            worst_x = worst_x.max((pa - pb).norm());
+        }
+        assert!(peak_f > 50.0, "the contact was not loaded: {peak_f} N");
+        assert!(worst_f < 1e-6 * peak_f, "forces differ by {worst_f} N");
+        assert!(worst_x < 1e-9, "poses differ by {worst_x} mm");
     }
 
     #[test]
