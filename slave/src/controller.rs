@@ -329,9 +329,9 @@ const SHAPER_FULL_SHARE: f64 = 0.1;
 /// Share from which it is not shaped at all (k_env ≥ 0.43 k_arm: ≈ 140 N/mm and stiffer).
 const SHAPER_NONE_SHARE: f64 = 0.3;
 /// Touch-down estimate: the force along the normal below which the approach counts as not
-/// yet touching (≈ 5 × the filtered noise), N.
-const TOUCHDOWN_FLOOR_N: f64 = 0.2;
-/// Touch-down estimate: fewest cycles of force build-up before the contact threshold.
+/// yet touching (≈ 2.5 × the filtered noise: the fit averages the noise), N.
+const TOUCHDOWN_FLOOR_N: f64 = 0.1;
+/// Touch-down estimate: fewest cycles of force build-up before contact.
 const TOUCHDOWN_MIN_CYCLES: usize = 10;
 /// Force guard: the arm may be this much stiffer than assumed.
 const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
@@ -1283,33 +1283,47 @@ impl SlaveController {
         at(i) + (at(i + 1) - at(i)) * frac
     }
 
-    /// On a soft surface the force builds up over many cycles of the approach before it
-    /// crosses the contact threshold: the force and the (filtered, like the force) position
-    /// since the force left the noise floor measure the contact's total compliance at
-    /// touch-down, long before the estimator's window has data after it. Used only when the
+    /// On a soft surface the force builds up over many cycles of the approach before
+    /// contact is declared: the force and the (filtered, like the force) position since the
+    /// force left the noise floor (a least-squares fit) measure the contact's total
+    /// compliance at touch-down, long before the estimator's window has data after it. Used only when the
     /// build-up lasted at least [`TOUCHDOWN_MIN_CYCLES`] (a stiff surface crosses the
     /// threshold within a cycle or two, too few to measure); the estimate then counts as
     /// measured for the force guard.
     fn seed_from_touchdown(&mut self, c_arm: f64) {
         let n = self.normal;
         let head = self.hist_head;
-        let f_now = self.hist_f[head].dot(&n);
-        let onset = (1..WINDOW_MAX)
-            .map(|back| (back, (head + WINDOW_MAX - back) % WINDOW_MAX))
-            .find(|&(_, idx)| self.hist_f[idx].dot(&n) < TOUCHDOWN_FLOOR_N);
-        let Some((cycles, idx)) = onset else {
+        let at = |back: usize| (head + WINDOW_MAX - back) % WINDOW_MAX;
+        let onset = (1..WINDOW_MAX).find(|&back| self.hist_f[at(back)].dot(&n) < TOUCHDOWN_FLOOR_N);
+        let Some(cycles) = onset else {
             return;
         };
         if cycles < TOUCHDOWN_MIN_CYCLES || self.cycles < WINDOW_MAX as u64 {
             return;
         }
-        let d_f = f_now - self.hist_f[idx].dot(&n);
-        let (xn, xo) = (self.hist_x[head], self.hist_x[idx]);
-        let d_p = -(n[0] * (xn[0] - xo[0]) + n[1] * (xn[1] - xo[1]) + n[2] * (xn[2] - xo[2]));
-        if d_f > 0.0 && d_p > 0.0 {
+        // Least-squares slope of the force over the depth (into the surface) since the
+        // onset: the noise of a few samples averages out.
+        let depth = |idx: usize| {
+            let x = self.hist_x[idx];
+            -(n[0] * x[0] + n[1] * x[1] + n[2] * x[2])
+        };
+        let m = cycles as f64;
+        let (mut sp, mut sf) = (0.0, 0.0);
+        for back in 0..cycles {
+            sp += depth(at(back));
+            sf += self.hist_f[at(back)].dot(&n);
+        }
+        let (mp, mf) = (sp / m, sf / m);
+        let (mut spp, mut spf) = (0.0, 0.0);
+        for back in 0..cycles {
+            let dp = depth(at(back)) - mp;
+            spp += dp * dp;
+            spf += dp * (self.hist_f[at(back)].dot(&n) - mf);
+        }
+        if spp > 0.0 && spf > 0.0 {
             let c_min = 1.0 / self.p.env_stiffness_max_n_per_mm.max(1e-6);
             let c_max = 1.0 / self.p.env_stiffness_min_n_per_mm.max(1e-6);
-            self.c_env = (d_p / d_f - c_arm).clamp(c_min, c_max);
+            self.c_env = (spp / spf - c_arm).clamp(c_min, c_max);
             self.c_tot = c_arm + self.c_env;
             self.est_updates = GUARD_TRUST_UPDATES;
         }
