@@ -333,6 +333,9 @@ const SHAPER_NONE_SHARE: f64 = 0.3;
 const TOUCHDOWN_FLOOR_N: f64 = 0.1;
 /// Touch-down estimate: fewest cycles of force build-up before contact.
 const TOUCHDOWN_MIN_CYCLES: usize = 10;
+/// Share of the force limit at which the measured force's magnitude (whatever the normal
+/// estimate) backs the force-guided command off.
+const MAGNITUDE_LIMIT_SHARE: f64 = 0.95;
 /// Force guard: the arm may be this much stiffer than assumed.
 const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
 /// Force guard: estimator updates on this contact before its figure is used.
@@ -1152,6 +1155,25 @@ impl SlaveController {
             c_measured,
             dmax,
         ) {
+            status = Status::ForceLimited;
+        }
+
+        // Whatever the normal estimate says, the measured force's magnitude near the limit
+        // backs the command off along the force (as Hold and Position mode do). A normal
+        // estimate tilted by friction (a soft surface with dry friction) otherwise let the
+        // true force drift past the limit over seconds while the force along the estimate
+        // stayed at the set-point. 5 % of the limit is kept for the filter's lag and noise.
+        let magnitude_limit = MAGNITUDE_LIMIT_SHARE * self.p.force_limit_n;
+        if f_mag > magnitude_limit {
+            let dir = f3 / f_mag;
+            let c_dir = guard_lambda
+                .as_ref()
+                .map_or(0.0, |l| quad_form(l, &dir).max(0.0))
+                + self.c_env;
+            let step = (c_dir * (f_mag - magnitude_limit)).min(dmax);
+            for i in 0..3 {
+                next[i] += dir[i] * step;
+            }
             status = Status::ForceLimited;
         }
 

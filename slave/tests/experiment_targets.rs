@@ -152,6 +152,40 @@ fn very_soft_surface_meets_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
+/// Soft surfaces with dry friction (5 N/mm, μ = 0.3) miss the accuracy targets (a known
+/// limit, docs/slave-results.md), but the force limit holds: the friction-tilted normal
+/// estimate let the true force drift past it over seconds (89–90 N on the resin base at
+/// ×0.7 with these seeds) until the force-guided loop also checked the measured force's
+/// magnitude.
+#[test]
+fn soft_surface_with_dry_friction_keeps_the_force_limit() {
+    let mut all = Vec::new();
+    for seed in ["2", "3"] {
+        for base in ["fig6b.toml", "fig7d.toml"] {
+            for scale in ["0.7", "1.3"] {
+                let set = format!("plant.stiffness_scale={scale}");
+                let seed_set = format!("seed={seed}");
+                let (cfg, s) = run(
+                    base,
+                    &[
+                        "surface.stiffness_n_per_mm=5",
+                        "surface.friction_coefficient=0.3",
+                        &set,
+                        &seed_set,
+                    ],
+                );
+                if !(s.max_force_n <= cfg.controller.force_limit_n) {
+                    all.push(format!(
+                        "{base} seed {seed} ×{scale}: true force {:.1} N above {} N",
+                        s.max_force_n, cfg.controller.force_limit_n
+                    ));
+                }
+            }
+        }
+    }
+    assert!(all.is_empty(), "force limit exceeded:\n{}", all.join("\n"));
+}
+
 /// Tracking along y at 10 mm/s on aluminium, off the arm's centre line (y from −30 to
 /// ≈ 150 mm), where Λ couples y and z: this run used to go unstable (true force up to
 /// ≈ 200 N, above the force limit; see docs/slave-results.md for what fixed it).
