@@ -26,7 +26,7 @@
 
 use h4_shared::kinematics::{ActuatorStiffness, KinError, Pose, Workspace};
 use h4_shared::wire::Mode;
-use nalgebra::{Matrix3, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 use serde::{Deserialize, Serialize};
 
 use crate::filter::Butterworth2;
@@ -314,6 +314,28 @@ const ONSET_CYCLES: u32 = 20;
 /// filtered sensor shows it (a sine of amplitude A near 100 Hz swings ≈ 0.4 A per 1 ms,
 /// and the 80 Hz filter shows ≈ 0.55 A of it).
 const GUARD_PEAK_PER_SWING: f64 = 5.0;
+/// Share of `contact_threshold_n` that counts as contact when the force stays above it
+/// for [`CONTACT_ONSET_CYCLES`] cycles (0.3 N at the default: ≈ 7 × the standard deviation
+/// of the filtered sensor noise per axis).
+const CONTACT_ONSET_FRACTION: f64 = 0.375;
+/// Consecutive cycles above the onset level that count as contact.
+const CONTACT_ONSET_CYCLES: u32 = 3;
+/// Length of the input shaper's history, cycles (its longest span, a full period of the
+/// contact mode, is at most `SHAPER_LEN − 2`: modes down to ≈ 33 Hz).
+const SHAPER_LEN: usize = 32;
+/// Share of the contact mode's stiffness held by the environment up to which the motion
+/// into the surface is fully shaped (k_env ≤ k_arm / 9: 5–35 N/mm on the prototype).
+const SHAPER_FULL_SHARE: f64 = 0.1;
+/// Share from which it is not shaped at all (k_env ≥ 0.43 k_arm: ≈ 140 N/mm and stiffer).
+const SHAPER_NONE_SHARE: f64 = 0.3;
+/// Touch-down estimate: the force along the normal below which the approach counts as not
+/// yet touching (≈ 2.5 × the filtered noise: the fit averages the noise), N.
+const TOUCHDOWN_FLOOR_N: f64 = 0.1;
+/// Touch-down estimate: fewest cycles of force build-up before contact.
+const TOUCHDOWN_MIN_CYCLES: usize = 10;
+/// Share of the force limit at which the measured force's magnitude (whatever the normal
+/// estimate) backs the force-guided command off.
+const MAGNITUDE_LIMIT_SHARE: f64 = 0.95;
 /// Force guard: the arm may be this much stiffer than assumed.
 const GUARD_ARM_STIFFNESS_MARGIN: f64 = 1.5;
 /// Force guard: estimator updates on this contact before its figure is used.
@@ -364,7 +386,8 @@ enum SafeStopPhase {
 #[derive(Clone, Debug)]
 pub struct SlaveController {
     ws: Workspace,
-    stiffness: ActuatorStiffness,
+    /// 1/k of each actuator (the assumed stiffness), mm/N.
+    actuator_compliance: [f64; 4],
     p: ControllerParams,
     initialised: bool,
     cycles: u64,
@@ -403,7 +426,14 @@ pub struct SlaveController {
     hist_x: [[f64; 3]; WINDOW_MAX],
     hist_f: [Vector3<f64>; WINDOW_MAX],
     hist_head: usize,
+    /// Past increments of the motion into the surface (input shaper), newest at
+    /// `shaper_head`, mm.
+    shaper_hist: [f64; SHAPER_LEN],
+    shaper_head: usize,
     contact_cycles: u32,
+    /// Consecutive approach cycles with the force above [`CONTACT_ONSET_FRACTION`] of the
+    /// contact threshold.
+    onset_cycles: u32,
     safe: SafeStopPhase,
     last: ControllerOutput,
 }
@@ -420,7 +450,7 @@ impl SlaveController {
         let c_env = 1.0 / params.initial_env_stiffness_n_per_mm.max(1e-6);
         SlaveController {
             ws,
-            stiffness: assumed_stiffness,
+            actuator_compliance: assumed_stiffness.n_per_mm.map(|k| 1.0 / k).into(),
             p: params,
             initialised: false,
             cycles: 0,
@@ -455,7 +485,10 @@ impl SlaveController {
             hist_x: [[0.0; 3]; WINDOW_MAX],
             hist_f: [Vector3::zeros(); WINDOW_MAX],
             hist_head: 0,
+            shaper_hist: [0.0; SHAPER_LEN],
+            shaper_head: 0,
             contact_cycles: 0,
+            onset_cycles: 0,
             safe: SafeStopPhase::Inactive,
             last: ControllerOutput {
                 actuators_cmd_mm: [0.0; 4],
@@ -571,7 +604,7 @@ impl SlaveController {
 
         // Compliance of the arm at the measured pose (assumed actuator stiffness).
         let full_lambda = if self.p.compliance_model {
-            self.ws.params.compliance(&pose_fk, &self.stiffness).ok()
+            self.compliance(&pose_fk)
         } else {
             None
         };
@@ -581,14 +614,11 @@ impl SlaveController {
         let guard_lambda: Option<Matrix3<f64>> = match lambda {
             Some(l) => Some(l),
             None => self
-                .ws
-                .params
-                .compliance(&pose_fk, &self.stiffness)
-                .ok()
+                .compliance(&pose_fk)
                 .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned()),
         };
         let measured_pose = match &full_lambda {
-            Some(full) => pose_fk + full * wrench,
+            Some(full) => pose_fk + mat4_vec(full, [wrench[0], wrench[1], wrench[2], wrench[3]]),
             None => pose_fk,
         };
 
@@ -787,8 +817,18 @@ impl SlaveController {
         next[3] += dth;
         let status;
         if !self.in_contact {
-            if f_mag > self.p.contact_threshold_n {
+            // Contact: the force crosses the threshold, or it has stayed above 3/8 of it
+            // for a few cycles in a row (a soft surface, on which the force builds up
+            // slowly: 0.8 N takes ≈ 80 ms of the approach on 5 N/mm). A stiff surface
+            // crosses the threshold itself within a cycle or two.
+            if f_mag > CONTACT_ONSET_FRACTION * self.p.contact_threshold_n {
+                self.onset_cycles = self.onset_cycles.saturating_add(1);
+            } else {
+                self.onset_cycles = 0;
+            }
+            if f_mag > self.p.contact_threshold_n || self.onset_cycles >= CONTACT_ONSET_CYCLES {
                 // First touch (or touch again): bumpless start of the force loop.
+                self.onset_cycles = 0;
                 self.in_contact = true;
                 self.ever_contact = true;
                 self.lost = false;
@@ -800,11 +840,16 @@ impl SlaveController {
                 self.e_prev = 0.0;
                 self.de_prev = 0.0;
                 self.depth_step_mm = 0.0;
+                self.shaper_hist = [0.0; SHAPER_LEN];
                 self.contact_cycles = 0;
                 self.track_speed = 0.0;
                 self.p_rls = 100.0;
                 self.est_updates = 0;
-                self.c_tot = self.arm_compliance(lambda.as_ref()) + self.c_env;
+                let c_arm_touch = self.arm_compliance(lambda.as_ref());
+                self.c_tot = c_arm_touch + self.c_env;
+                if self.p.estimate_env_stiffness {
+                    self.seed_from_touchdown(c_arm_touch);
+                }
                 status = Status::Contact;
             } else {
                 // Approach: towards the commanded point, or along the last normal.
@@ -945,7 +990,9 @@ impl SlaveController {
         // stiff surface ω_m is far above the filter's cut-off and the tuned gains pass;
         // on a soft one ω_m sits at the cut-off: the proportional gain (which acts at
         // high frequency) goes first, then the integral gain.
-        let c_arm_s = self.arm_compliance(lambda.as_ref()).max(1e-9);
+        // The arm's compliance along the (updated) normal, from the model.
+        let c_arm = self.arm_compliance(lambda.as_ref());
+        let c_arm_s = c_arm.max(1e-9);
         let k_par = 1.0 / c_arm_s + 1.0 / self.c_env.max(1e-9);
         let omega_m = (1000.0 * k_par / self.p.tool_mass_kg.max(1e-6)).sqrt();
         let w_f = omega_m / (2.0 * std::f64::consts::PI * self.p.sensor_filter_cutoff_hz.max(1.0));
@@ -966,7 +1013,6 @@ impl SlaveController {
         let d_sp = self.sp2 - sp_prev;
 
         // Compliance along the normal: the arm's (model) plus the environment's (estimate).
-        let c_arm = self.arm_compliance(lambda.as_ref());
         if self.p.estimate_env_stiffness && self.contact_cycles as usize > win {
             let d_f = self.hist_f[self.hist_head].dot(&n) - self.hist_f[old].dot(&n);
             let xo = self.hist_x[old];
@@ -1007,7 +1053,7 @@ impl SlaveController {
             Some(full) => {
                 // The normal force's deflection only: friction's share is left alone, so
                 // the compensation cannot drag the tool and feed friction back into itself.
-                let d = full * Vector4::new(n[0] * f_comp, n[1] * f_comp, n[2] * f_comp, 0.0);
+                let d = mat4_vec(full, [n[0] * f_comp, n[1] * f_comp, n[2] * f_comp, 0.0]);
                 let d3 = Vector3::new(d[0], d[1], d[2]);
                 let dt3 = d3 - n * d3.dot(&n);
                 Pose::new(-dt3[0], -dt3[1], -dt3[2], -d[3])
@@ -1060,6 +1106,15 @@ impl SlaveController {
             d_depth = d_depth.clamp(self.depth_step_mm - amax, self.depth_step_mm + amax);
         }
         self.depth_step_mm = d_depth;
+        // The motion into the surface, shaped so that it does not ring the contact mode
+        // (soft surfaces only; a force-limit back-off goes out unshaped).
+        let env_share = (1.0 / self.c_env.max(1e-9)) / k_par;
+        let d_shaped = self.shape_normal(d_depth, omega_m, env_share, dt);
+        let d_depth = if status == Status::ForceLimited {
+            d_depth
+        } else {
+            d_shaped
+        };
         let mut mv = -n * d_depth;
         // Motion along the surface only while the force is established.
         // The speed along the surface ramps with the tracking acceleration limit, so the
@@ -1083,8 +1138,12 @@ impl SlaveController {
         // compliance (the contact up to twice as stiff as measured) instead of a rigid one.
         let c_measured = if self.p.estimate_env_stiffness && self.est_updates >= GUARD_TRUST_UPDATES
         {
-            GUARD_MEASURED_COMPLIANCE_SHARE
-                * (self.arm_compliance(guard_lambda.as_ref()) + self.c_env)
+            let c_arm_guard = if self.p.compliance_model {
+                c_arm
+            } else {
+                self.arm_compliance(guard_lambda.as_ref())
+            };
+            GUARD_MEASURED_COMPLIANCE_SHARE * (c_arm_guard + self.c_env)
         } else {
             0.0
         };
@@ -1096,6 +1155,25 @@ impl SlaveController {
             c_measured,
             dmax,
         ) {
+            status = Status::ForceLimited;
+        }
+
+        // Whatever the normal estimate says, the measured force's magnitude near the limit
+        // backs the command off along the force (as Hold and Position mode do). A normal
+        // estimate tilted by friction (a soft surface with dry friction) otherwise let the
+        // true force drift past the limit over seconds while the force along the estimate
+        // stayed at the set-point. 5 % of the limit is kept for the filter's lag and noise.
+        let magnitude_limit = MAGNITUDE_LIMIT_SHARE * self.p.force_limit_n;
+        if f_mag > magnitude_limit {
+            let dir = f3 / f_mag;
+            let c_dir = guard_lambda
+                .as_ref()
+                .map_or(0.0, |l| quad_form(l, &dir).max(0.0))
+                + self.c_env;
+            let step = (c_dir * (f_mag - magnitude_limit)).min(dmax);
+            for i in 0..3 {
+                next[i] += dir[i] * step;
+            }
             status = Status::ForceLimited;
         }
 
@@ -1137,7 +1215,7 @@ impl SlaveController {
     ) -> bool {
         let n = self.normal;
         let c_rigid = (match lambda {
-            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            Some(l) => quad_form(l, &n).max(0.0),
             None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
         } / GUARD_ARM_STIFFNESS_MARGIN)
             .max(c_measured);
@@ -1174,7 +1252,7 @@ impl SlaveController {
     ) -> bool {
         let n = f3 / f_mag;
         let c_rigid = match lambda {
-            Some(l) => (n.transpose() * l * n)[(0, 0)].max(0.0),
+            Some(l) => quad_form(l, &n).max(0.0),
             None => GUARD_FALLBACK_COMPLIANCE_MM_PER_N,
         } / GUARD_ARM_STIFFNESS_MARGIN;
         // 5 % of the limit is kept for the sensor's filter lag and noise.
@@ -1192,11 +1270,110 @@ impl SlaveController {
         true
     }
 
+    /// Input shaper (zero vibration and derivative, ZVD) of the motion into the surface:
+    /// the increment `d` is spread over three impulses half a period of the contact mode
+    /// apart, weighted for the mode's damping ([`MODE_Q`]), so that the motion's corners (the
+    /// speed and acceleration limits, the set-point's start) leave no vibration of the tool
+    /// on the arm's stiffness. Only where the mode is the arm's own, lightly damped one:
+    /// fully where the environment holds at most [`SHAPER_FULL_SHARE`] of the mode's
+    /// stiffness, blended out up to [`SHAPER_NONE_SHARE`] (a stiffer surface damps the mode
+    /// itself, and the delay would only cost phase). A weighted mean of past increments, so
+    /// the speed and acceleration limits still hold. Returns the shaped increment.
+    fn shape_normal(&mut self, d: f64, omega_m: f64, env_share: f64, dt: f64) -> f64 {
+        self.shaper_head = (self.shaper_head + 1) % SHAPER_LEN;
+        self.shaper_hist[self.shaper_head] = d;
+        let blend = ((SHAPER_NONE_SHARE - env_share) / (SHAPER_NONE_SHARE - SHAPER_FULL_SHARE))
+            .clamp(0.0, 1.0);
+        if blend.is_nan() || blend <= 0.0 {
+            return d;
+        }
+        let max_half = 0.5 * (SHAPER_LEN as f64 - 2.0);
+        let half = (std::f64::consts::PI / (omega_m.max(1e-6) * dt)).clamp(0.0, max_half);
+        let k = (-std::f64::consts::PI / (4.0 * MODE_Q * MODE_Q - 1.0).sqrt()).exp();
+        let norm = 1.0 / ((1.0 + k) * (1.0 + k));
+        let zvd = norm * (d + 2.0 * k * self.shaper_at(half) + k * k * self.shaper_at(2.0 * half));
+        d + blend * (zvd - d)
+    }
+
+    /// The shaper's input `delay_cycles` ago, linearly interpolated.
+    fn shaper_at(&self, delay_cycles: f64) -> f64 {
+        let whole = delay_cycles.floor();
+        let frac = delay_cycles - whole;
+        let i = whole as usize;
+        let at =
+            |back: usize| self.shaper_hist[(self.shaper_head + SHAPER_LEN - back) % SHAPER_LEN];
+        at(i) + (at(i + 1) - at(i)) * frac
+    }
+
+    /// On a soft surface the force builds up over many cycles of the approach before
+    /// contact is declared: the force and the (filtered, like the force) position since the
+    /// force left the noise floor (a least-squares fit) measure the contact's total
+    /// compliance at touch-down, long before the estimator's window has data after it. Used only when the
+    /// build-up lasted at least [`TOUCHDOWN_MIN_CYCLES`] (a stiff surface crosses the
+    /// threshold within a cycle or two, too few to measure); the estimate then counts as
+    /// measured for the force guard.
+    fn seed_from_touchdown(&mut self, c_arm: f64) {
+        let n = self.normal;
+        let head = self.hist_head;
+        let at = |back: usize| (head + WINDOW_MAX - back) % WINDOW_MAX;
+        let onset = (1..WINDOW_MAX).find(|&back| self.hist_f[at(back)].dot(&n) < TOUCHDOWN_FLOOR_N);
+        let Some(cycles) = onset else {
+            return;
+        };
+        if cycles < TOUCHDOWN_MIN_CYCLES || self.cycles < WINDOW_MAX as u64 {
+            return;
+        }
+        // Least-squares slope of the force over the depth (into the surface) since the
+        // onset: the noise of a few samples averages out.
+        let depth = |idx: usize| {
+            let x = self.hist_x[idx];
+            -(n[0] * x[0] + n[1] * x[1] + n[2] * x[2])
+        };
+        let m = cycles as f64;
+        let (mut sp, mut sf) = (0.0, 0.0);
+        for back in 0..cycles {
+            sp += depth(at(back));
+            sf += self.hist_f[at(back)].dot(&n);
+        }
+        let (mp, mf) = (sp / m, sf / m);
+        let (mut spp, mut spf) = (0.0, 0.0);
+        for back in 0..cycles {
+            let dp = depth(at(back)) - mp;
+            spp += dp * dp;
+            spf += dp * (self.hist_f[at(back)].dot(&n) - mf);
+        }
+        if spp > 0.0 && spf > 0.0 {
+            let c_min = 1.0 / self.p.env_stiffness_max_n_per_mm.max(1e-6);
+            let c_max = 1.0 / self.p.env_stiffness_min_n_per_mm.max(1e-6);
+            self.c_env = (spp / spf - c_arm).clamp(c_min, c_max);
+            self.c_tot = c_arm + self.c_env;
+            self.est_updates = GUARD_TRUST_UPDATES;
+        }
+    }
+
+    /// The arm's compliance `Λ = J⁻¹ diag(1/k) J⁻ᵀ` at `pose` for the assumed actuator
+    /// stiffness (as [`h4_shared::kinematics::H4Params::compliance`], written out: the
+    /// symmetric product of a 4×4 matrix, ten entries).
+    fn compliance(&self, pose: &Pose) -> Option<Matrix4<f64>> {
+        let inv = self.ws.params.jacobian_inverse(pose).ok()?;
+        let c = &self.actuator_compliance;
+        let mut lam = Matrix4::zeros();
+        for i in 0..4 {
+            for j in i..4 {
+                let v = inv[(i, 0)] * c[0] * inv[(j, 0)]
+                    + inv[(i, 1)] * c[1] * inv[(j, 1)]
+                    + inv[(i, 2)] * c[2] * inv[(j, 2)]
+                    + inv[(i, 3)] * c[3] * inv[(j, 3)];
+                lam[(i, j)] = v;
+                lam[(j, i)] = v;
+            }
+        }
+        Some(lam)
+    }
+
     fn arm_compliance(&self, lambda: Option<&Matrix3<f64>>) -> f64 {
         match lambda {
-            Some(l) if self.normal.norm() > 0.5 => {
-                (self.normal.transpose() * l * self.normal)[(0, 0)].max(0.0)
-            }
+            Some(l) if self.normal.norm_squared() > 0.25 => quad_form(l, &self.normal).max(0.0),
             _ => 0.0,
         }
     }
@@ -1210,7 +1387,7 @@ impl SlaveController {
     ) {
         let dir = f3 / f_mag;
         let c = match lambda {
-            Some(l) => (dir.transpose() * l * dir)[(0, 0)].max(0.0),
+            Some(l) => quad_form(l, &dir).max(0.0),
             None => 0.0,
         } + self.c_env;
         let step = (c * (f_mag - self.p.force_limit_n)).min(self.p.max_speed_mm_per_s * 0.001);
@@ -1297,4 +1474,21 @@ impl SlaveController {
             }
         }
     }
+}
+
+/// `M v` (written out: nalgebra's generic product is not inlined here).
+#[inline]
+fn mat4_vec(m: &Matrix4<f64>, v: [f64; 4]) -> Vector4<f64> {
+    let row = |i: usize| m[(i, 0)] * v[0] + m[(i, 1)] * v[1] + m[(i, 2)] * v[2] + m[(i, 3)] * v[3];
+    Vector4::new(row(0), row(1), row(2), row(3))
+}
+
+/// `nᵀ L n`.
+#[inline]
+fn quad_form(l: &Matrix3<f64>, n: &Vector3<f64>) -> f64 {
+    let mut s = 0.0;
+    for i in 0..3 {
+        s += n[i] * (l[(i, 0)] * n[0] + l[(i, 1)] * n[1] + l[(i, 2)] * n[2]);
+    }
+    s
 }

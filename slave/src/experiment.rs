@@ -13,9 +13,7 @@ use h4_shared::wire::Mode;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::controller::{
-    ControllerInput, ControllerOutput, ControllerParams, SlaveCommand, SlaveController, Status,
-};
+use crate::controller::{ControllerInput, ControllerParams, SlaveCommand, SlaveController, Status};
 use crate::plant::{
     ArmDriver, Material, MaterialPreset, PlantConfig, SensorConfig, SimArm, SimError, Surface,
     SurfaceShape,
@@ -832,7 +830,7 @@ pub fn run(
     let mut max_force: f64 = 0.0;
     let mut rejected = 0u64;
     let mut prev_true = arm.true_pose();
-    let mut last_out: Option<ControllerOutput> = None;
+    let mut env_estimate = f64::NAN;
     let wall = Instant::now();
     for k in 0..cycles {
         let t_ms = k;
@@ -942,7 +940,7 @@ pub fn run(
                 },
             )?;
         }
-        last_out = Some(out);
+        env_estimate = out.env_stiffness_n_per_mm;
     }
     let wall_time_s = wall.elapsed().as_secs_f64();
 
@@ -1000,23 +998,29 @@ pub fn run(
             tracking_max = tracking_max.max((f - to).abs());
         }
     }
-    errors.sort_by(f64::total_cmp);
     let rms = if errors.is_empty() {
         f64::NAN
     } else {
         (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt()
     };
+    let error_max = errors
+        .iter()
+        .copied()
+        .max_by(f64::total_cmp)
+        .unwrap_or(f64::NAN);
+    // The 99th percentile by selection (the same element a sort would put there).
     let p99 = if errors.is_empty() {
         f64::NAN
     } else {
-        errors[((errors.len() as f64 * 0.99).ceil() as usize).clamp(1, errors.len()) - 1]
+        let rank = ((errors.len() as f64 * 0.99).ceil() as usize).clamp(1, errors.len()) - 1;
+        *errors.select_nth_unstable_by(rank, f64::total_cmp).1
     };
     let sim_time_s = cycles as f64 * 1e-3;
     Ok(Summary {
         name: cfg.name.clone(),
         force_error_rms_n: rms,
         force_error_p99_n: p99,
-        force_error_max_n: errors.last().copied().unwrap_or(f64::NAN),
+        force_error_max_n: error_max,
         force_error_max_tracking_n: tracking_max,
         overshoot_pct: event_summaries
             .iter()
@@ -1036,7 +1040,7 @@ pub fn run(
         contact_lost_ms: contact_lost_ms as f64,
         tracked_distance_mm: tracked,
         first_contact_s: first_true_contact.map_or(f64::NAN, |i| i as f64 * 1e-3),
-        env_stiffness_estimate_n_per_mm: last_out.map_or(f64::NAN, |o| o.env_stiffness_n_per_mm),
+        env_stiffness_estimate_n_per_mm: env_estimate,
         env_stiffness_true_n_per_mm: surface.material.stiffness_n_per_mm,
         rejected_cycles: rejected,
         events: event_summaries,

@@ -141,16 +141,49 @@ fn soft_surface_meets_targets() {
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
 }
 
-/// Known miss, kept visible: on a 5 N/mm surface the loop is stable, p99 and overshoot are
-/// met, but the first contact settles in ≈ 190–230 ms against 150 (6–8 mm of travel into the
-/// surface under the normal acceleration limit, and the contact mode rings at the sensor
-/// filter's cut-off; see docs/slave-results.md, "Known limits"). Run with
-/// `cargo test -- --ignored`.
+/// Very soft (5 N/mm): 6–8 mm of travel into the surface, and the contact mode is the
+/// arm's own, lightly damped one, right at the sensor filter's cut-off. What made it settle
+/// within 150 ms: contact detected from a sustained force at half the threshold, the
+/// environment's compliance measured during the approach, and the motion into the surface
+/// shaped (ZVD) at the contact mode (docs/slave-results.md).
 #[test]
-#[ignore = "known miss: 5 N/mm settles in ≈ 190–230 ms (docs/slave-results.md)"]
 fn very_soft_surface_meets_targets() {
     let all = soft_surface_misses("5");
     assert!(all.is_empty(), "targets missed:\n{}", all.join("\n"));
+}
+
+/// Soft surfaces with dry friction (5 N/mm, μ = 0.3) miss the accuracy targets (a known
+/// limit, docs/slave-results.md), but the force limit holds: the friction-tilted normal
+/// estimate let the true force drift past it over seconds (89–90 N on the resin base at
+/// ×0.7 with these seeds) until the force-guided loop also checked the measured force's
+/// magnitude.
+#[test]
+fn soft_surface_with_dry_friction_keeps_the_force_limit() {
+    let mut all = Vec::new();
+    for seed in ["2", "3"] {
+        for base in ["fig6b.toml", "fig7d.toml"] {
+            for scale in ["0.7", "1.3"] {
+                let set = format!("plant.stiffness_scale={scale}");
+                let seed_set = format!("seed={seed}");
+                let (cfg, s) = run(
+                    base,
+                    &[
+                        "surface.stiffness_n_per_mm=5",
+                        "surface.friction_coefficient=0.3",
+                        &set,
+                        &seed_set,
+                    ],
+                );
+                if !(s.max_force_n <= cfg.controller.force_limit_n) {
+                    all.push(format!(
+                        "{base} seed {seed} ×{scale}: true force {:.1} N above {} N",
+                        s.max_force_n, cfg.controller.force_limit_n
+                    ));
+                }
+            }
+        }
+    }
+    assert!(all.is_empty(), "force limit exceeded:\n{}", all.join("\n"));
 }
 
 /// Tracking along y at 10 mm/s on aluminium, off the arm's centre line (y from −30 to
