@@ -209,12 +209,14 @@ fn tracking_along_y_on_aluminium_meets_targets() {
 
 /// The force guard keeps the *true* force under the limit when the force loop itself is far
 /// too hot (proportional gain 10× the default: the tool rings and bounces on steel), at both
-/// plant stiffnesses. The loop's other protections are mistuned so they let the hot gain
-/// through: the tool mass is told 100× too light (the gain schedule then sees the contact
-/// mode far above the sensor filter and keeps kp) and the normal acceleration limit is
-/// out of the way. Negative control: the same runs with the limit out of the way (500 N)
-/// peak far above 80 N, so the scenario does threaten the limit and the guard is what holds
-/// it. (Not a proof for every mistuning: see docs/slave-results.md, "Known limits".)
+/// plant stiffnesses and over eight seeds. The loop's other protections are mistuned so they
+/// let the hot gain through: the tool mass is told 100× too light (the gain schedule then
+/// sees the contact mode far above the sensor filter and keeps kp) and the normal
+/// acceleration limit is out of the way. Negative control: the same runs with the limit out
+/// of the way (500 N) peak at 25 % or more above the 80 N limit in every one of them
+/// (measured: 107–135 N at ×0.7, 168–211 N at ×1.3), so the scenario does threaten the limit
+/// and the guard is what holds it. (Not a proof for every mistuning: see
+/// docs/slave-results.md, "Known limits".)
 const HOT_KP: &str = "controller.kp=3";
 const HOT_MASS: &str = "controller.tool_mass_kg=0.01";
 const HOT_ACCEL: &str = "controller.force_accel_mm_per_s2=1e6";
@@ -222,33 +224,26 @@ const HOT_ACCEL: &str = "controller.force_accel_mm_per_s2=1e6";
 #[test]
 fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
     for scale in ["0.7", "1.3"] {
-        let set = format!("plant.stiffness_scale={scale}");
-        let (cfg, guarded) = run(
-            "fig7c.toml",
-            &[HOT_KP, HOT_MASS, HOT_ACCEL, "duration_s=6", &set],
-        );
-        assert!(
-            guarded.max_force_n <= cfg.controller.force_limit_n,
-            "×{scale} guarded: {:.1} N > {} N",
-            guarded.max_force_n,
-            cfg.controller.force_limit_n
-        );
-        let (_, unguarded) = run(
-            "fig7c.toml",
-            &[
-                HOT_KP,
-                HOT_MASS,
-                HOT_ACCEL,
-                "duration_s=6",
-                &set,
-                "controller.force_limit_n=500",
-            ],
-        );
-        assert!(
-            unguarded.max_force_n > 120.0,
-            "×{scale}: the hot loop does not threaten the limit: {:.1} N",
-            unguarded.max_force_n
-        );
+        for seed in 1..=8 {
+            let set = format!("plant.stiffness_scale={scale}");
+            let seed_set = format!("seed={seed}");
+            let hot = [HOT_KP, HOT_MASS, HOT_ACCEL, "duration_s=6", &set, &seed_set];
+            let (cfg, guarded) = run("fig7c.toml", &hot);
+            let limit_n = cfg.controller.force_limit_n;
+            assert!(
+                guarded.max_force_n <= limit_n,
+                "×{scale} seed {seed} guarded: {:.1} N > {limit_n} N",
+                guarded.max_force_n,
+            );
+            let mut unguarded_set = hot.to_vec();
+            unguarded_set.push("controller.force_limit_n=500");
+            let (_, unguarded) = run("fig7c.toml", &unguarded_set);
+            assert!(
+                unguarded.max_force_n > 1.25 * limit_n,
+                "×{scale} seed {seed}: the hot loop does not threaten the limit: {:.1} N",
+                unguarded.max_force_n
+            );
+        }
     }
 }
 
