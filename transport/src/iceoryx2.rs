@@ -4,8 +4,9 @@
 //!
 //! Services are `<prefix>/<arm_id>/command` and `<prefix>/<arm_id>/feedback` (prefix `h4`),
 //! so several arms share a host. Receiving is a non-blocking poll, done once per control
-//! cycle: on the project's VMs waking a process on the other vCPU costs 35–110 µs, so
-//! polling from the paced loop beats an event wake-up (see `docs/transport.md`).
+//! cycle of the caller's paced loop: no wake-up to pay (35–110 µs across vCPUs on the
+//! project's VMs) and no core spinning on the link. The round-trip bench measures it against
+//! an event wake-up and a busy-poll (`docs/processes.md`, "Event wake-up or polling").
 //!
 //! Resources left by a killed process are removed when the next node is created (iceoryx2
 //! cleans up dead nodes on creation), and services are opened with `open_or_create`, so a
