@@ -34,12 +34,7 @@ impl SimArgs {
         if let Some(r) = recorder {
             r.finish().map_err(|e| e.to_string())?;
         }
-        let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-        h4_shared::process::print_stdout(&json).map_err(|e| format!("standard output: {e}"))?;
-        if let Some(p) = &self.summary {
-            std::fs::write(p, format!("{json}\n"))
-                .map_err(|e| format!("cannot write {}: {e}", p.display()))?;
-        }
+        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
         Ok(if summary.stable {
             ExitCode::SUCCESS
         } else {
