@@ -669,6 +669,12 @@ pub struct Summary {
     pub max_force_n: f64,
     /// Largest force rendered to the operator, N.
     pub max_master_force_n: f64,
+    /// Chatter of the force rendered to the operator: the largest RMS, over any
+    /// `CHATTER_WINDOW_MS` (100 ms) window, of the cycle-to-cycle change of the rendered
+    /// force vector (|F_k − F_{k−1}|), N per cycle. A smooth push changes it by a fraction of
+    /// a newton per cycle; a handle whose velocity flips sign every cycle under too much
+    /// damping swings it by tens of newtons.
+    pub master_force_chatter_n: f64,
     /// Contact-force oscillation late in contact over early (RMS around the moving mean);
     /// < 1 means decaying.
     pub oscillation_growth: f64,
@@ -1011,6 +1017,7 @@ impl Session {
             ev.push(Sample {
                 true_force_n: norm3(&true_f),
                 master_force_n: norm3(&m.rendered),
+                master_force_vec_n: [m.rendered[0], m.rendered[1], m.rendered[2]],
                 transparency_abs_n: {
                     let mut d = [0.0; 3];
                     for (i, di) in d.iter_mut().enumerate() {
@@ -1135,9 +1142,13 @@ pub fn run(cfg: &SessionConfig, recorder: Option<&mut Recorder>) -> Result<Summa
     Session::new(cfg)?.run(recorder)
 }
 
+/// Window of [`Summary::master_force_chatter_n`], cycles (1 ms each).
+const CHATTER_WINDOW_MS: usize = 100;
+
 struct Sample {
     true_force_n: f64,
     master_force_n: f64,
+    master_force_vec_n: [f64; 3],
     transparency_abs_n: f64,
     slave_force_n: f64,
     steady: bool,
@@ -1161,6 +1172,11 @@ struct Evaluator {
     energy_min: f64,
     max_force: f64,
     max_master: f64,
+    chatter_ring: Vec<f64>,
+    chatter_sum: f64,
+    chatter_k: usize,
+    chatter_max: f64,
+    prev_master_n: Option<[f64; 3]>,
     trans_abs: f64,
     trans_ref: f64,
     track_sq: f64,
@@ -1183,6 +1199,11 @@ impl Evaluator {
             energy_min: 0.0,
             max_force: 0.0,
             max_master: 0.0,
+            chatter_ring: vec![0.0; CHATTER_WINDOW_MS],
+            chatter_sum: 0.0,
+            chatter_k: 0,
+            chatter_max: 0.0,
+            prev_master_n: None,
             trans_abs: 0.0,
             trans_ref: 0.0,
             track_sq: 0.0,
@@ -1202,6 +1223,25 @@ impl Evaluator {
         self.energy_min = self.energy_min.min(s.observed_min_j);
         self.max_force = self.max_force.max(s.true_force_n);
         self.max_master = self.max_master.max(s.master_force_n);
+        if let Some(p) = self.prev_master_n {
+            let d = [
+                s.master_force_vec_n[0] - p[0],
+                s.master_force_vec_n[1] - p[1],
+                s.master_force_vec_n[2] - p[2],
+            ];
+            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            let slot = self.chatter_k % CHATTER_WINDOW_MS;
+            self.chatter_sum += d2 - self.chatter_ring[slot];
+            self.chatter_ring[slot] = d2;
+            self.chatter_k += 1;
+            // Re-summed once per window: no drift of the running sum.
+            if self.chatter_k.is_multiple_of(CHATTER_WINDOW_MS) {
+                self.chatter_sum = self.chatter_ring.iter().sum();
+            }
+            let rms = (self.chatter_sum.max(0.0) / CHATTER_WINDOW_MS as f64).sqrt();
+            self.chatter_max = self.chatter_max.max(rms);
+        }
+        self.prev_master_n = Some(s.master_force_vec_n);
         self.drift_max = self.drift_max.max(s.drift_mm);
         if s.rejected {
             self.rejected += 1;
@@ -1301,6 +1341,7 @@ impl Evaluator {
             energy_min_j: self.energy_min,
             max_force_n: self.max_force,
             max_master_force_n: self.max_master,
+            master_force_chatter_n: self.chatter_max,
             oscillation_growth: growth,
             oscillation_early_n: early,
             oscillation_late_n: late,
