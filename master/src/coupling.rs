@@ -567,6 +567,20 @@ impl MasterCoupling {
         }
         self.last_target = target;
         self.velocity = vel;
+        // Optional (`passivity.damping_step_fraction`, off by default): the passivity
+        // controller's released damping tail, with the local damping, stays within what the
+        // handle's mass takes in one cycle (discrete-time bound).
+        let frac = p.passivity_params.damping_step_fraction;
+        self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
+            let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
+                p.master_damping_n_s_per_mm * self.fade
+            } else {
+                0.0
+            };
+            Some((frac * dev.effective_mass_kg * 1e-3 / dt_s - local).max(0.0))
+        } else {
+            None
+        };
         let pc = self.port.step(link_force, v_m, dt_s, p.passivity);
         let mut force = pc.force_n;
         let mut local = [0.0; 3];

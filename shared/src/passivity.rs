@@ -51,6 +51,13 @@ pub struct PassivityParams {
     /// Energy the master controller keeps in reserve: it starts damping when its observer
     /// would fall below this, J (0: only below zero).
     pub energy_reserve_j: f64,
+    /// Discrete-time bound of the master controller's *released* damping (the tail kept
+    /// after a deficit, `damping_release_ms`): it is held to `α` with `(α + local damping) ·
+    /// dt ≤ damping_step_fraction · m`, `m` the handle's smallest effective mass (more makes
+    /// the light handle's velocity overshoot and flip sign every cycle). The damping a
+    /// deficit needs is not bounded by it. 0: off (the default; measured worse on the delay
+    /// matrix, see docs/sessions.md "Handle chatter").
+    pub damping_step_fraction: f64,
 }
 
 impl Default for PassivityParams {
@@ -64,6 +71,7 @@ impl Default for PassivityParams {
             force_floor_n: 0.3,
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
+            damping_step_fraction: 0.0,
         }
     }
 }
@@ -119,6 +127,13 @@ impl PassivityParams {
             0.0,
             100.0,
             "J",
+        )?;
+        check_range(
+            &format!("{prefix}damping_step_fraction"),
+            self.damping_step_fraction,
+            0.0,
+            2.0,
+            "",
         )
     }
 }
@@ -161,6 +176,10 @@ pub struct ImpedancePort {
     pub damping_release_ms: f64,
     /// Reserve below which the controller starts damping, J.
     pub energy_reserve_j: f64,
+    /// This cycle's discrete-time bound of the released damping tail, N·s/mm (`None`: no
+    /// bound); the caller sets it from the device's effective mass. The damping a deficit
+    /// needs is bounded only by `max_damping_n_s_per_mm`.
+    pub damping_step_limit_n_s_per_mm: Option<f64>,
     alpha: f64,
 }
 
@@ -238,9 +257,14 @@ impl ImpedancePort {
             } else {
                 0.0
             };
-            alpha = need
-                .max(self.alpha * decay)
-                .min(self.max_damping_n_s_per_mm);
+            // The release tail is voluntary (no deficit asks for it): it is kept within
+            // the handle's discrete-time bound when one is given; the damping a deficit
+            // needs is not bounded by it.
+            let held = match self.damping_step_limit_n_s_per_mm {
+                Some(l) => (self.alpha * decay).min(l.max(0.0)),
+                None => self.alpha * decay,
+            };
+            alpha = need.max(held).min(self.max_damping_n_s_per_mm);
             self.alpha = alpha;
             if alpha > 0.0 {
                 for (f, v) in force.iter_mut().zip(velocity_mm_per_s.iter()) {
@@ -522,6 +546,32 @@ mod tests {
         assert!(smooth[0] > 0.0 && smooth[0] > smooth[30] && smooth[30] > smooth[150]);
         assert!(smooth[150] < 0.01 * smooth[0], "{smooth:?}");
         assert!(e_smooth > e_bang);
+    }
+
+    /// A discrete-time bound holds the released tail of the damping, not the damping the
+    /// deficit needs: the observer stays >= 0 either way.
+    #[test]
+    fn impedance_port_step_limit_bounds_only_the_release_tail() {
+        let dt = 0.001;
+        let mut port = ImpedancePort::from_params(&PassivityParams::default());
+        port.damping_step_limit_n_s_per_mm = Some(0.1);
+        port.receive_remote_in(0.0005);
+        let mut needed = 0.0_f64;
+        for k in 0..200 {
+            let f = if k < 20 { 10.0 } else { 0.0 };
+            if k == 20 {
+                port.receive_remote_in(1.0);
+            }
+            let s = port.step([f, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
+            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
+            if k < 20 {
+                needed = needed.max(s.damping_n_s_per_mm);
+            } else {
+                assert!(s.damping_n_s_per_mm <= 0.1 + 1e-12, "{k}: {s:?}");
+            }
+        }
+        assert!(needed > 0.1, "{needed}");
     }
 
     #[test]
