@@ -269,7 +269,8 @@ fn matrix_passivity_on_meets_targets() {
     println!(
         "worst: late oscillation {:.2} N RMS (limit {}), growth {:.2} (limit {}), \
          energy_min_j {:.4} J, max_force_n {:.1} N, max_master_force_n {:.1} N, \
-         position_drift_mm {:.2}, transparency (rtt <= 100 ms) {:.1} %",
+         position_drift_mm {:.2}, transparency (rtt <= 100 ms) {:.1} %, \
+         master_force_chatter_n {:.2} N/cycle",
         worst(&|_, s| Some(s.oscillation_late_n)),
         1.5,
         worst(&|_, s| Some(s.oscillation_growth)),
@@ -279,7 +280,31 @@ fn matrix_passivity_on_meets_targets() {
         worst(&|_, s| Some(s.max_master_force_n)),
         worst(&|_, s| Some(s.position_drift_mm)),
         worst(&|c, s| (c.rtt_ms <= 100.0).then_some(s.force_transparency_err_pct)),
+        worst(&|_, s| Some(s.master_force_chatter_n)),
     );
+    // The cells whose rendered force chatters most.
+    let mut by_chatter: Vec<(f64, String)> = cases
+        .iter()
+        .zip(&sums)
+        .map(|(c, s)| (s.master_force_chatter_n, c.label()))
+        .collect();
+    by_chatter.sort_by(|a, b| b.0.total_cmp(&a.0));
+    println!(
+        "master observer by displacement (a check of energy_min_j, not a target): worst \
+         {:.4} J, cells below -0.01 J: {}",
+        -worst(&|_, s| Some(-s.master_energy_min_by_displacement_j)),
+        count(&|_, s| s.master_energy_min_by_displacement_j < -0.01),
+    );
+    println!(
+        "chatter: cells above 1 / 2 / 5 / 10 N/cycle: {} / {} / {} / {}",
+        count(&|_, s| s.master_force_chatter_n > 1.0),
+        count(&|_, s| s.master_force_chatter_n > 2.0),
+        count(&|_, s| s.master_force_chatter_n > 5.0),
+        count(&|_, s| s.master_force_chatter_n > 10.0),
+    );
+    for (v, l) in by_chatter.iter().take(5) {
+        println!("chatter {v:.2} N/cycle: {l}");
+    }
     let mut failed = Vec::new();
     for (c, s) in cases.iter().zip(&sums) {
         let m = misses(c, s);

@@ -345,6 +345,13 @@ pub struct MasterCoupling {
     last: MasterStep,
     velocity: [f64; 3],
     local_n: [f64; 3],
+    /// The link's force applied last cycle and the handle position it started from (for
+    /// the displacement-based energy check).
+    disp_prev: Option<([f64; 3], [f64; 3])>,
+    /// Energy the link's force delivered to the handle, booked from the handle's measured
+    /// displacement over each cycle (`F_k · (x_k+1 − x_k)`), J; a check of the port's own
+    /// observer, which books `F_k · v_k · dt` with the velocity sampled at the cycle's start.
+    pub displacement_out_j: f64,
     filtered_n: [f64; 3],
     /// The local contact model (model-mediated rendering).
     pub model: ContactModel,
@@ -387,6 +394,8 @@ impl MasterCoupling {
             last: MasterStep::default(),
             velocity: [0.0; 3],
             local_n: [0.0; 3],
+            disp_prev: None,
+            displacement_out_j: 0.0,
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
@@ -407,6 +416,15 @@ impl MasterCoupling {
     /// κ = force scale / motion scale: slave energy × κ = master energy.
     pub fn kappa(&self) -> f64 {
         self.p.force_scale / self.p.motion_scale
+    }
+
+    /// The master port's observer with the energy delivered to the handle booked from the
+    /// measured displacement instead of the sampled velocity, J (the remote input energy is
+    /// the port's). Up to one cycle late. When the handle moves smoothly it equals the port's
+    /// observer to within a fraction of a millijoule; when the handle's velocity flips sign
+    /// every cycle the sampled velocity misses the work the force really does.
+    pub fn observed_by_displacement_j(&self) -> f64 {
+        self.port.observed_j() + self.port.energy.out_j - self.displacement_out_j
     }
 
     /// Hands the coupling a feedback message the gate accepted at `now_ns`.
@@ -567,6 +585,20 @@ impl MasterCoupling {
         }
         self.last_target = target;
         self.velocity = vel;
+        // Optional (`passivity.damping_step_fraction`, off by default): the passivity
+        // controller's released damping tail, with the local damping, stays within what the
+        // handle's mass takes in one cycle (discrete-time bound).
+        let frac = p.passivity_params.damping_step_fraction;
+        self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
+            let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
+                p.master_damping_n_s_per_mm * self.fade
+            } else {
+                0.0
+            };
+            Some((frac * dev.effective_mass_kg * 1e-3 / dt_s - local).max(0.0))
+        } else {
+            None
+        };
         let pc = self.port.step(link_force, v_m, dt_s, p.passivity);
         let mut force = pc.force_n;
         let mut local = [0.0; 3];
@@ -635,6 +667,14 @@ impl MasterCoupling {
             [0.0; 3]
         };
         self.port.commit(link, v_m, dt_s);
+        let x = [dev.pose[0], dev.pose[1], dev.pose[2]];
+        if let Some((x0, f0)) = self.disp_prev {
+            let w = f0[0] * (x[0] - x0[0]) + f0[1] * (x[1] - x0[1]) + f0[2] * (x[2] - x0[2]);
+            if w > 0.0 && w.is_finite() {
+                self.displacement_out_j += w * 1e-3;
+            }
+        }
+        self.disp_prev = Some((x, link));
         self.seq += 1;
         let mode = if self.clutched {
             Mode::Hold

@@ -11,7 +11,7 @@
 //! at `substeps` per 1 ms step. Units: mm, rad, N, N·mm, kg, s.
 
 use h4_shared::kinematics::{H4Params, KinError, Pose};
-use nalgebra::{Matrix4, Vector4};
+use nalgebra::{Matrix3, Matrix4, Vector4};
 use serde::{Deserialize, Serialize};
 
 /// One reading of the device.
@@ -25,6 +25,11 @@ pub struct DeviceState {
     pub velocity: [f64; 4],
     /// The clutch button is held.
     pub clutch: bool,
+    /// Smallest effective mass of the handle along any translation at this pose, kg (the
+    /// inverse of the largest eigenvalue of the translational block of `M⁻¹`; 0: unknown).
+    /// A force that changes with the measured velocity by more than about this mass per
+    /// cycle overshoots within one cycle (discrete-time damping limit).
+    pub effective_mass_kg: f64,
 }
 
 /// What the master needs of a haptic device: a real driver implements this.
@@ -91,6 +96,26 @@ pub struct SimMasterArm {
     hand_wrench: Vector4<f64>,
     clutch: bool,
     kinematics_faults: u64,
+    effective_mass_kg: f64,
+}
+
+/// The task-space mass matrix `M = M_platform + Jᵀ M_c J`, in N·s²/mm (kg × 1e-3).
+fn mass_matrix(c: &MasterArmConfig, j: &Matrix4<f64>) -> Matrix4<f64> {
+    let mc = c.carriage_mass_kg * 1e-3;
+    let mp = c.handle_mass_kg * 1e-3;
+    let ip = c.handle_inertia_kg_mm2 * 1e-3;
+    Matrix4::from_diagonal(&Vector4::new(mp, mp, mp, ip)) + j.transpose() * j * mc
+}
+
+/// Smallest effective translational mass from `M⁻¹`, kg (0 if not computable).
+fn effective_mass_kg(inv_mass: &Matrix4<f64>) -> f64 {
+    let a: Matrix3<f64> = inv_mass.fixed_view::<3, 3>(0, 0).into_owned();
+    let l = a.symmetric_eigenvalues().max();
+    if l.is_finite() && l > 0.0 {
+        1e3 / l
+    } else {
+        0.0
+    }
 }
 
 impl SimMasterArm {
@@ -100,6 +125,9 @@ impl SimMasterArm {
         let pose = Pose::from(cfg.home_pose);
         let jac = cfg.geometry.jacobian(&pose)?;
         cfg.geometry.ik_checked(&pose)?;
+        let effective_mass_kg = mass_matrix(&cfg, &jac)
+            .try_inverse()
+            .map_or(0.0, |m| effective_mass_kg(&m));
         Ok(SimMasterArm {
             cfg,
             time_ns: 0,
@@ -110,6 +138,7 @@ impl SimMasterArm {
             hand_wrench: Vector4::zeros(),
             clutch: false,
             kinematics_faults: 0,
+            effective_mass_kg,
         })
     }
 
@@ -151,14 +180,11 @@ impl SimMasterArm {
         }
         let j = self.jac;
         let c = &self.cfg;
-        let mc = c.carriage_mass_kg * 1e-3;
-        let mp = c.handle_mass_kg * 1e-3;
-        let ip = c.handle_inertia_kg_mm2 * 1e-3;
-        let mass = Matrix4::from_diagonal(&Vector4::new(mp, mp, mp, ip)) + j.transpose() * j * mc;
-        let Some(inv_mass) = mass.try_inverse() else {
+        let Some(inv_mass) = mass_matrix(c, &j).try_inverse() else {
             self.kinematics_faults += 1;
             return;
         };
+        self.effective_mass_kg = effective_mass_kg(&inv_mass);
         let motor = j.transpose() * self.motor_n;
         let n = c.substeps.max(1);
         let dt = dt_ns as f64 * 1e-9 / f64::from(n);
@@ -184,6 +210,7 @@ impl HapticDevice for SimMasterArm {
             pose: [self.pose[0], self.pose[1], self.pose[2], self.pose[3]],
             velocity: [self.vel[0], self.vel[1], self.vel[2], self.vel[3]],
             clutch: self.clutch,
+            effective_mass_kg: self.effective_mass_kg,
         }
     }
 

@@ -669,6 +669,18 @@ pub struct Summary {
     pub max_force_n: f64,
     /// Largest force rendered to the operator, N.
     pub max_master_force_n: f64,
+    /// Lowest value of the master port's observer with the energy the link delivers to the
+    /// handle booked from the handle's measured displacement over each cycle (`F_k · (x_k+1
+    /// − x_k)`) instead of the velocity sampled at the cycle's start (`F_k · v_k · dt`, the
+    /// port's own bookkeeping, in `energy_min_j`), J. A check on `energy_min_j`: the two
+    /// agree when the handle moves smoothly; they part when the handle chatters.
+    pub master_energy_min_by_displacement_j: f64,
+    /// Chatter of the force rendered to the operator: the largest RMS, over any
+    /// `CHATTER_WINDOW_MS` (100 ms) window, of the cycle-to-cycle change of the rendered
+    /// force vector (|F_k − F_{k−1}|), N per cycle. A smooth push changes it by a fraction of
+    /// a newton per cycle; a handle whose velocity flips sign every cycle under too much
+    /// damping swings it by tens of newtons.
+    pub master_force_chatter_n: f64,
     /// Contact-force oscillation late in contact over early (RMS around the moving mean);
     /// < 1 means decaying.
     pub oscillation_growth: f64,
@@ -1011,6 +1023,11 @@ impl Session {
             ev.push(Sample {
                 true_force_n: norm3(&true_f),
                 master_force_n: norm3(&m.rendered),
+                master_force_vec_n: [m.rendered[0], m.rendered[1], m.rendered[2]],
+                master_observed_by_displacement_j: self
+                    .master
+                    .coupling
+                    .observed_by_displacement_j(),
                 transparency_abs_n: {
                     let mut d = [0.0; 3];
                     for (i, di) in d.iter_mut().enumerate() {
@@ -1135,9 +1152,14 @@ pub fn run(cfg: &SessionConfig, recorder: Option<&mut Recorder>) -> Result<Summa
     Session::new(cfg)?.run(recorder)
 }
 
+/// Window of [`Summary::master_force_chatter_n`], cycles (1 ms each).
+const CHATTER_WINDOW_MS: usize = 100;
+
 struct Sample {
     true_force_n: f64,
     master_force_n: f64,
+    master_force_vec_n: [f64; 3],
+    master_observed_by_displacement_j: f64,
     transparency_abs_n: f64,
     slave_force_n: f64,
     steady: bool,
@@ -1161,6 +1183,12 @@ struct Evaluator {
     energy_min: f64,
     max_force: f64,
     max_master: f64,
+    energy_min_disp: f64,
+    chatter_ring: Vec<f64>,
+    chatter_sum: f64,
+    chatter_k: usize,
+    chatter_max: f64,
+    prev_master_n: Option<[f64; 3]>,
     trans_abs: f64,
     trans_ref: f64,
     track_sq: f64,
@@ -1183,6 +1211,12 @@ impl Evaluator {
             energy_min: 0.0,
             max_force: 0.0,
             max_master: 0.0,
+            energy_min_disp: 0.0,
+            chatter_ring: vec![0.0; CHATTER_WINDOW_MS],
+            chatter_sum: 0.0,
+            chatter_k: 0,
+            chatter_max: 0.0,
+            prev_master_n: None,
             trans_abs: 0.0,
             trans_ref: 0.0,
             track_sq: 0.0,
@@ -1202,6 +1236,28 @@ impl Evaluator {
         self.energy_min = self.energy_min.min(s.observed_min_j);
         self.max_force = self.max_force.max(s.true_force_n);
         self.max_master = self.max_master.max(s.master_force_n);
+        self.energy_min_disp = self
+            .energy_min_disp
+            .min(s.master_observed_by_displacement_j);
+        if let Some(p) = self.prev_master_n {
+            let d = [
+                s.master_force_vec_n[0] - p[0],
+                s.master_force_vec_n[1] - p[1],
+                s.master_force_vec_n[2] - p[2],
+            ];
+            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            let slot = self.chatter_k % CHATTER_WINDOW_MS;
+            self.chatter_sum += d2 - self.chatter_ring[slot];
+            self.chatter_ring[slot] = d2;
+            self.chatter_k += 1;
+            // Re-summed once per window: no drift of the running sum.
+            if self.chatter_k.is_multiple_of(CHATTER_WINDOW_MS) {
+                self.chatter_sum = self.chatter_ring.iter().sum();
+            }
+            let rms = (self.chatter_sum.max(0.0) / CHATTER_WINDOW_MS as f64).sqrt();
+            self.chatter_max = self.chatter_max.max(rms);
+        }
+        self.prev_master_n = Some(s.master_force_vec_n);
         self.drift_max = self.drift_max.max(s.drift_mm);
         if s.rejected {
             self.rejected += 1;
@@ -1301,6 +1357,8 @@ impl Evaluator {
             energy_min_j: self.energy_min,
             max_force_n: self.max_force,
             max_master_force_n: self.max_master,
+            master_energy_min_by_displacement_j: self.energy_min_disp,
+            master_force_chatter_n: self.chatter_max,
             oscillation_growth: growth,
             oscillation_early_n: early,
             oscillation_late_n: late,

@@ -51,6 +51,12 @@ pub struct PassivityParams {
     /// Energy the master controller keeps in reserve: it starts damping when its observer
     /// would fall below this, J (0: only below zero).
     pub energy_reserve_j: f64,
+    /// Discrete-time bound of the master controller's damping: `(α + local damping) · dt ≤
+    /// damping_step_fraction · m`, `m` the handle's smallest effective mass (more makes the
+    /// light handle's velocity overshoot and flip sign every cycle). A deficit the bounded
+    /// damping cannot dissipate at once is carried (the observer goes below zero). 0: off
+    /// (the default; with it on the matrix misses, see docs/sessions.md "Handle chatter").
+    pub damping_step_fraction: f64,
 }
 
 impl Default for PassivityParams {
@@ -64,6 +70,7 @@ impl Default for PassivityParams {
             force_floor_n: 0.3,
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
+            damping_step_fraction: 0.0,
         }
     }
 }
@@ -119,6 +126,13 @@ impl PassivityParams {
             0.0,
             100.0,
             "J",
+        )?;
+        check_range(
+            &format!("{prefix}damping_step_fraction"),
+            self.damping_step_fraction,
+            0.0,
+            2.0,
+            "",
         )
     }
 }
@@ -161,6 +175,9 @@ pub struct ImpedancePort {
     pub damping_release_ms: f64,
     /// Reserve below which the controller starts damping, J.
     pub energy_reserve_j: f64,
+    /// This cycle's discrete-time bound of the damping, N·s/mm (`None`: only
+    /// `max_damping_n_s_per_mm`); the caller sets it from the device's effective mass.
+    pub damping_step_limit_n_s_per_mm: Option<f64>,
     alpha: f64,
 }
 
@@ -238,9 +255,18 @@ impl ImpedancePort {
             } else {
                 0.0
             };
-            alpha = need
-                .max(self.alpha * decay)
-                .min(self.max_damping_n_s_per_mm);
+            // With a discrete-time bound (the handle's mass per cycle) the damping never
+            // exceeds it: more would make the handle's velocity flip sign every cycle, and
+            // the observer, booking the velocity sampled at the cycle's start, would count
+            // as dissipated what the force really feeds into the handle. What the bounded
+            // damping cannot dissipate stays in the observer (it goes below zero) and is
+            // dissipated in the following cycles.
+            let held = self.alpha * decay;
+            let cap = match self.damping_step_limit_n_s_per_mm {
+                Some(l) => self.max_damping_n_s_per_mm.min(l.max(0.0)),
+                None => self.max_damping_n_s_per_mm,
+            };
+            alpha = need.max(held).min(cap);
             self.alpha = alpha;
             if alpha > 0.0 {
                 for (f, v) in force.iter_mut().zip(velocity_mm_per_s.iter()) {
@@ -522,6 +548,29 @@ mod tests {
         assert!(smooth[0] > 0.0 && smooth[0] > smooth[30] && smooth[30] > smooth[150]);
         assert!(smooth[150] < 0.01 * smooth[0], "{smooth:?}");
         assert!(e_smooth > e_bang);
+    }
+
+    /// A discrete-time bound holds all of the damping; the deficit it cannot dissipate at
+    /// once is carried and paid back once energy arrives.
+    #[test]
+    fn impedance_port_step_limit_bounds_the_damping_and_carries_the_deficit() {
+        let dt = 0.001;
+        let mut port = ImpedancePort::from_params(&PassivityParams::default());
+        port.damping_step_limit_n_s_per_mm = Some(0.1);
+        port.receive_remote_in(0.0005);
+        let mut lowest = 0.0_f64;
+        for k in 0..200 {
+            let f = if k < 20 { 10.0 } else { 0.0 };
+            if k == 20 {
+                port.receive_remote_in(1.0);
+            }
+            let s = port.step([f, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
+            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            assert!(s.damping_n_s_per_mm <= 0.1 + 1e-12, "{k}: {s:?}");
+            lowest = lowest.min(port.observed_j());
+        }
+        assert!(lowest < 0.0, "{lowest}");
+        assert!(port.observed_j() > 0.0, "{}", port.observed_j());
     }
 
     #[test]
