@@ -321,22 +321,29 @@ fn matrix_passivity_on_meets_targets() {
     );
 }
 
-/// Negative control: the bare coupling (no passivity control, no local contact model:
-/// the master renders the delayed slave force) is unstable on the stiff wall from 20 ms
-/// round trip, and the detector says so. (If the detector could not fail, this would.)
-#[test]
-fn negative_control_passivity_off_stiff_wall_unstable_from_20_ms() {
-    let cases: Vec<Case> = [20.0, 50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0]
-        .into_iter()
-        .map(|rtt_ms| Case {
+/// The stiff wall at each round trip, no jitter or loss, passivity off, the master's local
+/// contact model on or off: the negative controls' cases.
+fn stiff_wall_without_passivity(rtts_ms: &[f64], model: bool) -> Vec<Case> {
+    rtts_ms
+        .iter()
+        .map(|&rtt_ms| Case {
             rtt_ms,
             jitter: 0.0,
             loss: Loss::None,
             env: Env::Stiff,
             passivity: false,
-            model: false,
+            model,
         })
-        .collect();
+        .collect()
+}
+
+/// Negative control: the bare coupling (no passivity control, no local contact model:
+/// the master renders the delayed slave force) is unstable on the stiff wall from 20 ms
+/// round trip, and the detector says so. (If the detector could not fail, this would.)
+#[test]
+fn negative_control_passivity_off_stiff_wall_unstable_from_20_ms() {
+    let cases =
+        stiff_wall_without_passivity(&[20.0, 50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0], false);
     let sums = run_all(&cases);
     for (c, s) in cases.iter().zip(&sums) {
         assert!(!s.stable, "{}: detector said stable: {s:#?}", c.label());
@@ -356,17 +363,7 @@ fn negative_control_passivity_off_stiff_wall_unstable_from_20_ms() {
 /// slave's arrives), and the detector reports it.
 #[test]
 fn negative_control_model_without_passivity_generates_energy_from_50_ms() {
-    let cases: Vec<Case> = [50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0]
-        .into_iter()
-        .map(|rtt_ms| Case {
-            rtt_ms,
-            jitter: 0.0,
-            loss: Loss::None,
-            env: Env::Stiff,
-            passivity: false,
-            model: true,
-        })
-        .collect();
+    let cases = stiff_wall_without_passivity(&[50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0], true);
     let sums = run_all(&cases);
     for (c, s) in cases.iter().zip(&sums) {
         assert!(!s.stable, "{}: detector said stable: {s:#?}", c.label());
