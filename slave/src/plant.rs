@@ -566,15 +566,7 @@ impl SimArm {
     fn substeps_plane(&mut self, n: u32, point_mm: [f64; 3], nrm: [f64; 3]) {
         let dt = self.substep_s;
         let cfg = self.cfg;
-        let inv_m_c = 1.0 / (cfg.carriage_mass_kg * 1e-3);
-        let u_max = cfg.motor_force_max_n;
-        let (kp, ki, kd) = (
-            cfg.servo_kp_n_per_mm,
-            cfg.servo_ki_n_per_mm_s,
-            cfg.servo_kd_n_s_per_mm,
-        );
-        let inv_v0 = 1.0 / cfg.friction_velocity_mm_per_s;
-        let (fc_n, fv) = (cfg.coulomb_friction_n, cfg.viscous_friction_n_s_per_mm);
+        let servo = CarriageServo::new(&cfg, dt);
         let damp = cfg.platform_damping_n_s_per_mm;
         let k = self.k;
         let cs = self.c_struct;
@@ -582,8 +574,6 @@ impl SimArm {
         let mut q = self.q;
         let mut qd = self.qd;
         let mut integ = self.integral;
-        let ki_dt = ki * dt;
-        let dt_over_m_c = inv_m_c * dt;
         let dt_over_m_tool = self.inv_mass[0] * dt;
         let m_tool_over_dt = 1.0 / dt_over_m_tool;
         let dt_over_inertia = self.inv_mass[3] * dt;
@@ -666,18 +656,7 @@ impl SimArm {
             let mut base = [0.0f64; 4];
             for i in 0..4 {
                 let pre = k[i] * (l[i] - q[i]);
-                let e = cmd[i] - q[i];
-                let i_term = integ[i] + ki_dt * e;
-                let u_raw = kp * e + i_term - kd * qd[i];
-                let u = clamp_sel(u_raw, -u_max, u_max);
-                if u == u_raw {
-                    integ[i] = i_term;
-                }
-                let v = qd[i];
-                let friction = fc_n * clamp_sel(v * inv_v0, -1.0, 1.0) + fv * v;
-                let v_new = (v + (u - friction) * dt_over_m_c) + f[i] * dt_over_m_c;
-                qd[i] = v_new;
-                q[i] += v_new * dt;
+                let v_new = servo.step(cmd[i], &mut q[i], &mut qd[i], &mut integ[i], f[i]);
                 // The next period's structural force without the platform's share.
                 base[i] = pre - k_dt_cs[i] * v_new;
             }
@@ -764,15 +743,7 @@ impl SimArm {
                 *v = self.jac[(r, c)];
             }
         }
-        let inv_m_c = 1.0 / (cfg.carriage_mass_kg * 1e-3);
-        let u_max = cfg.motor_force_max_n;
-        let (kp, ki, kd) = (
-            cfg.servo_kp_n_per_mm,
-            cfg.servo_ki_n_per_mm_s,
-            cfg.servo_kd_n_s_per_mm,
-        );
-        let inv_v0 = 1.0 / cfg.friction_velocity_mm_per_s;
-        let (fc_n, fv) = (cfg.coulomb_friction_n, cfg.viscous_friction_n_s_per_mm);
+        let servo = CarriageServo::new(&cfg, dt);
         let damp = cfg.platform_damping_n_s_per_mm;
         let k = self.k;
         let cs = self.c_struct;
@@ -806,8 +777,6 @@ impl SimArm {
         let inv_m_tool = inv_mass[0];
         let m_tool_over_dt = 1.0 / (inv_m_tool * dt);
         // Products of constants taken out of the loop.
-        let ki_dt = ki * dt;
-        let dt_over_m_c = inv_m_c * dt;
         let dt_over_m_tool = inv_m_tool * dt;
         let dt_over_inertia = inv_mass[3] * dt;
         // Leg rates the platform imposes (J held over the block).
@@ -821,18 +790,7 @@ impl SimArm {
                 // Structural spring, positive when the platform pulls the carriage forward.
                 let f = k[i] * (l[i] - q[i]) + cs[i] * (ld[i] - qd[i]);
                 f_act[i] = f;
-                // PID servo on the encoder, derivative on the measurement, anti-windup.
-                let e = cmd[i] - q[i];
-                let i_term = integ[i] + ki_dt * e;
-                let u_raw = kp * e + i_term - kd * qd[i];
-                let u = u_raw.clamp(-u_max, u_max);
-                if u == u_raw {
-                    integ[i] = i_term;
-                }
-                let v = qd[i];
-                let friction = fc_n * (v * inv_v0).clamp(-1.0, 1.0) + fv * v;
-                qd[i] += (u + f - friction) * dt_over_m_c;
-                q[i] += qd[i] * dt;
+                servo.step(cmd[i], &mut q[i], &mut qd[i], &mut integ[i], f);
             }
             // Platform: the legs act through Jᵀ (explicit), plus joint/air damping.
             let mut gen_f = [0.0f64; 4];
@@ -926,6 +884,56 @@ impl SimArm {
             }
             self.filtered[i] = self.filters[i].update(raw);
         }
+    }
+}
+
+/// The carriages' servo and friction constants, taken out of the substep loops.
+#[derive(Clone, Copy)]
+struct CarriageServo {
+    kp: f64,
+    ki_dt: f64,
+    kd: f64,
+    u_max: f64,
+    inv_v0: f64,
+    fc_n: f64,
+    fv: f64,
+    dt: f64,
+    dt_over_m_c: f64,
+}
+
+impl CarriageServo {
+    fn new(cfg: &PlantConfig, dt: f64) -> Self {
+        CarriageServo {
+            kp: cfg.servo_kp_n_per_mm,
+            ki_dt: cfg.servo_ki_n_per_mm_s * dt,
+            kd: cfg.servo_kd_n_s_per_mm,
+            u_max: cfg.motor_force_max_n,
+            inv_v0: 1.0 / cfg.friction_velocity_mm_per_s,
+            fc_n: cfg.coulomb_friction_n,
+            fv: cfg.viscous_friction_n_s_per_mm,
+            dt,
+            dt_over_m_c: (1.0 / (cfg.carriage_mass_kg * 1e-3)) * dt,
+        }
+    }
+
+    /// One servo period of a carriage: PID on the encoder (derivative on the measurement,
+    /// anti-windup), the structural force `f_struct_n` (positive when the platform pulls the
+    /// carriage forward), Coulomb and viscous friction. Returns the new velocity.
+    #[inline(always)]
+    fn step(&self, cmd: f64, q: &mut f64, qd: &mut f64, integ: &mut f64, f_struct_n: f64) -> f64 {
+        let e = cmd - *q;
+        let i_term = *integ + self.ki_dt * e;
+        let u_raw = self.kp * e + i_term - self.kd * *qd;
+        let u = clamp_sel(u_raw, -self.u_max, self.u_max);
+        if u == u_raw {
+            *integ = i_term;
+        }
+        let v = *qd;
+        let friction = self.fc_n * clamp_sel(v * self.inv_v0, -1.0, 1.0) + self.fv * v;
+        let v_new = (v + (u - friction) * self.dt_over_m_c) + f_struct_n * self.dt_over_m_c;
+        *qd = v_new;
+        *q += v_new * self.dt;
+        v_new
     }
 }
 
