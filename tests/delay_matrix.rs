@@ -290,12 +290,6 @@ fn matrix_passivity_on_meets_targets() {
         .collect();
     by_chatter.sort_by(|a, b| b.0.total_cmp(&a.0));
     println!(
-        "master observer by displacement (a check of energy_min_j, not a target): worst \
-         {:.4} J, cells below -0.01 J: {}",
-        -worst(&|_, s| Some(-s.master_energy_min_by_displacement_j)),
-        count(&|_, s| s.master_energy_min_by_displacement_j < -0.01),
-    );
-    println!(
         "chatter: cells above 1 / 2 / 5 / 10 N/cycle: {} / {} / {} / {}",
         count(&|_, s| s.master_force_chatter_n > 1.0),
         count(&|_, s| s.master_force_chatter_n > 2.0),

@@ -70,7 +70,7 @@ impl Default for PassivityParams {
             force_floor_n: 0.3,
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
-            damping_step_fraction: 0.0,
+            damping_step_fraction: 1.0,
         }
     }
 }
@@ -282,10 +282,16 @@ impl ImpedancePort {
         }
     }
 
-    /// Books the force actually rendered (after saturation) against the measured velocity.
-    pub fn commit(&mut self, rendered_n: [f64; 3], velocity_mm_per_s: [f64; 3], dt_s: f64) {
-        self.energy
-            .add_power(dot3(&rendered_n, &velocity_mm_per_s), dt_s);
+    /// Books the work of the force actually rendered over one cycle (after saturation, held
+    /// for the cycle) from the handle's measured displacement over that cycle: `F_k · (x_k+1 −
+    /// x_k)`, the exact work of a held force. (Booking `F_k · v_k · dt` with the velocity
+    /// sampled at the cycle's start gets the sign wrong whenever the velocity reverses within
+    /// the cycle.) Non-finite input is ignored.
+    pub fn commit_displacement(&mut self, rendered_n: [f64; 3], displacement_mm: [f64; 3]) {
+        let w = dot3(&rendered_n, &displacement_mm);
+        if w.is_finite() {
+            self.energy.add_power(w, 1.0);
+        }
     }
 }
 
@@ -499,7 +505,7 @@ mod tests {
         let dt = 0.001;
         for _ in 0..1000 {
             let s = port.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
-            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            port.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
         }
         assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
         assert!(port.energy.dissipated_j > 0.0);
@@ -508,7 +514,7 @@ mod tests {
         off.receive_remote_in(0.001);
         for _ in 0..1000 {
             let s = off.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, false);
-            off.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            off.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
         }
         assert!(off.observed_j() < -0.04, "{}", off.observed_j());
     }
@@ -534,7 +540,7 @@ mod tests {
                     port.receive_remote_in(1.0);
                 }
                 let s = port.step([f, 0.0, 0.0], [v, 0.0, 0.0], dt, true);
-                port.commit(s.force_n, [v, 0.0, 0.0], dt);
+                port.commit_displacement(s.force_n, [v * dt, 0.0, 0.0]);
                 assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
                 if k >= 20 {
                     after.push(s.damping_n_s_per_mm);
@@ -565,7 +571,7 @@ mod tests {
                 port.receive_remote_in(1.0);
             }
             let s = port.step([f, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
-            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            port.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
             assert!(s.damping_n_s_per_mm <= 0.1 + 1e-12, "{k}: {s:?}");
             lowest = lowest.min(port.observed_j());
         }
