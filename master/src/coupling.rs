@@ -140,10 +140,6 @@ pub struct ContactModel {
     used_valid: bool,
     /// Stiffness rendered last cycle, N/mm (slave).
     k_used: f64,
-    /// How far the handle was beyond the estimated plane when the rendered plane was last
-    /// placed at it, mm along the normal (the blind depth), and where it was placed.
-    blind_mm: f64,
-    placed_at: f64,
     last_fb_ns: Option<u64>,
     /// Model force along the normal rendered last cycle, N (slave).
     pub force_n: f64,
@@ -254,17 +250,20 @@ impl ContactModel {
         self.plane_valid && self.has_normal
     }
 
-    /// How far the rendered plane lies behind the estimated one, as a vector along the
-    /// normal (slave frame, mm): after a blind touch (the handle went in before the surface
-    /// was known) the plane is rendered where the handle is and moves out only as energy
-    /// allows; the slave is commanded this much out of the surface meanwhile, so that it
-    /// presses with the force the operator feels.
+    /// How far the rendered plane lies inside the surface, as a vector along the normal
+    /// (slave frame, mm). The rendered plane falls behind the surface when the handle went
+    /// in before the surface was known (a blind touch: the plane is placed at the handle),
+    /// and when a stiffer estimate moves it in (same stored energy); it moves out only as
+    /// energy allows. Meanwhile the slave is commanded this much out of the surface, so that
+    /// it presses with the force the operator feels. The surface is the touch point while
+    /// in contact (not the stiffness-dependent plane estimate: no loop through the measured
+    /// force), the remembered plane otherwise.
     pub fn offset_mm(&self) -> [f64; 3] {
         if !self.valid() || !self.used_valid {
             return [0.0; 3];
         }
-        // The blind depth less what the plane has moved out since it was placed.
-        let d = (self.blind_mm - (self.p_used - self.placed_at).max(0.0)).max(0.0);
+        let surface = if self.contact { 0.0 } else { self.plane };
+        let d = (surface - self.p_used).max(0.0);
         [d * self.normal[0], d * self.normal[1], d * self.normal[2]]
     }
 
@@ -325,11 +324,6 @@ impl ContactModel {
         self.k_used = k_r;
         if !self.used_valid {
             self.p_used = p_r.min(s_d);
-            // The surface's geometric position: the touch point in contact (independent of
-            // the stiffness estimate, which is poor this early), else the remembered plane.
-            let g = if self.contact { 0.0 } else { self.plane };
-            self.blind_mm = (g.min(p_r) - self.p_used).max(0.0);
-            self.placed_at = self.p_used;
             self.used_valid = true;
         } else if p_r <= self.p_used {
             self.p_used = p_r;

@@ -57,6 +57,13 @@ pub struct PassivityParams {
     /// damping cannot dissipate at once is carried (the observer goes below zero). 0: off
     /// (the default; with it on the matrix misses, see docs/sessions.md "Handle chatter").
     pub damping_step_fraction: f64,
+    /// The slave hands the part of its observer's surplus above this reserve back to the
+    /// master (slave units), J; negative: never. Energy the operator put in that the slave
+    /// has not spent then pays for the master's model updates (the plane moved out, a
+    /// stiffer surface) instead of lying idle on the slave's side.
+    pub return_reserve_j: f64,
+    /// Rate at which the surplus above the reserve is handed back, 1/s.
+    pub return_rate_per_s: f64,
 }
 
 impl Default for PassivityParams {
@@ -71,6 +78,8 @@ impl Default for PassivityParams {
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
             damping_step_fraction: 1.0,
+            return_reserve_j: 0.002,
+            return_rate_per_s: 10.0,
         }
     }
 }
@@ -133,6 +142,20 @@ impl PassivityParams {
             0.0,
             2.0,
             "",
+        )?;
+        check_range(
+            &format!("{prefix}return_reserve_j"),
+            self.return_reserve_j,
+            -1.0,
+            100.0,
+            "J",
+        )?;
+        check_range(
+            &format!("{prefix}return_rate_per_s"),
+            self.return_rate_per_s,
+            0.0,
+            1e3,
+            "1/s",
         )
     }
 }
@@ -312,6 +335,12 @@ pub struct AdmittancePort {
     pub max_correction_mm_per_s: f64,
     /// Contact force below which the controller does not act, N.
     pub force_floor_n: f64,
+    /// Surplus above this is handed back to the master, J (negative: never).
+    pub return_reserve_j: f64,
+    /// Rate of the hand-back, 1/s.
+    pub return_rate_per_s: f64,
+    /// Energy handed back to the master so far, J (no longer this port's to spend).
+    pub returned_j: f64,
 }
 
 /// What the slave's port did this cycle.
@@ -339,6 +368,7 @@ impl AdmittancePort {
             drift_energy_share,
             max_correction_mm_per_s,
             force_floor_n: 0.3,
+            return_reserve_j: -1.0,
             ..AdmittancePort::default()
         }
     }
@@ -347,6 +377,8 @@ impl AdmittancePort {
     pub fn from_params(p: &PassivityParams) -> Self {
         AdmittancePort {
             force_floor_n: p.force_floor_n,
+            return_reserve_j: p.return_reserve_j,
+            return_rate_per_s: p.return_rate_per_s,
             ..AdmittancePort::new(
                 p.drift_gain_per_s,
                 p.drift_energy_share,
@@ -364,7 +396,28 @@ impl AdmittancePort {
 
     /// The observer, J.
     pub fn observed_j(&self) -> f64 {
-        self.remote_in_j - self.energy.out_j
+        self.remote_in_j - self.energy.out_j - self.returned_j
+    }
+
+    /// The energy the far end may count as entered at this port, J: what entered here plus
+    /// what was handed back ([`AdmittancePort::hand_back`]). Sent on the wire as the
+    /// feedback's `energy_in_j`.
+    pub fn available_to_remote_j(&self) -> f64 {
+        self.energy.in_j + self.returned_j
+    }
+
+    /// Hands the surplus above the reserve back to the far end at the return rate: it
+    /// leaves this port's observer at once and reaches the far end's with the next
+    /// feedback (`available_to_remote_j`). Both sides together still never give out more
+    /// than was put in: the slave can no longer spend what it handed back.
+    pub fn hand_back(&mut self, dt_s: f64) {
+        if self.return_reserve_j < 0.0 {
+            return;
+        }
+        let surplus = self.observed_j() - self.return_reserve_j;
+        if surplus > 0.0 {
+            self.returned_j += surplus * (self.return_rate_per_s * dt_s).min(1.0);
+        }
     }
 
     /// One cycle of a position-commanded arm. `commanded_mm` is where the arm was commanded
