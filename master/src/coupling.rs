@@ -207,7 +207,12 @@ impl ContactModel {
             // dynamics), low-passed; kept across touches until new data replaces it.
             let a = (dt_s / mp.estimator_time_constant_s.max(1e-3)).min(1.0);
             let depth = -s;
-            if depth > 0.02 && f > 2.0 * mp.contact_n {
+            // A sample says something about the stiffness when the force is well above the
+            // touch threshold, or, on a soft surface, the depth is: the slave held out of a
+            // soft surface (offset) sees small forces, and must still correct a stiffness
+            // learnt too high.
+            let above = f - mp.contact_n;
+            if depth > 0.02 && (above > mp.contact_n || (depth > 0.1 && above > 0.3)) {
                 let k = ((f - mp.contact_n) / depth).clamp(0.05, 1e4);
                 if self.k_hat > 0.0 {
                     self.k_hat += a * (k - self.k_hat);
