@@ -611,7 +611,9 @@ impl MasterCoupling {
                 } else {
                     f64::INFINITY
                 };
-                let f = self.model.force_at(&p.model, &d, k_max_slave, dt_s, budget_n_mm);
+                let f = self
+                    .model
+                    .force_at(&p.model, &d, k_max_slave, dt_s, budget_n_mm);
                 // Along the normal only: friction along the surface is not rendered (the
                 // delayed measured friction, tried, made the handle wander sideways).
                 for (lf, fi) in link_force.iter_mut().zip(f.iter()) {
@@ -619,7 +621,12 @@ impl MasterCoupling {
                 }
                 let o = self.model.offset_mm();
                 if o != [0.0; 3] {
-                    let shifted = [target[0] + o[0], target[1] + o[1], target[2] + o[2], target[3]];
+                    let shifted = [
+                        target[0] + o[0],
+                        target[1] + o[1],
+                        target[2] + o[2],
+                        target[3],
+                    ];
                     if p.slave_workspace.ik(&Pose::from(shifted)).is_ok() {
                         target = shifted;
                         offset = o;
@@ -829,10 +836,31 @@ mod tests {
         let f1 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY)[2];
         assert!(f0.abs() < 1e-9, "{f0}");
         assert!(f1 <= 100.0 * mp.plane_rate_mm_per_s * dt + 1e-9, "{f1}");
+        // With no energy to pay for it, a plane that would push the handle out does not
+        // move out (the force does not grow), and a stiffer estimate keeps the stored
+        // energy (the force grows only with the square root of the stiffness ratio).
+        m.reset_used();
+        let _ = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, 0.0);
+        for _ in 0..100 {
+            let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, 0.0)[2];
+            assert!(f.abs() < 1e-9, "{f}");
+        }
+        // The rendered plane lags the surface by the handle's depth: the slave is told to
+        // stay that much out of it.
+        let o = m.offset_mm();
+        assert!(o[2] > 0.0 && o[0] == 0.0, "{o:?}");
+        let f_budget = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, 1.0)[2];
+        let k = m.k_hat;
+        assert!(f_budget > 0.0, "{f_budget}");
+        // The energy stored, f² / 2k_r, is at most the 1 N·mm budget (k_r ≤ k_hat).
+        assert!(f_budget <= (2.0 * k).sqrt() + 1e-9, "{f_budget} {k}");
         // The slave is seen 1 mm beyond the plane with no force: the surface is gone.
         seq += 1;
         m.observe(&mp, &feedback(seq, 0.0, -251.0), [0.0, 0.0, -251.0]);
         assert!(!m.valid());
-        assert_eq!(m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY), [0.0; 3]);
+        assert_eq!(
+            m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY),
+            [0.0; 3]
+        );
     }
 }

@@ -632,6 +632,56 @@ mod tests {
         assert!(port.observed_j() > 0.0, "{}", port.observed_j());
     }
 
+    /// Booked from the displacement, a force whose handle reverses within the cycle is
+    /// counted as the work it really did; the start-of-cycle velocity would have the sign
+    /// wrong.
+    #[test]
+    fn impedance_port_books_the_work_of_the_displacement() {
+        let mut port = ImpedancePort::new(0.0);
+        // 10 N along x; the handle moved −0.01 mm over the cycle (into the force): input.
+        port.commit_displacement([10.0, 0.0, 0.0], [-0.01, 0.0, 0.0]);
+        assert!((port.energy.in_j - 1e-4).abs() < 1e-15, "{:?}", port.energy);
+        assert_eq!(port.energy.out_j, 0.0);
+        // Then +0.02 mm (out along the force): output, whatever the sampled velocity was.
+        port.commit_displacement([10.0, 0.0, 0.0], [0.02, 0.0, 0.0]);
+        assert!(
+            (port.energy.out_j - 2e-4).abs() < 1e-15,
+            "{:?}",
+            port.energy
+        );
+        port.commit_displacement([f64::NAN, 0.0, 0.0], [0.02, 0.0, 0.0]);
+        assert!((port.energy.out_j - 2e-4).abs() < 1e-15);
+    }
+
+    /// The slave hands its surplus above the reserve back: its own observer falls to the
+    /// reserve, what the far end may count grows by the same amount, and the sum of what
+    /// both sides may still give out is unchanged.
+    #[test]
+    fn admittance_port_hands_back_the_surplus_above_the_reserve() {
+        let mut port = AdmittancePort::from_params(&PassivityParams {
+            return_reserve_j: 0.002,
+            return_rate_per_s: 10.0,
+            ..PassivityParams::default()
+        });
+        port.receive_remote_in(0.010);
+        let before = port.observed_j() + port.available_to_remote_j();
+        for _ in 0..2000 {
+            port.hand_back(0.001);
+        }
+        assert!(
+            (port.observed_j() - 0.002).abs() < 1e-9,
+            "{}",
+            port.observed_j()
+        );
+        assert!((port.available_to_remote_j() - 0.008).abs() < 1e-9);
+        assert!((port.observed_j() + port.available_to_remote_j() - before).abs() < 1e-12);
+        // A negative reserve never hands anything back.
+        let mut never = AdmittancePort::new(2.0, 0.5, 1e6);
+        never.receive_remote_in(0.010);
+        never.hand_back(0.001);
+        assert_eq!(never.returned_j, 0.0);
+    }
+
     #[test]
     fn admittance_port_stops_at_the_budget_and_compensates_drift_when_energy_arrives() {
         let mut port = AdmittancePort::new(2.0, 0.5, 1e6);
