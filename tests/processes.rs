@@ -383,10 +383,11 @@ fn check_merged_recording(path: &Path, summary: &Value) {
 #[test]
 fn loopback_verdict_catches_an_unprotected_stiff_contact() {
     // Negative control of the verdict above: the same session on a steel wall
-    // (2000 N/mm) with the bare coupling (passivity controllers off, and the master's local
-    // contact model off: with the model on, passivity off alone stays stable at this ~1 ms
-    // round trip): the link generates energy (the observers go negative) and/or the contact
-    // force passes the limit; with them on, neither happens.
+    // (2000 N/mm) with the bare coupling (passivity controllers off, the master's local
+    // contact model off and its local damping off: at this ~1 ms round trip the model, or
+    // the local damping alone, keeps the contact stable): the link generates energy (the
+    // observers go negative) and/or the contact force passes the limit; with them on,
+    // neither happens.
     let _g = serial();
     let (master, _) = binaries();
     let scratch = Scratch::new("loopback-steel");
@@ -403,6 +404,8 @@ fn loopback_verdict_catches_an_unprotected_stiff_contact() {
         "passivity.enabled=false".into(),
         "--set".into(),
         "coupling.model=false".into(),
+        "--set".into(),
+        "coupling.master_damping_n_s_per_mm=0".into(),
         "--summary".into(),
         summary.display().to_string(),
     ];

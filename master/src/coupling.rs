@@ -138,6 +138,8 @@ pub struct ContactModel {
     plane_valid: bool,
     p_used: f64,
     used_valid: bool,
+    /// Stiffness rendered last cycle, N/mm (slave).
+    k_used: f64,
     last_fb_ns: Option<u64>,
     /// Model force along the normal rendered last cycle, N (slave).
     pub force_n: f64,
@@ -205,7 +207,12 @@ impl ContactModel {
             // dynamics), low-passed; kept across touches until new data replaces it.
             let a = (dt_s / mp.estimator_time_constant_s.max(1e-3)).min(1.0);
             let depth = -s;
-            if depth > 0.02 && f > 2.0 * mp.contact_n {
+            // A sample says something about the stiffness when the force is well above the
+            // touch threshold, or, on a soft surface, the depth is: the slave held out of a
+            // soft surface (offset) sees small forces, and must still correct a stiffness
+            // learnt too high.
+            let above = f - mp.contact_n;
+            if depth > 0.02 && (above > mp.contact_n || (depth > 0.1 && above > 0.3)) {
                 let k = ((f - mp.contact_n) / depth).clamp(0.05, 1e4);
                 if self.k_hat > 0.0 {
                     self.k_hat += a * (k - self.k_hat);
@@ -248,6 +255,23 @@ impl ContactModel {
         self.plane_valid && self.has_normal
     }
 
+    /// How far the rendered plane lies inside the surface, as a vector along the normal
+    /// (slave frame, mm). The rendered plane falls behind the surface when the handle went
+    /// in before the surface was known (a blind touch: the plane is placed at the handle),
+    /// and when a stiffer estimate moves it in (same stored energy); it moves out only as
+    /// energy allows. Meanwhile the slave is commanded this much out of the surface, so that
+    /// it presses with the force the operator feels. The surface is the touch point while
+    /// in contact (not the stiffness-dependent plane estimate: no loop through the measured
+    /// force), the remembered plane otherwise.
+    pub fn offset_mm(&self) -> [f64; 3] {
+        if !self.valid() || !self.used_valid {
+            return [0.0; 3];
+        }
+        let surface = if self.contact { 0.0 } else { self.plane };
+        let d = (surface - self.p_used).max(0.0);
+        [d * self.normal[0], d * self.normal[1], d * self.normal[2]]
+    }
+
     /// Forgets where the rendered plane was (it is placed again at the handle).
     pub fn reset_used(&mut self) {
         self.used_valid = false;
@@ -263,13 +287,23 @@ impl ContactModel {
 
     /// The model's force on the slave at the slave position `desired_mm` (slave frame),
     /// as a vector along the normal, N; `k_max_slave` the largest stiffness rendered
-    /// (N/mm at the slave).
+    /// (N/mm at the slave); `budget_n_mm` the energy (slave units) the model's update may
+    /// put into the handle this cycle (`f64::INFINITY`: no limit).
+    ///
+    /// The rendered model is a spring `k (p − s)` between the plane `p` and the handle's
+    /// position `s` along the normal, storing `½ k (p − s)²`. Its updates are passive
+    /// unless paid for: a stiffness change keeps the stored energy (the plane moves in
+    /// when the stiffness rises, out when it falls), the plane moves in at once (energy is
+    /// lost, not made), moves out freely up to the handle (nothing is stored), and beyond
+    /// the handle — compressing the spring further, which pushes the handle out — only at
+    /// the plane rate and only as far as `budget_n_mm` pays for.
     pub fn force_at(
         &mut self,
         mp: &ModelParams,
         desired_mm: &[f64; 3],
         k_max_slave: f64,
         dt_s: f64,
+        budget_n_mm: f64,
     ) -> [f64; 3] {
         if !self.plane_valid || !self.has_normal {
             self.force_n = 0.0;
@@ -288,14 +322,25 @@ impl ContactModel {
             self.plane
         };
         let s_d = self.along_normal(desired_mm);
-        // The plane used moves inwards at once (less force) and outwards freely up to the
-        // handle's position (no force is created); beyond that, where it would push the
-        // handle out, at most `plane_rate_mm_per_s`.
-        if !self.used_valid || p_r <= self.p_used {
-            self.p_used = if self.used_valid { p_r } else { p_r.min(s_d) };
+        if self.used_valid && self.p_used > s_d && self.k_used > 0.0 {
+            // Same stored energy with the new stiffness.
+            self.p_used = s_d + (self.p_used - s_d) * (self.k_used / k_r).sqrt();
+        }
+        self.k_used = k_r;
+        if !self.used_valid {
+            self.p_used = p_r.min(s_d);
             self.used_valid = true;
+        } else if p_r <= self.p_used {
+            self.p_used = p_r;
         } else {
-            self.p_used = p_r.min((self.p_used + mp.plane_rate_mm_per_s * dt_s).max(s_d));
+            let free = self.p_used.max(s_d);
+            let mut p = p_r.min((self.p_used + mp.plane_rate_mm_per_s * dt_s).max(s_d));
+            if p > free {
+                let d0 = free - s_d;
+                let d_max = (d0 * d0 + 2.0 * budget_n_mm.max(0.0) / k_r).sqrt();
+                p = p.min(s_d + d_max);
+            }
+            self.p_used = p.max(self.p_used);
         }
         let f = (k_r * (self.p_used - s_d)).max(0.0);
         self.force_n = f;
@@ -345,13 +390,10 @@ pub struct MasterCoupling {
     last: MasterStep,
     velocity: [f64; 3],
     local_n: [f64; 3],
-    /// The link's force applied last cycle and the handle position it started from (for
-    /// the displacement-based energy check).
+    /// The handle position at the start of the last cycle and the link force held over it
+    /// (booked by the port once the cycle's displacement is known).
     disp_prev: Option<([f64; 3], [f64; 3])>,
-    /// Energy the link's force delivered to the handle, booked from the handle's measured
-    /// displacement over each cycle (`F_k · (x_k+1 − x_k)`), J; a check of the port's own
-    /// observer, which books `F_k · v_k · dt` with the velocity sampled at the cycle's start.
-    pub displacement_out_j: f64,
+    offset_mm: [f64; 3],
     filtered_n: [f64; 3],
     /// The local contact model (model-mediated rendering).
     pub model: ContactModel,
@@ -395,7 +437,7 @@ impl MasterCoupling {
             velocity: [0.0; 3],
             local_n: [0.0; 3],
             disp_prev: None,
-            displacement_out_j: 0.0,
+            offset_mm: [0.0; 3],
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
@@ -418,13 +460,11 @@ impl MasterCoupling {
         self.p.force_scale / self.p.motion_scale
     }
 
-    /// The master port's observer with the energy delivered to the handle booked from the
-    /// measured displacement instead of the sampled velocity, J (the remote input energy is
-    /// the port's). Up to one cycle late. When the handle moves smoothly it equals the port's
-    /// observer to within a fraction of a millijoule; when the handle's velocity flips sign
-    /// every cycle the sampled velocity misses the work the force really does.
-    pub fn observed_by_displacement_j(&self) -> f64 {
-        self.port.observed_j() + self.port.energy.out_j - self.displacement_out_j
+    /// The offset added to this cycle's slave target by the contact model
+    /// ([`ContactModel::offset_mm`]), slave frame, mm: part of the master–slave position
+    /// mismatch.
+    pub fn model_offset_mm(&self) -> [f64; 3] {
+        self.offset_mm
     }
 
     /// Hands the coupling a feedback message the gate accepted at `now_ns`.
@@ -512,6 +552,7 @@ impl MasterCoupling {
             }
         }
         let mut link_force = [0.0; 3];
+        let mut offset = [0.0; 3];
         let mut target = self.last_target;
         let mut vel = [0.0; 3];
         if !self.clutched {
@@ -559,11 +600,37 @@ impl MasterCoupling {
                 }
                 let k_max_slave = p.model.stiffness_max_n_per_mm / (p.force_scale * p.motion_scale);
                 let d = [target[0], target[1], target[2]];
-                let f = self.model.force_at(&p.model, &d, k_max_slave, dt_s);
+                // What the model's update may put into the handle this cycle: a share of
+                // the observer's surplus (none without a surplus), in slave units.
+                let budget_n_mm = if p.passivity {
+                    let share = p.passivity_params.drift_energy_share;
+                    (self.port.observed_j() - p.passivity_params.energy_reserve_j).max(0.0)
+                        * share
+                        * 1e3
+                        / (self.kappa() * self.fade.max(1e-3))
+                } else {
+                    f64::INFINITY
+                };
+                let f = self
+                    .model
+                    .force_at(&p.model, &d, k_max_slave, dt_s, budget_n_mm);
                 // Along the normal only: friction along the surface is not rendered (the
                 // delayed measured friction, tried, made the handle wander sideways).
                 for (lf, fi) in link_force.iter_mut().zip(f.iter()) {
                     *lf = p.force_scale * fi * self.fade;
+                }
+                let o = self.model.offset_mm();
+                if o != [0.0; 3] {
+                    let shifted = [
+                        target[0] + o[0],
+                        target[1] + o[1],
+                        target[2] + o[2],
+                        target[3],
+                    ];
+                    if p.slave_workspace.ik(&Pose::from(shifted)).is_ok() {
+                        target = shifted;
+                        offset = o;
+                    }
                 }
             } else if p.mode == CouplingMode::PositionForce
                 && let Some(fb) = &self.feedback
@@ -584,6 +651,7 @@ impl MasterCoupling {
             }
         }
         self.last_target = target;
+        self.offset_mm = offset;
         self.velocity = vel;
         // Optional (`passivity.damping_step_fraction`, off by default): the passivity
         // controller's released damping tail, with the local damping, stays within what the
@@ -645,34 +713,23 @@ impl MasterCoupling {
         step
     }
 
-    /// Books the wrench the device applied (after its own limits) against the measured
-    /// velocity, and returns the command to send, stamped `now_ns`.
-    pub fn finish(
-        &mut self,
-        applied: &[f64; 4],
-        dev: &DeviceState,
-        now_ns: u64,
-        dt_s: f64,
-    ) -> Command {
-        let v_m = [dev.velocity[0], dev.velocity[1], dev.velocity[2]];
+    /// Books the link force of the previous cycle against the handle's displacement since
+    /// (`dev` is this cycle's reading), keeps the wrench the device applied this cycle
+    /// (after its own limits) for the next, and returns the command to send, stamped
+    /// `now_ns`.
+    pub fn finish(&mut self, applied: &[f64; 4], dev: &DeviceState, now_ns: u64) -> Command {
         // Only the link's share of the force passes through the two-port: in force-guided
         // mode the local spring is not the link's.
         let link = if self.p.mode == CouplingMode::PositionForce {
-            [
-                applied[0] - self.local_n[0],
-                applied[1] - self.local_n[1],
-                applied[2] - self.local_n[2],
-            ]
+            [applied[0], applied[1], applied[2]]
         } else {
             [0.0; 3]
         };
-        self.port.commit(link, v_m, dt_s);
+        // The link force of the previous cycle, held over it, did `F · Δx` on the handle.
         let x = [dev.pose[0], dev.pose[1], dev.pose[2]];
         if let Some((x0, f0)) = self.disp_prev {
-            let w = f0[0] * (x[0] - x0[0]) + f0[1] * (x[1] - x0[1]) + f0[2] * (x[2] - x0[2]);
-            if w > 0.0 && w.is_finite() {
-                self.displacement_out_j += w * 1e-3;
-            }
+            self.port
+                .commit_displacement(f0, [x[0] - x0[0], x[1] - x0[1], x[2] - x0[2]]);
         }
         self.disp_prev = Some((x, link));
         self.seq += 1;
@@ -763,26 +820,47 @@ mod tests {
         // Rendered where the handle is above the plane: nothing; commanded 0.12 mm deep:
         // the series stiffness (100 N/mm with 0.002 mm/N: 83 N/mm), ~10 N.
         let dt = 1e-3;
-        let f = m.force_at(&mp, &[0.0, 0.0, -249.0], 1e3, dt);
+        let f = m.force_at(&mp, &[0.0, 0.0, -249.0], 1e3, dt, f64::INFINITY);
         assert_eq!(f, [0.0; 3]);
-        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY);
         assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
         // Lifted off: the plane is remembered.
         seq += 1;
         m.observe(&mp, &feedback(seq, 0.0, -249.0), [0.0, 0.0, -249.0]);
-        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt);
+        let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY);
         assert!((f[2] - 10.0).abs() < 1.5, "{f:?}");
         // Placed again at the handle (e.g. after a feedback gap): the force grows only at
         // the plane rate while the handle holds still.
         m.reset_used();
-        let f0 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt)[2];
-        let f1 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt)[2];
+        let f0 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY)[2];
+        let f1 = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY)[2];
         assert!(f0.abs() < 1e-9, "{f0}");
         assert!(f1 <= 100.0 * mp.plane_rate_mm_per_s * dt + 1e-9, "{f1}");
+        // With no energy to pay for it, a plane that would push the handle out does not
+        // move out (the force does not grow), and a stiffer estimate keeps the stored
+        // energy (the force grows only with the square root of the stiffness ratio).
+        m.reset_used();
+        let _ = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, 0.0);
+        for _ in 0..100 {
+            let f = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, 0.0)[2];
+            assert!(f.abs() < 1e-9, "{f}");
+        }
+        // The rendered plane lags the surface by the handle's depth: the slave is told to
+        // stay that much out of it.
+        let o = m.offset_mm();
+        assert!(o[2] > 0.0 && o[0] == 0.0, "{o:?}");
+        let f_budget = m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, 1.0)[2];
+        let k = m.k_hat;
+        assert!(f_budget > 0.0, "{f_budget}");
+        // The energy stored, f² / 2k_r, is at most the 1 N·mm budget (k_r ≤ k_hat).
+        assert!(f_budget <= (2.0 * k).sqrt() + 1e-9, "{f_budget} {k}");
         // The slave is seen 1 mm beyond the plane with no force: the surface is gone.
         seq += 1;
         m.observe(&mp, &feedback(seq, 0.0, -251.0), [0.0, 0.0, -251.0]);
         assert!(!m.valid());
-        assert_eq!(m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt), [0.0; 3]);
+        assert_eq!(
+            m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY),
+            [0.0; 3]
+        );
     }
 }

@@ -669,12 +669,6 @@ pub struct Summary {
     pub max_force_n: f64,
     /// Largest force rendered to the operator, N.
     pub max_master_force_n: f64,
-    /// Lowest value of the master port's observer with the energy the link delivers to the
-    /// handle booked from the handle's measured displacement over each cycle (`F_k · (x_k+1
-    /// − x_k)`) instead of the velocity sampled at the cycle's start (`F_k · v_k · dt`, the
-    /// port's own bookkeeping, in `energy_min_j`), J. A check on `energy_min_j`: the two
-    /// agree when the handle moves smoothly; they part when the handle chatters.
-    pub master_energy_min_by_displacement_j: f64,
     /// Chatter of the force rendered to the operator: the largest RMS, over any
     /// `CHATTER_WINDOW_MS` (100 ms) window, of the cycle-to-cycle change of the rendered
     /// force vector (|F_k − F_{k−1}|), N per cycle. A smooth push changes it by a fraction of
@@ -863,7 +857,7 @@ impl MasterSide {
         }
         let step = self.coupling.step(&dev, now_ns, DT_S);
         let rendered = self.device.write_wrench(&step.wrench);
-        let cmd = self.coupling.finish(&rendered, &dev, now_ns, DT_S);
+        let cmd = self.coupling.finish(&rendered, &dev, now_ns);
         link.publish(&cmd)?;
         Ok(MasterCycle {
             step,
@@ -1024,10 +1018,6 @@ impl Session {
                 true_force_n: norm3(&true_f),
                 master_force_n: norm3(&m.rendered),
                 master_force_vec_n: [m.rendered[0], m.rendered[1], m.rendered[2]],
-                master_observed_by_displacement_j: self
-                    .master
-                    .coupling
-                    .observed_by_displacement_j(),
                 transparency_abs_n: {
                     let mut d = [0.0; 3];
                     for (i, di) in d.iter_mut().enumerate() {
@@ -1038,7 +1028,16 @@ impl Session {
                 slave_force_n: norm3(&s.out.wrench_measured),
                 steady: intent.steady && !intent.clutch && !m.device.clutch,
                 observed_min_j: m.step.observed_j.min(s.port.observed_j),
-                drift_mm: norm3(&s.drift_mm),
+                drift_mm: {
+                    // The master–slave mismatch: the slave's own drift plus the offset the
+                    // master's contact model put into the target.
+                    let o = self.master.coupling.model_offset_mm();
+                    norm3(&[
+                        s.drift_mm[0] + o[0],
+                        s.drift_mm[1] + o[1],
+                        s.drift_mm[2] + o[2],
+                    ])
+                },
                 tracking_err_mm: norm3(&[
                     meas[0] - s.desired_mm[0],
                     meas[1] - s.desired_mm[1],
@@ -1159,7 +1158,6 @@ struct Sample {
     true_force_n: f64,
     master_force_n: f64,
     master_force_vec_n: [f64; 3],
-    master_observed_by_displacement_j: f64,
     transparency_abs_n: f64,
     slave_force_n: f64,
     steady: bool,
@@ -1183,7 +1181,6 @@ struct Evaluator {
     energy_min: f64,
     max_force: f64,
     max_master: f64,
-    energy_min_disp: f64,
     chatter_ring: Vec<f64>,
     chatter_sum: f64,
     chatter_k: usize,
@@ -1211,7 +1208,6 @@ impl Evaluator {
             energy_min: 0.0,
             max_force: 0.0,
             max_master: 0.0,
-            energy_min_disp: 0.0,
             chatter_ring: vec![0.0; CHATTER_WINDOW_MS],
             chatter_sum: 0.0,
             chatter_k: 0,
@@ -1236,9 +1232,6 @@ impl Evaluator {
         self.energy_min = self.energy_min.min(s.observed_min_j);
         self.max_force = self.max_force.max(s.true_force_n);
         self.max_master = self.max_master.max(s.master_force_n);
-        self.energy_min_disp = self
-            .energy_min_disp
-            .min(s.master_observed_by_displacement_j);
         if let Some(p) = self.prev_master_n {
             let d = [
                 s.master_force_vec_n[0] - p[0],
@@ -1357,7 +1350,6 @@ impl Evaluator {
             energy_min_j: self.energy_min,
             max_force_n: self.max_force,
             max_master_force_n: self.max_master,
-            master_energy_min_by_displacement_j: self.energy_min_disp,
             master_force_chatter_n: self.chatter_max,
             oscillation_growth: growth,
             oscillation_early_n: early,

@@ -57,6 +57,13 @@ pub struct PassivityParams {
     /// damping cannot dissipate at once is carried (the observer goes below zero). 0: off
     /// (the default; with it on the matrix misses, see docs/sessions.md "Handle chatter").
     pub damping_step_fraction: f64,
+    /// The slave hands the part of its observer's surplus above this reserve back to the
+    /// master (slave units), J; negative: never. Energy the operator put in that the slave
+    /// has not spent then pays for the master's model updates (the plane moved out, a
+    /// stiffer surface) instead of lying idle on the slave's side.
+    pub return_reserve_j: f64,
+    /// Rate at which the surplus above the reserve is handed back, 1/s.
+    pub return_rate_per_s: f64,
 }
 
 impl Default for PassivityParams {
@@ -70,7 +77,9 @@ impl Default for PassivityParams {
             force_floor_n: 0.3,
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
-            damping_step_fraction: 0.0,
+            damping_step_fraction: 1.0,
+            return_reserve_j: 0.002,
+            return_rate_per_s: 10.0,
         }
     }
 }
@@ -133,6 +142,20 @@ impl PassivityParams {
             0.0,
             2.0,
             "",
+        )?;
+        check_range(
+            &format!("{prefix}return_reserve_j"),
+            self.return_reserve_j,
+            -1.0,
+            100.0,
+            "J",
+        )?;
+        check_range(
+            &format!("{prefix}return_rate_per_s"),
+            self.return_rate_per_s,
+            0.0,
+            1e3,
+            "1/s",
         )
     }
 }
@@ -282,10 +305,16 @@ impl ImpedancePort {
         }
     }
 
-    /// Books the force actually rendered (after saturation) against the measured velocity.
-    pub fn commit(&mut self, rendered_n: [f64; 3], velocity_mm_per_s: [f64; 3], dt_s: f64) {
-        self.energy
-            .add_power(dot3(&rendered_n, &velocity_mm_per_s), dt_s);
+    /// Books the work of the force actually rendered over one cycle (after saturation, held
+    /// for the cycle) from the handle's measured displacement over that cycle: `F_k · (x_k+1 −
+    /// x_k)`, the exact work of a held force. (Booking `F_k · v_k · dt` with the velocity
+    /// sampled at the cycle's start gets the sign wrong whenever the velocity reverses within
+    /// the cycle.) Non-finite input is ignored.
+    pub fn commit_displacement(&mut self, rendered_n: [f64; 3], displacement_mm: [f64; 3]) {
+        let w = dot3(&rendered_n, &displacement_mm);
+        if w.is_finite() {
+            self.energy.add_power(w, 1.0);
+        }
     }
 }
 
@@ -306,6 +335,12 @@ pub struct AdmittancePort {
     pub max_correction_mm_per_s: f64,
     /// Contact force below which the controller does not act, N.
     pub force_floor_n: f64,
+    /// Surplus above this is handed back to the master, J (negative: never).
+    pub return_reserve_j: f64,
+    /// Rate of the hand-back, 1/s.
+    pub return_rate_per_s: f64,
+    /// Energy handed back to the master so far, J (no longer this port's to spend).
+    pub returned_j: f64,
 }
 
 /// What the slave's port did this cycle.
@@ -333,6 +368,7 @@ impl AdmittancePort {
             drift_energy_share,
             max_correction_mm_per_s,
             force_floor_n: 0.3,
+            return_reserve_j: -1.0,
             ..AdmittancePort::default()
         }
     }
@@ -341,6 +377,8 @@ impl AdmittancePort {
     pub fn from_params(p: &PassivityParams) -> Self {
         AdmittancePort {
             force_floor_n: p.force_floor_n,
+            return_reserve_j: p.return_reserve_j,
+            return_rate_per_s: p.return_rate_per_s,
             ..AdmittancePort::new(
                 p.drift_gain_per_s,
                 p.drift_energy_share,
@@ -358,7 +396,28 @@ impl AdmittancePort {
 
     /// The observer, J.
     pub fn observed_j(&self) -> f64 {
-        self.remote_in_j - self.energy.out_j
+        self.remote_in_j - self.energy.out_j - self.returned_j
+    }
+
+    /// The energy the far end may count as entered at this port, J: what entered here plus
+    /// what was handed back ([`AdmittancePort::hand_back`]). Sent on the wire as the
+    /// feedback's `energy_in_j`.
+    pub fn available_to_remote_j(&self) -> f64 {
+        self.energy.in_j + self.returned_j
+    }
+
+    /// Hands the surplus above the reserve back to the far end at the return rate: it
+    /// leaves this port's observer at once and reaches the far end's with the next
+    /// feedback (`available_to_remote_j`). Both sides together still never give out more
+    /// than was put in: the slave can no longer spend what it handed back.
+    pub fn hand_back(&mut self, dt_s: f64) {
+        if self.return_reserve_j < 0.0 {
+            return;
+        }
+        let surplus = self.observed_j() - self.return_reserve_j;
+        if surplus > 0.0 {
+            self.returned_j += surplus * (self.return_rate_per_s * dt_s).min(1.0);
+        }
     }
 
     /// One cycle of a position-commanded arm. `commanded_mm` is where the arm was commanded
@@ -499,7 +558,7 @@ mod tests {
         let dt = 0.001;
         for _ in 0..1000 {
             let s = port.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
-            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            port.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
         }
         assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
         assert!(port.energy.dissipated_j > 0.0);
@@ -508,7 +567,7 @@ mod tests {
         off.receive_remote_in(0.001);
         for _ in 0..1000 {
             let s = off.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, false);
-            off.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            off.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
         }
         assert!(off.observed_j() < -0.04, "{}", off.observed_j());
     }
@@ -534,7 +593,7 @@ mod tests {
                     port.receive_remote_in(1.0);
                 }
                 let s = port.step([f, 0.0, 0.0], [v, 0.0, 0.0], dt, true);
-                port.commit(s.force_n, [v, 0.0, 0.0], dt);
+                port.commit_displacement(s.force_n, [v * dt, 0.0, 0.0]);
                 assert!(port.observed_j() >= -1e-12, "{}", port.observed_j());
                 if k >= 20 {
                     after.push(s.damping_n_s_per_mm);
@@ -565,12 +624,62 @@ mod tests {
                 port.receive_remote_in(1.0);
             }
             let s = port.step([f, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
-            port.commit(s.force_n, [5.0, 0.0, 0.0], dt);
+            port.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
             assert!(s.damping_n_s_per_mm <= 0.1 + 1e-12, "{k}: {s:?}");
             lowest = lowest.min(port.observed_j());
         }
         assert!(lowest < 0.0, "{lowest}");
         assert!(port.observed_j() > 0.0, "{}", port.observed_j());
+    }
+
+    /// Booked from the displacement, a force whose handle reverses within the cycle is
+    /// counted as the work it really did; the start-of-cycle velocity would have the sign
+    /// wrong.
+    #[test]
+    fn impedance_port_books_the_work_of_the_displacement() {
+        let mut port = ImpedancePort::new(0.0);
+        // 10 N along x; the handle moved −0.01 mm over the cycle (into the force): input.
+        port.commit_displacement([10.0, 0.0, 0.0], [-0.01, 0.0, 0.0]);
+        assert!((port.energy.in_j - 1e-4).abs() < 1e-15, "{:?}", port.energy);
+        assert_eq!(port.energy.out_j, 0.0);
+        // Then +0.02 mm (out along the force): output, whatever the sampled velocity was.
+        port.commit_displacement([10.0, 0.0, 0.0], [0.02, 0.0, 0.0]);
+        assert!(
+            (port.energy.out_j - 2e-4).abs() < 1e-15,
+            "{:?}",
+            port.energy
+        );
+        port.commit_displacement([f64::NAN, 0.0, 0.0], [0.02, 0.0, 0.0]);
+        assert!((port.energy.out_j - 2e-4).abs() < 1e-15);
+    }
+
+    /// The slave hands its surplus above the reserve back: its own observer falls to the
+    /// reserve, what the far end may count grows by the same amount, and the sum of what
+    /// both sides may still give out is unchanged.
+    #[test]
+    fn admittance_port_hands_back_the_surplus_above_the_reserve() {
+        let mut port = AdmittancePort::from_params(&PassivityParams {
+            return_reserve_j: 0.002,
+            return_rate_per_s: 10.0,
+            ..PassivityParams::default()
+        });
+        port.receive_remote_in(0.010);
+        let before = port.observed_j() + port.available_to_remote_j();
+        for _ in 0..2000 {
+            port.hand_back(0.001);
+        }
+        assert!(
+            (port.observed_j() - 0.002).abs() < 1e-9,
+            "{}",
+            port.observed_j()
+        );
+        assert!((port.available_to_remote_j() - 0.008).abs() < 1e-9);
+        assert!((port.observed_j() + port.available_to_remote_j() - before).abs() < 1e-12);
+        // A negative reserve never hands anything back.
+        let mut never = AdmittancePort::new(2.0, 0.5, 1e6);
+        never.receive_remote_in(0.010);
+        never.hand_back(0.001);
+        assert_eq!(never.returned_j, 0.0);
     }
 
     #[test]

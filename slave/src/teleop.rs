@@ -420,6 +420,9 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         // contact force is the slave's own force loop's, and nothing measured is rendered.
         if mode == Mode::Position {
             self.port.commit(force, moved, dt_s);
+            if control {
+                self.port.hand_back(dt_s);
+            }
         }
         self.last_out = Some(out);
         self.seq += 1;
@@ -433,7 +436,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             pose: out.measured_pose,
             wrench_measured: out.wrench_measured,
             wrench_desired: out.wrench_desired,
-            energy_in_j: energy.in_j,
+            energy_in_j: self.port.available_to_remote_j(),
             energy_out_j: energy.out_j,
             protocol_version: PROTOCOL_VERSION,
             arm_id: self.p.arm_id,
