@@ -389,7 +389,6 @@ pub struct MasterCoupling {
     normal: [f64; 3],
     last: MasterStep,
     velocity: [f64; 3],
-    local_n: [f64; 3],
     /// The handle position at the start of the last cycle and the link force held over it
     /// (booked by the port once the cycle's displacement is known).
     disp_prev: Option<([f64; 3], [f64; 3])>,
@@ -435,7 +434,6 @@ impl MasterCoupling {
             normal: [0.0, 0.0, 1.0],
             last: MasterStep::default(),
             velocity: [0.0; 3],
-            local_n: [0.0; 3],
             disp_prev: None,
             offset_mm: [0.0; 3],
             filtered_n: [0.0; 3],
@@ -653,9 +651,9 @@ impl MasterCoupling {
         self.last_target = target;
         self.offset_mm = offset;
         self.velocity = vel;
-        // Optional (`passivity.damping_step_fraction`, off by default): the passivity
-        // controller's released damping tail, with the local damping, stays within what the
-        // handle's mass takes in one cycle (discrete-time bound).
+        // `passivity.damping_step_fraction` (0: off): the passivity controller's damping,
+        // with the local damping, stays within what the handle's mass takes in one cycle
+        // (discrete-time bound).
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
             let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
@@ -669,13 +667,11 @@ impl MasterCoupling {
         };
         let pc = self.port.step(link_force, v_m, dt_s, p.passivity);
         let mut force = pc.force_n;
-        let mut local = [0.0; 3];
         if p.mode == CouplingMode::PositionForce && !self.clutched {
             // Faded with the feedback: with no slave there is no loop to stabilise, and the
             // operator holds a free handle (the feedback-loss safe state renders nothing).
-            for i in 0..3 {
-                local[i] = -p.master_damping_n_s_per_mm * self.fade * v_m[i];
-                force[i] += local[i];
+            for (f, v) in force.iter_mut().zip(v_m.iter()) {
+                *f -= p.master_damping_n_s_per_mm * self.fade * v;
             }
         }
         // Force-guided: the local virtual spring sets the set-point.
@@ -697,12 +693,8 @@ impl MasterCoupling {
             for f in force.iter_mut() {
                 *f *= s;
             }
-            for l in local.iter_mut() {
-                *l *= s;
-            }
             step.saturated = true;
         }
-        self.local_n = local;
         step.wrench = [force[0], force[1], force[2], 0.0];
         step.link_force_n = link_force;
         step.damping_n_s_per_mm = pc.damping_n_s_per_mm;
@@ -718,8 +710,9 @@ impl MasterCoupling {
     /// (after its own limits) for the next, and returns the command to send, stamped
     /// `now_ns`.
     pub fn finish(&mut self, applied: &[f64; 4], dev: &DeviceState, now_ns: u64) -> Command {
-        // Only the link's share of the force passes through the two-port: in force-guided
-        // mode the local spring is not the link's.
+        // Position–force: all of the applied force (the local damping included) is the
+        // master port's. Force-guided: the local spring is not the link's, and the link
+        // renders nothing.
         let link = if self.p.mode == CouplingMode::PositionForce {
             [applied[0], applied[1], applied[2]]
         } else {

@@ -55,7 +55,7 @@ pub struct PassivityParams {
     /// damping_step_fraction · m`, `m` the handle's smallest effective mass (more makes the
     /// light handle's velocity overshoot and flip sign every cycle). A deficit the bounded
     /// damping cannot dissipate at once is carried (the observer goes below zero). 0: off
-    /// (the default; with it on the matrix misses, see docs/sessions.md "Handle chatter").
+    /// (the handle then chatters under a large deficit); default 1.
     pub damping_step_fraction: f64,
     /// The slave hands the part of its observer's surplus above this reserve back to the
     /// master (slave units), J; negative: never. Energy the operator put in that the slave
