@@ -136,6 +136,10 @@ pub struct ContactModel {
     f_meas: f64,
     plane: f64,
     plane_valid: bool,
+    /// Where the surface is for the offset: the touch point, moved in where the slave was
+    /// later measured beyond it without a force (no measured force in it: no loop closes
+    /// through it, and it does not jump when the contact flag does).
+    surface: f64,
     p_used: f64,
     used_valid: bool,
     /// Stiffness rendered last cycle, N/mm (slave).
@@ -197,8 +201,14 @@ impl ContactModel {
             if !self.contact {
                 // A new touch: the force crossed the contact threshold here; positions
                 // along the normal are measured from this point (a projection of the
-                // absolute position would move with every small turn of the normal).
+                // absolute position would move with every small turn of the normal). The
+                // remembered plane and the rendered one stay where they are in space.
+                let shift = self.along_normal(&pos);
                 self.origin = pos;
+                self.plane -= shift;
+                self.p_used -= shift;
+                self.s_meas -= shift;
+                self.surface = 0.0;
             }
             let s = self.along_normal(&pos);
             let s_ref = self.along_normal(&commanded_mm);
@@ -234,9 +244,17 @@ impl ContactModel {
             self.plane_valid = true;
         } else {
             self.contact = false;
-            if self.plane_valid && self.along_normal(&pos) < self.plane - 0.5 {
-                // Beyond the remembered surface with no force: it is not there (any more).
+            let s = self.along_normal(&pos);
+            if self.plane_valid && s < self.plane - PLANE_GONE_MM {
+                // Far beyond the remembered surface with no force: it is not there (any
+                // more).
                 self.plane_valid = false;
+            } else if self.plane_valid {
+                // No force here: the surface is at least this far in. Without this a
+                // surface remembered a little too far out holds the slave off it (the
+                // offset) and no contact ever corrects it.
+                self.plane = self.plane.min(s);
+                self.surface = self.surface.min(s);
             }
         }
     }
@@ -260,15 +278,14 @@ impl ContactModel {
     /// in before the surface was known (a blind touch: the plane is placed at the handle),
     /// and when a stiffer estimate moves it in (same stored energy); it moves out only as
     /// energy allows. Meanwhile the slave is commanded this much out of the surface, so that
-    /// it presses with the force the operator feels. The surface is the touch point while
-    /// in contact (not the stiffness-dependent plane estimate: no loop through the measured
-    /// force), the remembered plane otherwise.
+    /// it presses with the force the operator feels. The surface is the touch point (not
+    /// the stiffness-dependent plane estimate: no loop through the measured force), moved
+    /// in where the slave later went beyond it without a force.
     pub fn offset_mm(&self) -> [f64; 3] {
         if !self.valid() || !self.used_valid {
             return [0.0; 3];
         }
-        let surface = if self.contact { 0.0 } else { self.plane };
-        let d = (surface - self.p_used).max(0.0);
+        let d = (self.surface - self.p_used).max(0.0);
         [d * self.normal[0], d * self.normal[1], d * self.normal[2]]
     }
 
@@ -406,6 +423,9 @@ const SERVO_AGREEMENT_MM: f64 = 0.3;
 
 /// Largest servo compliance the model accepts, mm/N.
 const SERVO_COMPLIANCE_MAX_MM_PER_N: f64 = 0.02;
+
+/// The slave this far beyond the remembered surface with no force: the surface is gone, mm.
+const PLANE_GONE_MM: f64 = 0.5;
 
 /// Time constant of the contact model's normal estimate, s.
 const NORMAL_TIME_CONSTANT_S: f64 = 2.0;
@@ -855,5 +875,46 @@ mod tests {
             m.force_at(&mp, &[0.0, 0.0, -250.12], 1e3, dt, f64::INFINITY),
             [0.0; 3]
         );
+    }
+
+    /// A surface remembered a little too far out does not hold the slave off it for ever:
+    /// the slave measured beyond it with no force moves it in, and the offset with it. A new
+    /// touch elsewhere along the normal leaves the rendered plane where it is in space (no
+    /// force step at the handle).
+    #[test]
+    fn contact_model_corrects_the_surface_and_keeps_the_plane_across_touches() {
+        let mp = ModelParams {
+            enabled: true,
+            ..ModelParams::default()
+        };
+        let dt = 1e-3;
+        let mut m = ContactModel::default();
+        // A blind touch: first felt at -250.02, then pressed to 20 N at -250.2, while the
+        // handle is already at -252: the rendered plane is placed at the handle and the
+        // slave is to stay out of the surface by the lag.
+        m.observe(&mp, &feedback(1, 2.0, -250.02), [0.0, 0.0, -250.02]);
+        m.observe(&mp, &feedback(2, 20.0, -250.2), [0.0, 0.0, -250.2]);
+        assert!(m.valid());
+        let f = m.force_at(&mp, &[0.0, 0.0, -252.0], 1e3, dt, 0.0);
+        assert!(f[2].abs() < 1e-9, "{f:?}");
+        let o0 = m.offset_mm()[2];
+        assert!((o0 - 1.98).abs() < 1e-9, "{o0}");
+        // Held out, the slave feels nothing at -250.0; then it is seen at -250.1 with no
+        // force: the surface is at least that far in.
+        m.observe(&mp, &feedback(3, 0.0, -250.0), [0.0, 0.0, -250.0]);
+        assert!((m.offset_mm()[2] - o0).abs() < 1e-9);
+        m.observe(&mp, &feedback(4, 0.0, -250.1), [0.0, 0.0, -250.1]);
+        let o1 = m.offset_mm()[2];
+        assert!((o1 - 1.9).abs() < 1e-9, "{o1}");
+        // The handle presses 0.05 mm into the rendered plane; a new touch at -250.15
+        // (the origin of the along-normal coordinates moves there) changes nothing at the
+        // handle, and the offset is measured from the new touch point.
+        let f0 = m.force_at(&mp, &[0.0, 0.0, -252.05], 1e3, dt, 0.0)[2];
+        assert!(f0 > 1.0, "{f0}");
+        m.observe(&mp, &feedback(5, 2.0, -250.15), [0.0, 0.0, -250.15]);
+        let f1 = m.force_at(&mp, &[0.0, 0.0, -252.05], 1e3, dt, 0.0)[2];
+        assert!((f1 - f0).abs() < 1e-9, "{f0} {f1}");
+        let o2 = m.offset_mm()[2];
+        assert!((o2 - 1.85).abs() < 1e-9, "{o2}");
     }
 }

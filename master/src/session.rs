@@ -1169,12 +1169,52 @@ struct Sample {
     finite: bool,
 }
 
+/// The contact force's oscillation: for each sample past the settle time, the force minus
+/// its zero-phase moving mean. The mean is a first-order low-pass (`tau_s`) run forwards then
+/// backwards over one touch at a time, the touch extended at both ends by odd reflection, so
+/// that a ramp (a push, a release) leaves no residual; an oscillation of frequency f leaves
+/// (2πfτ)² / (1 + (2πfτ)²) of its amplitude.
+fn contact_residuals(samples: &[(f64, bool, bool)], tau_s: f64) -> Vec<f64> {
+    let a = (DT_S / tau_s.max(DT_S)).min(1.0);
+    let mut out = Vec::with_capacity(samples.len());
+    let mut ext = Vec::new();
+    let mut start = 0;
+    while start < samples.len() {
+        let mut end = start + 1;
+        while end < samples.len() && !samples[end].1 {
+            end += 1;
+        }
+        let seg = &samples[start..end];
+        let len = seg.len();
+        let pad = ((5.0 * tau_s / DT_S).ceil() as usize).min(len - 1);
+        let (first, last) = (seg[0].0, seg[len - 1].0);
+        ext.clear();
+        ext.extend((1..=pad).rev().map(|k| 2.0 * first - seg[k].0));
+        ext.extend(seg.iter().map(|x| x.0));
+        ext.extend((1..=pad).map(|k| 2.0 * last - seg[len - 1 - k].0));
+        for i in 1..ext.len() {
+            ext[i] = ext[i - 1] + a * (ext[i] - ext[i - 1]);
+        }
+        for i in (0..ext.len() - 1).rev() {
+            ext[i] = ext[i + 1] + a * (ext[i] - ext[i + 1]);
+        }
+        for (j, &(f, _, settled)) in seg.iter().enumerate() {
+            if settled {
+                out.push(f - ext[pad + j]);
+            }
+        }
+        start = end;
+    }
+    out
+}
+
 /// Summary statistics, accumulated per cycle (the per-cycle buffers are allocated once).
 struct Evaluator {
     det: DetectorConfig,
-    contact_residual: Vec<f64>,
+    /// Contact force of every contact cycle, with whether it starts a touch and whether it
+    /// is past the settle time (residuals are computed at the end, around a centred mean).
+    contact_force: Vec<(f64, bool, bool)>,
     contact_drift: Vec<f64>,
-    mean: f64,
     in_contact_prev: bool,
     since_touch_s: f64,
     steady_s: f64,
@@ -1199,9 +1239,8 @@ impl Evaluator {
     fn new(det: DetectorConfig, cycles: usize) -> Self {
         Evaluator {
             det,
-            contact_residual: Vec::with_capacity(cycles),
+            contact_force: Vec::with_capacity(cycles),
             contact_drift: Vec::with_capacity(cycles),
-            mean: 0.0,
             in_contact_prev: false,
             since_touch_s: 0.0,
             steady_s: 0.0,
@@ -1256,20 +1295,18 @@ impl Evaluator {
             self.rejected += 1;
         }
         let in_contact = s.true_force_n > d.contact_threshold_n;
-        let a = (DT_S / d.mean_time_constant_s).min(1.0);
         if in_contact {
-            if !self.in_contact_prev {
+            let touch = !self.in_contact_prev;
+            if touch {
                 self.since_touch_s = 0.0;
-                self.mean = s.true_force_n;
             }
             self.since_touch_s += DT_S;
-            self.mean += (s.true_force_n - self.mean) * a;
-            if self.since_touch_s >= d.settle_s {
-                self.contact_residual.push(s.true_force_n - self.mean);
+            let settled = self.since_touch_s >= d.settle_s;
+            self.contact_force.push((s.true_force_n, touch, settled));
+            if settled {
                 self.contact_drift.push(s.drift_mm);
             }
         } else {
-            self.mean = 0.0;
             if s.free_motion && s.steady {
                 self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
                 self.track_n += 1;
@@ -1296,7 +1333,8 @@ impl Evaluator {
     ) -> Summary {
         let d = self.det;
         let win = (d.window_s / DT_S).round() as usize;
-        let n = self.contact_residual.len();
+        let residual = contact_residuals(&self.contact_force, d.mean_time_constant_s);
+        let n = residual.len();
         let rms = |s: &[f64]| {
             if s.is_empty() {
                 0.0
@@ -1304,8 +1342,8 @@ impl Evaluator {
                 (s.iter().map(|x| x * x).sum::<f64>() / s.len() as f64).sqrt()
             }
         };
-        let early = rms(&self.contact_residual[..win.min(n)]);
-        let late = rms(&self.contact_residual[n.saturating_sub(win)..]);
+        let early = rms(&residual[..win.min(n)]);
+        let late = rms(&residual[n.saturating_sub(win)..]);
         let growth = late / early.max(d.oscillation_floor_n);
         let half_s = 500usize;
         let drift_tail = &self.contact_drift[n.saturating_sub(half_s)..];
@@ -1376,5 +1414,63 @@ impl Evaluator {
             sim_time_s,
             wall_time_s,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rms(v: &[f64]) -> f64 {
+        (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+    }
+
+    /// One touch of `n` samples, all past the settle time.
+    fn touch(f: impl Fn(f64) -> f64, n: usize) -> Vec<(f64, bool, bool)> {
+        (0..n).map(|k| (f(k as f64 * DT_S), k == 0, true)).collect()
+    }
+
+    /// A push and a release (ramps, also at the ends of the touch) are not oscillation;
+    /// an oscillation is, by the documented fraction; touches are filtered one at a time.
+    #[test]
+    fn contact_residuals_ignore_ramps_and_measure_oscillation() {
+        let tau = 0.1;
+        // Ramp up 0 → 20 N in 0.3 s, hold, ramp down to 0.5 N in 0.3 s at the end.
+        let push_hold_release = |t: f64| {
+            if t < 0.3 {
+                20.0 * t / 0.3
+            } else if t < 2.7 {
+                20.0
+            } else {
+                20.0 - 19.5 * (t - 2.7) / 0.3
+            }
+        };
+        let r = contact_residuals(&touch(push_hold_release, 3000), tau);
+        assert_eq!(r.len(), 3000);
+        // Only the two corners leave anything, and little.
+        // Along a ramp and a hold nothing; a change of slope leaves about slope·τ/2
+        // (here 3.3 N) for about τ. (The causal moving mean this replaced left slope·τ,
+        // 6.7 N, over each whole ramp, the release included.)
+        assert!(r[1000..2000].iter().all(|x| x.abs() < 0.01), "hold");
+        assert!(r[2850..].iter().all(|x| x.abs() < 1.0), "release");
+        assert!(rms(&r) < 1.0, "{}", rms(&r));
+        // A 5 Hz, 2 N-amplitude oscillation on 10 N: (2πfτ)²/(1+(2πfτ)²) ≈ 0.91 of it.
+        let osc = |t: f64| 10.0 + 2.0 * (2.0 * std::f64::consts::PI * 5.0 * t).sin();
+        let r = contact_residuals(&touch(osc, 4000), tau);
+        let w = 2.0 * std::f64::consts::PI * 5.0 * tau;
+        let expect = 2.0 / 2f64.sqrt() * w * w / (1.0 + w * w);
+        let got = rms(&r[500..3500]);
+        assert!((got - expect).abs() < 0.05 * expect, "{got} {expect}");
+        // Two touches at different levels: no step between them shows as oscillation.
+        let mut two = touch(|_| 5.0, 1000);
+        two.extend(touch(|_| 30.0, 1000));
+        let r = contact_residuals(&two, tau);
+        assert!(r.iter().all(|x| x.abs() < 1e-9));
+        // Samples before the settle time are filtered but not reported.
+        let mut s = touch(|_| 5.0, 100);
+        for x in s.iter_mut().take(40) {
+            x.2 = false;
+        }
+        assert_eq!(contact_residuals(&s, tau).len(), 60);
     }
 }

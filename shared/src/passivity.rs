@@ -71,14 +71,14 @@ impl Default for PassivityParams {
         PassivityParams {
             enabled: true,
             max_damping_n_s_per_mm: 2.0,
-            max_correction_mm_per_s: 200.0,
+            max_correction_mm_per_s: 50.0,
             drift_gain_per_s: 10.0,
             drift_energy_share: 0.2,
             force_floor_n: 0.3,
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
             damping_step_fraction: 1.0,
-            return_reserve_j: 0.002,
+            return_reserve_j: 0.01,
             return_rate_per_s: 10.0,
         }
     }
