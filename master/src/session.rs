@@ -1212,7 +1212,7 @@ fn contact_residuals(samples: &[(f64, bool, bool)], tau_s: f64) -> Vec<f64> {
 struct Evaluator {
     det: DetectorConfig,
     /// Contact force of every contact cycle, with whether it starts a touch and whether it
-    /// is past the settle time (residuals are computed at the end, around a centred mean).
+    /// is past the settle time (residuals are computed at the end: [`contact_residuals`]).
     contact_force: Vec<(f64, bool, bool)>,
     contact_drift: Vec<f64>,
     in_contact_prev: bool,
@@ -1447,7 +1447,6 @@ mod tests {
         };
         let r = contact_residuals(&touch(push_hold_release, 3000), tau);
         assert_eq!(r.len(), 3000);
-        // Only the two corners leave anything, and little.
         // Along a ramp and a hold nothing; a change of slope leaves about slope·τ/2
         // (here 3.3 N) for about τ. (The causal moving mean this replaced left slope·τ,
         // 6.7 N, over each whole ramp, the release included.)
