@@ -6,6 +6,7 @@
 //!
 //! Every field of a session file is documented in `docs/sessions.md`.
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -234,8 +235,16 @@ pub struct DetectorConfig {
     pub contact_threshold_n: f64,
     /// Time constant of the moving mean the oscillation is measured around, s.
     pub mean_time_constant_s: f64,
-    /// Contact time skipped after each touch before the early window, s.
+    /// Contact time skipped after the start of each contact episode, s.
     pub settle_s: f64,
+    /// Contact lost for less than this and regained is one episode (a bounce), s.
+    pub contact_gap_s: f64,
+    /// An episode shorter than `settle_s` whose force reaches this is an impact, N.
+    pub impact_force_n: f64,
+    /// Impacts less than this apart are in a row (one bouncing run), s.
+    pub bounce_gap_s: f64,
+    /// This many impacts in a row or more is sustained bouncing: unstable.
+    pub bounce_limit: u64,
     /// Length of the early and late windows of contact, s.
     pub window_s: f64,
     /// Late-contact oscillation (RMS around the moving mean) above which the run is unstable, N.
@@ -256,6 +265,10 @@ impl Default for DetectorConfig {
             contact_threshold_n: 0.5,
             mean_time_constant_s: 0.1,
             settle_s: 0.5,
+            contact_gap_s: 0.25,
+            impact_force_n: 2.0,
+            bounce_gap_s: 2.0,
+            bounce_limit: 4,
             window_s: 2.0,
             oscillation_limit_n: 1.5,
             growth_limit: 3.0,
@@ -586,6 +599,16 @@ impl Validate for SessionConfig {
             "s",
         )?;
         check_range("detector.settle_s", d.settle_s, 0.0, 100.0, "s")?;
+        check_range("detector.contact_gap_s", d.contact_gap_s, 0.0, 100.0, "s")?;
+        check_range("detector.impact_force_n", d.impact_force_n, 0.0, 1e4, "N")?;
+        check_range("detector.bounce_gap_s", d.bounce_gap_s, 0.0, 100.0, "s")?;
+        check_range(
+            "detector.bounce_limit",
+            d.bounce_limit as f64,
+            2.0,
+            1e6,
+            "impacts in a row",
+        )?;
         check_range("detector.window_s", d.window_s, 0.05, 100.0, "s")?;
         check_range(
             "detector.oscillation_limit_n",
@@ -699,8 +722,13 @@ pub struct Summary {
     pub packets_rejected: u64,
     /// Mean round-trip time measured by the master from the echoed send times, ms.
     pub rtt_mean_ms: f64,
-    /// Time in contact, s.
+    /// Settled contact time (contact episodes after `detector.settle_s`), s.
     pub contact_time_s: f64,
+    /// Times the tool lost and regained contact within `detector.contact_gap_s` (bounces).
+    pub contact_bounces: u64,
+    /// The most impacts in a row (touches shorter than `detector.settle_s` reaching
+    /// `detector.impact_force_n`, each within `detector.bounce_gap_s` of the last).
+    pub bouncing_impacts: u64,
     /// Cycles whose command the slave controller rejected.
     pub slave_rejected_cycles: u64,
     /// Control cycles run (1 ms each, both sides).
@@ -1169,41 +1197,98 @@ struct Sample {
     finite: bool,
 }
 
-/// The contact force's oscillation: for each sample past the settle time, the force minus
-/// its zero-phase moving mean. The mean is a first-order low-pass (`tau_s`) run forwards then
-/// backwards over one touch at a time, the touch extended at both ends by odd reflection, so
-/// that a ramp (a push, a release) leaves no residual; an oscillation of frequency f leaves
-/// (2πfτ)² / (1 + (2πfτ)²) of its amplitude.
-fn contact_residuals(samples: &[(f64, bool, bool)], tau_s: f64) -> Vec<f64> {
-    let a = (DT_S / tau_s.max(DT_S)).min(1.0);
-    let mut out = Vec::with_capacity(samples.len());
-    let mut ext = Vec::new();
-    let mut start = 0;
-    while start < samples.len() {
-        let mut end = start + 1;
-        while end < samples.len() && !samples[end].1 {
-            end += 1;
+/// Contact episodes: runs of cycles with the contact force above `threshold_n`, runs less
+/// than `gap` cycles apart joined into one (the cycles between them belong to it: a tool
+/// that bounces on and off the surface is one contact, and its bounces are oscillation).
+/// Returns the episodes and the number of joins (bounces).
+fn contact_episodes(force_n: &[f64], threshold_n: f64, gap: usize) -> (Vec<Range<usize>>, u64) {
+    let mut episodes: Vec<Range<usize>> = Vec::new();
+    let mut bounces = 0;
+    let mut k = 0;
+    while k < force_n.len() {
+        if force_n[k] <= threshold_n {
+            k += 1;
+            continue;
         }
-        let seg = &samples[start..end];
+        let start = k;
+        while k < force_n.len() && force_n[k] > threshold_n {
+            k += 1;
+        }
+        match episodes.last_mut() {
+            Some(last) if start - last.end < gap => {
+                last.end = k;
+                bounces += 1;
+            }
+            _ => episodes.push(start..k),
+        }
+    }
+    (episodes, bounces)
+}
+
+/// The longest run of impacts in a row: episodes shorter than `settle` cycles whose force
+/// reaches `impact_force_n`, each starting less than `gap` cycles after the last one ended
+/// (a tool bouncing off the surface while the operator pushes: each touch too short to
+/// settle, so the oscillation measure never sees it).
+fn bouncing_impacts(
+    force_n: &[f64],
+    episodes: &[Range<usize>],
+    settle: usize,
+    impact_force_n: f64,
+    gap: usize,
+) -> u64 {
+    let mut best = 0;
+    let mut run = 0;
+    let mut last_end: Option<usize> = None;
+    for e in episodes {
+        let impact = e.len() < settle && force_n[e.clone()].iter().any(|&f| f >= impact_force_n);
+        if !impact {
+            run = 0;
+            last_end = None;
+            continue;
+        }
+        run = match last_end {
+            Some(end) if e.start - end < gap => run + 1,
+            _ => 1,
+        };
+        last_end = Some(e.end);
+        best = best.max(run);
+    }
+    best
+}
+
+/// The contact force's oscillation: for each sample of an episode past its first `settle`
+/// cycles, the force minus its zero-phase moving mean. The mean is a first-order low-pass
+/// (`tau_s`) run forwards then backwards over one episode at a time, the episode extended at
+/// both ends by odd reflection, so that a ramp (a push, a release) leaves no residual; an
+/// oscillation of frequency f leaves (2πfτ)² / (1 + (2πfτ)²) of its amplitude. Also returns,
+/// for each residual, its cycle.
+fn contact_residuals(
+    force_n: &[f64],
+    episodes: &[Range<usize>],
+    settle: usize,
+    tau_s: f64,
+) -> Vec<(usize, f64)> {
+    let a = (DT_S / tau_s.max(DT_S)).min(1.0);
+    let mut out = Vec::with_capacity(force_n.len());
+    let mut ext = Vec::new();
+    for e in episodes {
+        let seg = &force_n[e.clone()];
         let len = seg.len();
         let pad = ((5.0 * tau_s / DT_S).ceil() as usize).min(len - 1);
-        let (first, last) = (seg[0].0, seg[len - 1].0);
+        let (first, last) = (seg[0], seg[len - 1]);
         ext.clear();
-        ext.extend((1..=pad).rev().map(|k| 2.0 * first - seg[k].0));
-        ext.extend(seg.iter().map(|x| x.0));
-        ext.extend((1..=pad).map(|k| 2.0 * last - seg[len - 1 - k].0));
+        ext.extend((1..=pad).rev().map(|k| 2.0 * first - seg[k]));
+        ext.extend_from_slice(seg);
+        ext.extend((1..=pad).map(|k| 2.0 * last - seg[len - 1 - k]));
         for i in 1..ext.len() {
             ext[i] = ext[i - 1] + a * (ext[i] - ext[i - 1]);
         }
         for i in (0..ext.len() - 1).rev() {
             ext[i] = ext[i + 1] + a * (ext[i] - ext[i + 1]);
         }
-        for (j, &(f, _, settled)) in seg.iter().enumerate() {
-            if settled {
-                out.push(f - ext[pad + j]);
-            }
+        for (j, f) in seg.iter().enumerate().skip(settle) {
+            out.push((e.start + j, f - ext[pad + j]));
         }
-        start = end;
     }
     out
 }
@@ -1211,12 +1296,11 @@ fn contact_residuals(samples: &[(f64, bool, bool)], tau_s: f64) -> Vec<f64> {
 /// Summary statistics, accumulated per cycle (the per-cycle buffers are allocated once).
 struct Evaluator {
     det: DetectorConfig,
-    /// Contact force of every contact cycle, with whether it starts a touch and whether it
-    /// is past the settle time (residuals are computed at the end: [`contact_residuals`]).
-    contact_force: Vec<(f64, bool, bool)>,
-    contact_drift: Vec<f64>,
-    in_contact_prev: bool,
-    since_touch_s: f64,
+    /// True contact force of every cycle, N (contact episodes and their oscillation are
+    /// found at the end: [`contact_episodes`], [`contact_residuals`]).
+    force_n: Vec<f64>,
+    /// Position drift of every cycle, mm.
+    drift_mm: Vec<f64>,
     steady_s: f64,
     energy_min: f64,
     max_force: f64,
@@ -1239,10 +1323,8 @@ impl Evaluator {
     fn new(det: DetectorConfig, cycles: usize) -> Self {
         Evaluator {
             det,
-            contact_force: Vec::with_capacity(cycles),
-            contact_drift: Vec::with_capacity(cycles),
-            in_contact_prev: false,
-            since_touch_s: 0.0,
+            force_n: Vec::with_capacity(cycles),
+            drift_mm: Vec::with_capacity(cycles),
             steady_s: 0.0,
             energy_min: 0.0,
             max_force: 0.0,
@@ -1295,24 +1377,12 @@ impl Evaluator {
             self.rejected += 1;
         }
         let in_contact = s.true_force_n > d.contact_threshold_n;
-        if in_contact {
-            let touch = !self.in_contact_prev;
-            if touch {
-                self.since_touch_s = 0.0;
-            }
-            self.since_touch_s += DT_S;
-            let settled = self.since_touch_s >= d.settle_s;
-            self.contact_force.push((s.true_force_n, touch, settled));
-            if settled {
-                self.contact_drift.push(s.drift_mm);
-            }
-        } else {
-            if s.free_motion && s.steady {
-                self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
-                self.track_n += 1;
-            }
+        self.force_n.push(s.true_force_n);
+        self.drift_mm.push(s.drift_mm);
+        if !in_contact && s.free_motion && s.steady {
+            self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
+            self.track_n += 1;
         }
-        self.in_contact_prev = in_contact;
         self.steady_s = if s.steady { self.steady_s + DT_S } else { 0.0 };
         if in_contact && self.steady_s >= 1.0 {
             self.trans_abs += s.transparency_abs_n;
@@ -1333,7 +1403,20 @@ impl Evaluator {
     ) -> Summary {
         let d = self.det;
         let win = (d.window_s / DT_S).round() as usize;
-        let residual = contact_residuals(&self.contact_force, d.mean_time_constant_s);
+        let gap = (d.contact_gap_s / DT_S).round() as usize;
+        let (episodes, bounces) = contact_episodes(&self.force_n, d.contact_threshold_n, gap);
+        let settle = (d.settle_s / DT_S).round() as usize;
+        let impacts = bouncing_impacts(
+            &self.force_n,
+            &episodes,
+            settle,
+            d.impact_force_n,
+            (d.bounce_gap_s / DT_S).round() as usize,
+        );
+        let (cycle, residual): (Vec<usize>, Vec<f64>) =
+            contact_residuals(&self.force_n, &episodes, settle, d.mean_time_constant_s)
+                .into_iter()
+                .unzip();
         let n = residual.len();
         let rms = |s: &[f64]| {
             if s.is_empty() {
@@ -1345,8 +1428,14 @@ impl Evaluator {
         let early = rms(&residual[..win.min(n)]);
         let late = rms(&residual[n.saturating_sub(win)..]);
         let growth = late / early.max(d.oscillation_floor_n);
-        let half_s = 500usize;
-        let drift_tail = &self.contact_drift[n.saturating_sub(half_s)..];
+        // The drift over the last 0.5 s of settled contact (cycles in touch).
+        let drift_tail: Vec<f64> = cycle
+            .iter()
+            .rev()
+            .filter(|&&k| self.force_n[k] > d.contact_threshold_n)
+            .take(500)
+            .map(|&k| self.drift_mm[k])
+            .collect();
         let drift = if drift_tail.is_empty() {
             0.0
         } else {
@@ -1366,6 +1455,13 @@ impl Evaluator {
             reasons.push(format!(
                 "growth: oscillation grew {growth:.2}x > {}x",
                 d.growth_limit
+            ));
+        }
+        if impacts >= d.bounce_limit {
+            reasons.push(format!(
+                "bouncing: {impacts} impacts in a row (touches shorter than {} s reaching {} N, \
+                 each within {} s of the last) >= {}",
+                d.settle_s, d.impact_force_n, d.bounce_gap_s, d.bounce_limit
             ));
         }
         if self.energy_min < -d.energy_tolerance_j {
@@ -1409,6 +1505,8 @@ impl Evaluator {
             packets_rejected,
             rtt_mean_ms,
             contact_time_s: n as f64 * DT_S,
+            contact_bounces: bounces,
+            bouncing_impacts: impacts,
             slave_rejected_cycles: self.rejected,
             cycles,
             sim_time_s,
@@ -1425,13 +1523,17 @@ mod tests {
         (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
     }
 
-    /// One touch of `n` samples, all past the settle time.
-    fn touch(f: impl Fn(f64) -> f64, n: usize) -> Vec<(f64, bool, bool)> {
-        (0..n).map(|k| (f(k as f64 * DT_S), k == 0, true)).collect()
+    /// `n` samples of `f` (1 ms apart), as one contact episode, all settled.
+    fn residuals_of(f: impl Fn(f64) -> f64, n: usize, tau: f64) -> Vec<f64> {
+        let force: Vec<f64> = (0..n).map(|k| f(k as f64 * DT_S)).collect();
+        contact_residuals(&force, std::slice::from_ref(&(0..n)), 0, tau)
+            .into_iter()
+            .map(|(_, r)| r)
+            .collect()
     }
 
-    /// A push and a release (ramps, also at the ends of the touch) are not oscillation;
-    /// an oscillation is, by the documented fraction; touches are filtered one at a time.
+    /// A push and a release (ramps, also at the ends of the episode) are not oscillation;
+    /// an oscillation is, by the documented fraction; episodes are filtered one at a time.
     #[test]
     fn contact_residuals_ignore_ramps_and_measure_oscillation() {
         let tau = 0.1;
@@ -1445,7 +1547,7 @@ mod tests {
                 20.0 - 19.5 * (t - 2.7) / 0.3
             }
         };
-        let r = contact_residuals(&touch(push_hold_release, 3000), tau);
+        let r = residuals_of(push_hold_release, 3000, tau);
         assert_eq!(r.len(), 3000);
         // Along a ramp and a hold nothing; a change of slope leaves about slope·τ/2
         // (here 3.3 N) for about τ. (The causal moving mean this replaced left slope·τ,
@@ -1455,21 +1557,81 @@ mod tests {
         assert!(rms(&r) < 1.0, "{}", rms(&r));
         // A 5 Hz, 2 N-amplitude oscillation on 10 N: (2πfτ)²/(1+(2πfτ)²) ≈ 0.91 of it.
         let osc = |t: f64| 10.0 + 2.0 * (2.0 * std::f64::consts::PI * 5.0 * t).sin();
-        let r = contact_residuals(&touch(osc, 4000), tau);
+        let r = residuals_of(osc, 4000, tau);
         let w = 2.0 * std::f64::consts::PI * 5.0 * tau;
         let expect = 2.0 / 2f64.sqrt() * w * w / (1.0 + w * w);
         let got = rms(&r[500..3500]);
         assert!((got - expect).abs() < 0.05 * expect, "{got} {expect}");
-        // Two touches at different levels: no step between them shows as oscillation.
-        let mut two = touch(|_| 5.0, 1000);
-        two.extend(touch(|_| 30.0, 1000));
-        let r = contact_residuals(&two, tau);
-        assert!(r.iter().all(|x| x.abs() < 1e-9));
-        // Samples before the settle time are filtered but not reported.
-        let mut s = touch(|_| 5.0, 100);
-        for x in s.iter_mut().take(40) {
-            x.2 = false;
+        // Two episodes at different levels: no step between them shows as oscillation.
+        let mut two = vec![5.0; 1000];
+        two.extend(vec![30.0; 1000]);
+        let r = contact_residuals(&two, &[0..1000, 1000..2000], 0, tau);
+        assert!(r.iter().all(|x| x.1.abs() < 1e-9));
+        // Samples before the settle time are filtered but not reported; cycles are kept.
+        let r = contact_residuals(&[5.0; 100], std::slice::from_ref(&(0..100)), 40, tau);
+        assert_eq!(r.len(), 60);
+        assert_eq!(r[0].0, 40);
+    }
+
+    /// Touches closer than the gap are one episode (the bounces counted); a release and a
+    /// new push further apart are two.
+    #[test]
+    fn contact_episodes_join_bounces() {
+        let th = 0.5;
+        // 0.2 s free, then a tool bouncing at 8 Hz (60 ms on at 30 N, 60 ms off) for 1.2 s,
+        // then 1 s free, then a held push of 1 s.
+        let mut f = vec![0.0; 200];
+        for _ in 0..10 {
+            f.extend(vec![30.0; 60]);
+            f.extend(vec![0.0; 60]);
         }
-        assert_eq!(contact_residuals(&s, tau).len(), 60);
+        f.extend(vec![0.0; 1000]);
+        f.extend(vec![10.0; 1000]);
+        f.push(0.0);
+        let (e, bounces) = contact_episodes(&f, th, 250);
+        assert_eq!(e, vec![200..1340, 2400..3400]);
+        assert_eq!(bounces, 9);
+        // With no gap every touch is its own episode.
+        let (each, bounces) = contact_episodes(&f, th, 0);
+        assert_eq!((each.len(), bounces), (11, 0));
+        // The bouncing episode is an oscillation of about 15 N RMS around its mean: the
+        // detector sees it (touch by touch it saw nothing, each touch shorter than the
+        // settle time).
+        let r: Vec<f64> = contact_residuals(&f, &e[..1], 0, 0.1)
+            .into_iter()
+            .map(|x| x.1)
+            .collect();
+        assert!(rms(&r[200..]) > 10.0, "{}", rms(&r));
+    }
+
+    /// A tool that bounces off the wall slowly (each touch shorter than the settle time,
+    /// gaps longer than the episode gap) is counted impact by impact; a long touch, a touch
+    /// too light, or a gap too long ends the run.
+    #[test]
+    fn bouncing_impacts_count_short_touches_in_a_row() {
+        // Touches of 160 ms at 70 N every 630 ms (the bare coupling at 100 ms round trip).
+        let mut f = vec![0.0; 100];
+        for _ in 0..6 {
+            f.extend(vec![70.0; 160]);
+            f.extend(vec![0.0; 470]);
+        }
+        // A held push (a long touch), then three light taps, then two impacts 3 s apart.
+        f.extend(vec![20.0; 2000]);
+        f.extend(vec![0.0; 300]);
+        for _ in 0..3 {
+            f.extend(vec![1.5; 100]);
+            f.extend(vec![0.0; 300]);
+        }
+        for _ in 0..2 {
+            f.extend(vec![0.0; 3000]);
+            f.extend(vec![50.0; 100]);
+        }
+        let (e, _) = contact_episodes(&f, 0.5, 250);
+        assert_eq!(e.len(), 6 + 1 + 3 + 2);
+        assert_eq!(bouncing_impacts(&f, &e, 500, 2.0, 2000), 6);
+        // The light taps count only if the impact force is below them.
+        assert_eq!(bouncing_impacts(&f, &e[6..], 500, 1.0, 2000), 3);
+        // With a longer settle time the held push is an impact too.
+        assert_eq!(bouncing_impacts(&f, &e, 2500, 2.0, 2000), 7);
     }
 }
