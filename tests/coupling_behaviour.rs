@@ -1,0 +1,349 @@
+//! The coupling's features end to end, through the whole-session simulation (operator,
+//! master arm, link, slave teleop endpoint and plant, on the simulated clock): clutch and
+//! indexing, motion scaling, force scaling, force saturation, workspace mapping, and the
+//! force-guided (cutting) mode's set-point and guidance.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::PathBuf;
+
+use h4_master::operator::IntentSegment;
+use h4_master::session::{self, MasterCycle, Session, SessionConfig};
+use h4_shared::kinematics::Pose;
+use h4_slave::teleop::TeleopCycle;
+
+fn load(name: &str, overrides: &[&str]) -> SessionConfig {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions");
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    session::load(&dir.join(name), &o).unwrap()
+}
+
+fn seg(
+    at_s: f64,
+    target_mm: [f64; 3],
+    move_s: f64,
+    push_n: [f64; 3],
+    clutch: bool,
+) -> IntentSegment {
+    IntentSegment {
+        at_s,
+        target_mm,
+        move_s,
+        push_n,
+        push_ramp_s: 0.3,
+        clutch,
+        theta_rad: 0.0,
+    }
+}
+
+/// What the tests read of one cycle.
+#[derive(Clone, Copy, Debug)]
+struct Rec {
+    t_s: f64,
+    handle_mm: [f64; 3],
+    hand_n: [f64; 3],
+    rendered_n: [f64; 3],
+    saturated: bool,
+    workspace_limited: bool,
+    clutch: bool,
+    slave_target_mm: [f64; 4],
+    setpoint_n: f64,
+    slave_measured_mm: [f64; 3],
+    slave_force_n: [f64; 3],
+    true_force_n: [f64; 3],
+}
+
+fn run(cfg: &SessionConfig) -> Vec<Rec> {
+    let mut s = Session::new(cfg).unwrap();
+    let n = (cfg.duration_s * 1000.0).round() as usize;
+    let mut out = Vec::with_capacity(n);
+    for k in 0..n {
+        let (m, t): (MasterCycle, TeleopCycle) = s.cycle().unwrap();
+        let w = s.slave.arm().true_contact_wrench();
+        out.push(Rec {
+            t_s: (k + 1) as f64 * 1e-3,
+            handle_mm: [m.device.pose[0], m.device.pose[1], m.device.pose[2]],
+            hand_n: [m.hand.wrench[0], m.hand.wrench[1], m.hand.wrench[2]],
+            rendered_n: [m.rendered[0], m.rendered[1], m.rendered[2]],
+            saturated: m.step.saturated,
+            workspace_limited: m.step.workspace_limited,
+            clutch: m.device.clutch,
+            slave_target_mm: m.step.slave_target,
+            setpoint_n: m.step.setpoint_n,
+            slave_measured_mm: [
+                t.out.measured_pose[0],
+                t.out.measured_pose[1],
+                t.out.measured_pose[2],
+            ],
+            slave_force_n: [
+                t.out.wrench_measured[0],
+                t.out.wrench_measured[1],
+                t.out.wrench_measured[2],
+            ],
+            true_force_n: [w[0], w[1], w[2]],
+        });
+    }
+    out
+}
+
+fn at(r: &[Rec], t_s: f64) -> Rec {
+    r[((t_s * 1000.0).round() as usize).saturating_sub(1)]
+}
+
+fn window(r: &[Rec], from_s: f64, to_s: f64) -> &[Rec] {
+    &r[(from_s * 1000.0) as usize..(to_s * 1000.0) as usize]
+}
+
+fn mean(r: &[Rec], f: impl Fn(&Rec) -> f64) -> f64 {
+    r.iter().map(f).sum::<f64>() / r.len() as f64
+}
+
+/// The largest cycle-to-cycle change of the slave target, mm.
+fn largest_target_step_mm(r: &[Rec]) -> f64 {
+    r.windows(2)
+        .map(|w| {
+            (0..3)
+                .map(|i| (w[1].slave_target_mm[i] - w[0].slave_target_mm[i]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Free space (the wall 40 mm below), two 6 mm strokes down with the clutch held on the
+/// way back up between them.
+fn indexing(scale: f64, delay_ms: f64) -> Vec<Rec> {
+    let mut cfg = load(
+        "wall-push.toml",
+        &[
+            "duration_s=9",
+            "environment.gap_mm=40",
+            &format!("scale.motion={scale}"),
+            &format!("link.delay_ms={delay_ms}"),
+        ],
+    );
+    cfg.operator.intent = vec![
+        seg(0.0, [0.0; 3], 0.5, [0.0; 3], false),
+        seg(0.5, [0.0, 0.0, -6.0], 0.8, [0.0; 3], false),
+        seg(3.0, [0.0, 0.0, -6.0], 0.1, [0.0; 3], true),
+        seg(3.2, [0.0, 0.0, 0.0], 0.8, [0.0; 3], true),
+        seg(5.5, [0.0, 0.0, 0.0], 0.1, [0.0; 3], false),
+        seg(5.7, [0.0, 0.0, -6.0], 0.8, [0.0; 3], false),
+    ];
+    run(&cfg)
+}
+
+/// The cycles where the clutch goes down and comes up again.
+fn clutch_edges(r: &[Rec]) -> (usize, usize) {
+    let down = r.iter().position(|x| x.clutch).expect("clutch pressed");
+    let up = down
+        + r[down..]
+            .iter()
+            .position(|x| !x.clutch)
+            .expect("clutch released");
+    (down, up)
+}
+
+#[test]
+fn clutch_holds_the_slave_and_reanchors_without_a_jump() {
+    for delay_ms in [0.0, 25.0] {
+        let r = indexing(1.0, delay_ms);
+        let (down, up) = clutch_edges(&r);
+        // While clutched the handle goes back up and the slave target does not move.
+        let held = &r[down..up];
+        let handle_up = held.last().unwrap().handle_mm[2] - held[0].handle_mm[2];
+        assert!(handle_up > 1.0, "{handle_up}");
+        let z0 = held[0].slave_target_mm[2];
+        let moved = held
+            .iter()
+            .map(|x| (x.slave_target_mm[2] - z0).abs())
+            .fold(0.0, f64::max);
+        assert!(moved < 1e-9, "slave target moved {moved} mm while clutched");
+        // No jump anywhere, the release included: at most what the handle's speed gives
+        // in a cycle.
+        let step = largest_target_step_mm(&r);
+        assert!(step < 0.05, "largest slave target step {step} mm");
+        // Indexing: the two strokes of the handle's actual travel add up at the slave.
+        let end = *r.last().unwrap();
+        let travel = (r[down - 1].handle_mm[2] - r[0].handle_mm[2])
+            + (end.handle_mm[2] - r[up - 1].handle_mm[2]);
+        let slave = end.slave_target_mm[2] - r[0].slave_target_mm[2];
+        assert!(
+            (slave - travel).abs() < 0.02,
+            "delay {delay_ms}: slave {slave} mm, handle strokes {travel} mm"
+        );
+        // Indexing gained range: the slave went further than the handle's net travel.
+        let net = end.handle_mm[2] - r[0].handle_mm[2];
+        assert!(slave < net - 1.0, "slave {slave} mm, handle net {net} mm");
+        // And the slave arm got there (free space: position tracking).
+        let err = end.slave_measured_mm[2] - end.slave_target_mm[2];
+        assert!(err.abs() < 0.1, "delay {delay_ms}: tracking error {err} mm");
+    }
+}
+
+#[test]
+fn motion_scale_scales_the_slave_motion() {
+    for scale in [0.5, 2.0] {
+        let r = indexing(scale, 0.0);
+        let (down, _) = clutch_edges(&r);
+        let travel = r[down - 1].handle_mm[2] - r[0].handle_mm[2];
+        let slave = r[down - 1].slave_target_mm[2] - r[0].slave_target_mm[2];
+        assert!(travel < -3.0, "{travel}");
+        assert!(
+            (slave - scale * travel).abs() < 0.01,
+            "scale {scale}: slave {slave} mm for {travel} mm of handle"
+        );
+    }
+}
+
+/// The wall push with 0 delay: the mean of `f` over the second push's hold.
+fn hold_mean(r: &[Rec], f: impl Fn(&Rec) -> f64) -> f64 {
+    mean(window(r, 10.0, 12.8), f)
+}
+
+/// At `scale.force` 0.25 and 0.5 (the shipped sessions' value). From 0.75 on, where the
+/// learnt stiffness times the scale exceeds the model's stiffness cap, the slave presses
+/// harder than the operator feels (docs/sessions.md, "Known limits").
+#[test]
+fn force_scale_scales_the_force_the_operator_feels() {
+    for scale in [0.25, 0.5] {
+        let cfg = load(
+            "wall-push.toml",
+            &[&format!("scale.force={scale}"), "coupling.force_limit_n=30"],
+        );
+        let r = run(&cfg);
+        let slave = hold_mean(&r, |x| x.slave_force_n[2]);
+        let truth = hold_mean(&r, |x| x.true_force_n[2]);
+        assert!(
+            (truth - slave).abs() < 0.05 * slave,
+            "sensor {slave} N, true {truth} N"
+        );
+        let rendered = hold_mean(&r, |x| x.rendered_n[2]);
+        let hand = hold_mean(&r, |x| x.hand_n[2]);
+        println!(
+            "scale {scale}: slave {slave:.2} true {truth:.2} rendered {rendered:.2} hand {hand:.2}"
+        );
+        // What the operator feels is the slave's force times the scale ...
+        assert!(
+            (rendered - scale * slave).abs() < 0.1 * (scale * slave).abs(),
+            "scale {scale}: rendered {rendered} N, slave {slave} N"
+        );
+        // ... and it balances the hand's push at rest, so the slave presses with the push
+        // divided by the scale.
+        assert!(
+            (rendered + hand).abs() < 0.05 * hand.abs(),
+            "scale {scale}: rendered {rendered} N, hand {hand} N"
+        );
+    }
+}
+
+#[test]
+fn rendered_force_saturates_at_the_limit() {
+    let cfg = load("wall-push.toml", &["coupling.force_limit_n=4"]);
+    let r = run(&cfg);
+    let largest = r
+        .iter()
+        .map(|x| x.rendered_n.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    assert!(largest <= 4.0 + 1e-9, "{largest}");
+    assert!(r.iter().any(|x| x.saturated));
+    // Unsaturated the same push renders more than the limit.
+    let free = run(&load("wall-push.toml", &[]));
+    let largest_free = free
+        .iter()
+        .map(|x| x.rendered_n.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    assert!(largest_free > 5.0, "{largest_free}");
+    assert!(!free.iter().any(|x| x.saturated));
+}
+
+#[test]
+fn targets_outside_the_workspace_are_pulled_back_inside() {
+    // Motion scale 8: a 40 mm move of the handle along y asks for 320 mm at the slave.
+    let mut cfg = load(
+        "wall-push.toml",
+        &["duration_s=4", "environment.gap_mm=40", "scale.motion=8"],
+    );
+    cfg.operator.intent = vec![
+        seg(0.0, [0.0; 3], 0.5, [0.0; 3], false),
+        seg(0.5, [0.0, 40.0, 0.0], 2.0, [0.0; 3], false),
+    ];
+    let ws = cfg.slave.arm.workspace();
+    let r = run(&cfg);
+    assert!(r.iter().any(|x| x.workspace_limited));
+    for x in &r {
+        let p = Pose::from(x.slave_target_mm);
+        assert!(
+            ws.ik(&p).is_ok(),
+            "target outside the workspace at {} s: {p:?}",
+            x.t_s
+        );
+    }
+    let step = largest_target_step_mm(&r);
+    assert!(step < 1.0, "largest slave target step {step} mm");
+    // The slave went as far as it can, not nowhere.
+    let reach = at(&r, 4.0).slave_target_mm[1] - r[0].slave_target_mm[1];
+    let asked = 8.0 * (at(&r, 4.0).handle_mm[1] - r[0].handle_mm[1]);
+    assert!(reach > 100.0 && reach < asked - 50.0, "{reach} of {asked}");
+    let s = session::run(&cfg, None).unwrap();
+    assert_eq!(s.slave_rejected_cycles, 0);
+}
+
+#[test]
+fn force_guided_slave_holds_the_set_point_the_operator_pushes() {
+    let cfg = load("cutting-guided.toml", &[]);
+    let r = run(&cfg);
+    let x0_slave = r[0].slave_measured_mm[0];
+    let x0_handle = r[0].handle_mm[0];
+    let mut sets = Vec::new();
+    // Windows of steady pushing: before the cut, along it, pushed harder, on the way back.
+    for (from, to) in [(2.0, 3.0), (4.0, 7.0), (8.0, 8.5), (9.0, 11.0)] {
+        let w = window(&r, from, to);
+        let set = mean(w, |x| x.setpoint_n);
+        // The slave's implicit force loop holds the set-point the operator's push into the
+        // guide spring sets (its contact force, measured and true, pushes up: +z).
+        let force = mean(w, |x| x.slave_force_n[2]);
+        let truth = mean(w, |x| x.true_force_n[2]);
+        assert!(set > 3.0, "{from}-{to} s: set-point {set} N");
+        assert!(
+            (force - set).abs() < 0.05 * set && (truth - set).abs() < 0.05 * set,
+            "{from}-{to} s: set-point {set} N, slave measures {force} N, true {truth} N"
+        );
+        // What the hand feels is the guide spring: set-point × scale.force.
+        let felt = mean(w, |x| x.rendered_n[2]);
+        assert!(
+            (felt - set * cfg.scale.force).abs() < 0.05 * set * cfg.scale.force,
+            "{from}-{to} s: felt {felt} N for a set-point of {set} N"
+        );
+        sets.push(set);
+    }
+    // Pushing harder raised the set-point.
+    assert!(sets[2] > sets[1] + 2.0, "{sets:?}");
+    // Guidance: the slave moved along the surface the way the handle did, out 20 mm and
+    // back to 5 mm (it follows with a lag: docs/sessions.md).
+    let x = |t: f64| {
+        (
+            at(&r, t).slave_measured_mm[0] - x0_slave,
+            at(&r, t).handle_mm[0] - x0_handle,
+        )
+    };
+    let (out_slave, out_handle) = x(8.5);
+    let (back_slave, back_handle) = x(11.2);
+    assert!(
+        out_handle > 15.0 && back_handle < out_handle - 10.0,
+        "{out_handle} {back_handle}"
+    );
+    assert!(
+        out_slave > 0.7 * out_handle,
+        "out: slave {out_slave} mm, handle {out_handle} mm"
+    );
+    assert!(
+        back_slave < out_slave - 0.5 * (out_handle - back_handle),
+        "back: slave {back_slave} mm from {out_slave} mm, handle {back_handle} from {out_handle}"
+    );
+    // In contact all along the cut.
+    assert!(
+        window(&r, 2.0, 11.0)
+            .iter()
+            .all(|x| x.true_force_n[2] > 2.0)
+    );
+}
