@@ -200,9 +200,9 @@ fn hold_mean(r: &[Rec], f: impl Fn(&Rec) -> f64) -> f64 {
     mean(window(r, 10.0, 12.8), f)
 }
 
-/// At `scale.force` 0.25 and 0.5 (the shipped sessions' value). From 0.75 on, where the
-/// learnt stiffness times the scale exceeds the model's stiffness cap, the slave presses
-/// harder than the operator feels (docs/sessions.md, "Known limits").
+/// At `scale.force` 0.25 and 0.5 (the shipped sessions' value). Above 0.5, where the learnt
+/// stiffness times the scale exceeds the model's stiffness cap, the slave can press harder
+/// than the operator feels (docs/sessions.md, "Known limits").
 #[test]
 fn force_scale_scales_the_force_the_operator_feels() {
     for scale in [0.25, 0.5] {
