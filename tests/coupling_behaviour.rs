@@ -347,3 +347,48 @@ fn force_guided_slave_holds_the_set_point_the_operator_pushes() {
             .all(|x| x.true_force_n[2] > 2.0)
     );
 }
+
+/// A session driven by a recorded master trajectory from a file (JSON lines): the handle
+/// follows it, and a bad line is named by its number.
+#[test]
+fn replayed_trajectory_from_a_file_drives_the_session() {
+    let dir = std::env::temp_dir().join(format!("h4-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("trajectory.jsonl");
+    // Down 5 mm over 1 s and hold, in free space (wall 40 mm below).
+    let mut text = String::new();
+    for k in 0..=40 {
+        let t = k as f64 * 0.1;
+        let z = -5.0 * (t.min(1.0));
+        text.push_str(&format!(
+            "{{\"t_s\": {t}, \"position_mm\": [0.0, 0.0, {z}]}}\n"
+        ));
+    }
+    std::fs::write(&path, &text).unwrap();
+    let mut cfg = load("wall-push.toml", &["duration_s=4", "environment.gap_mm=40"]);
+    cfg.operator.replay_file = Some(path.clone());
+    let r = run(&cfg);
+    let moved = at(&r, 4.0).handle_mm[2] - r[0].handle_mm[2];
+    // (The hand's 0.4 N/mm arm against the handle's Coulomb friction leaves up to ≈ 1.5 mm.)
+    assert!(
+        moved < -3.0 && moved > -5.5,
+        "handle moved {moved} mm of -5"
+    );
+    let slave = at(&r, 4.0).slave_target_mm[2] - r[0].slave_target_mm[2];
+    assert!((slave - moved).abs() < 0.02, "{slave} {moved}");
+    // A malformed line: the error names the file and the line.
+    std::fs::write(
+        &path,
+        format!("{text}{{\"t_s\": 5.0, \"position\": [0, 0, 0]}}\n"),
+    )
+    .unwrap();
+    let err = match Session::new(&cfg) {
+        Ok(_) => panic!("bad replay file accepted"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.contains("trajectory.jsonl") && err.contains("42"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
