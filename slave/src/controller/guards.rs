@@ -230,7 +230,7 @@ pub(super) fn back_off(next: &mut Pose, cx: &Cycle, c_env: f64, p: &ControllerPa
         Some(l) => quad_form(l, &dir).max(0.0),
         None => 0.0,
     } + c_env;
-    let step = (c * (cx.f_mag - p.force_limit_n)).min(p.max_speed_mm_per_s * 0.001);
+    let step = (c * (cx.f_mag - p.force_limit_n)).min(p.max_speed_mm_per_s * cx.dt_s);
     for i in 0..3 {
         next[i] += dir[i] * step;
     }

@@ -231,6 +231,7 @@ impl SlaveController {
         if !(self.contact.in_contact && input.command.mode == Mode::ForceGuided) {
             self.deflection.fade();
         }
+        self.window.follow_period(dt_s);
         let cx = self.measure(pose_fk, raw - self.tare.bias, dt);
         let mut cmd = input.command;
         let safe_stopping = match self.safe.step(

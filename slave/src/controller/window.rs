@@ -16,6 +16,9 @@ pub(super) const WINDOW_MAX: usize = 64;
 #[derive(Clone, Debug)]
 pub(super) struct MotionWindow {
     filters: [Butterworth2; 3],
+    cutoff_hz: f64,
+    /// The sample period the filters are designed for, s.
+    period_s: f64,
     /// Filtered positions `[x, y, z]`, mm; newest at `head`.
     pub(super) x: [[f64; 3]; WINDOW_MAX],
     /// Bias-corrected forces, N; newest at `head`.
@@ -26,10 +29,14 @@ pub(super) struct MotionWindow {
 
 impl MotionWindow {
     /// An empty window whose position filter has the cut-off `cutoff_hz` (the sensor
-    /// filter's), for 1 ms cycles.
+    /// filter's), designed for 1 ms cycles until [`MotionWindow::follow_period`] says
+    /// otherwise.
     pub(super) fn new(cutoff_hz: f64) -> Self {
+        let period_s = 1e-3;
         MotionWindow {
-            filters: [Butterworth2::new(cutoff_hz, 1000.0); 3],
+            filters: [Butterworth2::new(cutoff_hz, 1.0 / period_s); 3],
+            cutoff_hz,
+            period_s,
             x: [[0.0; 3]; WINDOW_MAX],
             f: [Vector3::zeros(); WINDOW_MAX],
             head: 0,
@@ -43,6 +50,20 @@ impl MotionWindow {
         }
         for h in self.x.iter_mut() {
             *h = x;
+        }
+    }
+
+    /// Designs the position filter for the sample period `period_s` when the period
+    /// changed (no allocation); the filters then restart settled on the newest filtered
+    /// position. The first design is for 1 ms, so at 1 ms nothing changes.
+    pub(super) fn follow_period(&mut self, period_s: f64) {
+        if period_s != self.period_s {
+            self.period_s = period_s;
+            let x = self.x[self.head];
+            for (i, f) in self.filters.iter_mut().enumerate() {
+                *f = Butterworth2::new(self.cutoff_hz, 1.0 / period_s);
+                f.reset(x[i]);
+            }
         }
     }
 
