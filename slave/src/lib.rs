@@ -1,9 +1,10 @@
 //! The h4-teleop slave: the H-4 arm's force loop, its simulated plant, and the tools of
 //! the `h4-slave` command.
 //!
-//! * [`plant`]: the [`plant::ArmDriver`] interface a real robot driver implements, and
-//!   [`plant::SimArm`], the simulated prototype (20 kHz servos, finite stiffness, contact,
-//!   force sensor).
+//! * [`arm`]: the driver boundary, the [`arm::ArmDriver`] interface a real robot driver
+//!   implements.
+//! * [`plant`]: [`plant::SimArm`], the simulated prototype behind that interface (20 kHz
+//!   servos, finite stiffness, contact, force sensor).
 //! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
 //!   implicit force control with online environment-stiffness estimation, safe stop).
 //! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
@@ -11,6 +12,7 @@
 //!   (gate, watchdog and safe stop, passivity port, controller, feedback).
 //! * [`server`]: `h4-slave run`, the slave as a real-time process on a link.
 
+pub mod arm;
 pub mod controller;
 pub mod experiment;
 pub mod filter;
