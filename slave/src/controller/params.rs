@@ -1,5 +1,6 @@
 //! The controller's tuning, `controller.*` in experiment and session files.
 
+use h4_shared::config::{ConfigError, check_range};
 use serde::{Deserialize, Serialize};
 
 /// Tuning of the controller (`controller.*` in experiment files).
@@ -111,5 +112,70 @@ impl Default for ControllerParams {
             safe_stop_retract_mm: 3.0,
             safe_stop_release_max_mm: 50.0,
         }
+    }
+}
+
+impl ControllerParams {
+    /// Checks every field, naming it under `prefix` (e.g. `"controller."`) with its allowed
+    /// range and unit.
+    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("{prefix}{name}");
+        #[rustfmt::skip]
+        let checks: [(&str, f64, f64, f64, &str); 26] = [
+            ("force_limit_n", self.force_limit_n, 1.0, 1000.0, "N"),
+            ("max_speed_mm_per_s", self.max_speed_mm_per_s, 0.1, 1000.0, "mm/s"),
+            ("force_accel_mm_per_s2", self.force_accel_mm_per_s2, 1.0, 1e7, "mm/s²"),
+            ("max_accel_mm_per_s2", self.max_accel_mm_per_s2, 1.0, 1e5, "mm/s²"),
+            ("max_theta_rate_rad_per_s", self.max_theta_rate_rad_per_s, 0.01, 10.0, "rad/s"),
+            (
+                "approach_speed_mm_per_s",
+                self.approach_speed_mm_per_s,
+                0.01, self.max_speed_mm_per_s, "mm/s",
+            ),
+            ("contact_threshold_n", self.contact_threshold_n, 0.01, 100.0, "N"),
+            (
+                "contact_lost_n",
+                self.contact_lost_n,
+                0.0, self.contact_threshold_n, "N (up to contact_threshold_n)",
+            ),
+            ("contact_lost_cycles", f64::from(self.contact_lost_cycles), 1.0, 10_000.0, "cycles"),
+            ("setpoint_time_constant_s", self.setpoint_time_constant_s, 0.0, 10.0, "s"),
+            ("kp", self.kp, 0.0, 10.0, ""),
+            ("feedforward_gain", self.feedforward_gain, 0.0, 1.5, ""),
+            ("ki_per_s", self.ki_per_s, 0.0, 1000.0, "1/s"),
+            (
+                "initial_env_stiffness_n_per_mm",
+                self.initial_env_stiffness_n_per_mm,
+                0.1, 1e6, "N/mm",
+            ),
+            ("env_stiffness_min_n_per_mm", self.env_stiffness_min_n_per_mm, 0.01, 1e6, "N/mm"),
+            (
+                "env_stiffness_max_n_per_mm",
+                self.env_stiffness_max_n_per_mm,
+                self.env_stiffness_min_n_per_mm, 1e7, "N/mm (≥ env_stiffness_min_n_per_mm)",
+            ),
+            ("estimator_forgetting", self.estimator_forgetting, 0.5, 1.0, ""),
+            (
+                "estimator_window_cycles",
+                f64::from(self.estimator_window_cycles),
+                2.0, 63.0, "cycles",
+            ),
+            ("estimator_excitation_n", self.estimator_excitation_n, 0.0, 100.0, "N"),
+            ("normal_time_constant_s", self.normal_time_constant_s, 0.0, 10.0, "s"),
+            (
+                "deflection_comp_time_constant_s",
+                self.deflection_comp_time_constant_s,
+                0.0, 1.0, "s",
+            ),
+            ("sensor_filter_cutoff_hz", self.sensor_filter_cutoff_hz, 1.0, 1e5, "Hz"),
+            ("tare_cycles", f64::from(self.tare_cycles), 1.0, 100_000.0, "cycles"),
+            ("safe_stop_ramp_s", self.safe_stop_ramp_s, 0.0, 60.0, "s"),
+            ("safe_stop_retract_mm", self.safe_stop_retract_mm, 0.0, 100.0, "mm"),
+            ("safe_stop_release_max_mm", self.safe_stop_release_max_mm, 0.0, 500.0, "mm"),
+        ];
+        for (name, value, min, max, unit) in checks {
+            check_range(&field(name), value, min, max, unit)?;
+        }
+        Ok(())
     }
 }

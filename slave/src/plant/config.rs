@@ -1,5 +1,6 @@
 //! The mechanical and servo parameters of the simulated arm (`plant.*`).
 
+use h4_shared::config::{ConfigError, check_range};
 use serde::{Deserialize, Serialize};
 
 /// The mechanical and servo parameters of the simulated arm.
@@ -61,5 +62,38 @@ impl Default for PlantConfig {
             platform_damping_n_s_per_mm: 0.02,
             encoder_resolution_mm: 0.0005,
         }
+    }
+}
+
+impl PlantConfig {
+    /// Checks every field, naming it under `prefix` (e.g. `"plant."`) with its allowed
+    /// range and unit.
+    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("{prefix}{name}");
+        #[rustfmt::skip]
+        let checks: [(&str, f64, f64, f64, &str); 15] = [
+            ("stiffness_scale", self.stiffness_scale, 0.1, 10.0, ""),
+            ("structural_damping_ratio", self.structural_damping_ratio, 0.0, 1.0, ""),
+            ("servo_rate_hz", self.servo_rate_hz, 1000.0, 100_000.0, "Hz"),
+            ("carriage_mass_kg", self.carriage_mass_kg, 0.01, 1000.0, "kg"),
+            ("servo_kp_n_per_mm", self.servo_kp_n_per_mm, 0.0, 1e5, "N/mm"),
+            ("servo_ki_n_per_mm_s", self.servo_ki_n_per_mm_s, 0.0, 1e7, "N/(mm·s)"),
+            ("servo_kd_n_s_per_mm", self.servo_kd_n_s_per_mm, 0.0, 1e3, "N·s/mm"),
+            ("motor_force_max_n", self.motor_force_max_n, 1.0, 1e5, "N"),
+            ("coulomb_friction_n", self.coulomb_friction_n, 0.0, 1e3, "N"),
+            ("viscous_friction_n_s_per_mm", self.viscous_friction_n_s_per_mm, 0.0, 100.0, "N·s/mm"),
+            ("friction_velocity_mm_per_s", self.friction_velocity_mm_per_s, 1e-4, 100.0, "mm/s"),
+            ("tool_mass_kg", self.tool_mass_kg, 0.01, 100.0, "kg"),
+            ("tool_inertia_kg_mm2", self.tool_inertia_kg_mm2, 1.0, 1e7, "kg·mm²"),
+            ("platform_damping_n_s_per_mm", self.platform_damping_n_s_per_mm, 0.0, 100.0, "N·s/mm"),
+            ("encoder_resolution_mm", self.encoder_resolution_mm, 0.0, 1.0, "mm"),
+        ];
+        for (name, value, min, max, unit) in checks {
+            check_range(&field(name), value, min, max, unit)?;
+        }
+        for (i, v) in self.stiffness_spread.iter().enumerate() {
+            check_range(&field(&format!("stiffness_spread[{i}]")), *v, -0.5, 0.5, "")?;
+        }
+        Ok(())
     }
 }

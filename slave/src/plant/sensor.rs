@@ -2,6 +2,7 @@
 //! Gaussian noise, a constant bias, quantisation and a second-order Butterworth low-pass
 //! filter, sampled at its own rate on the simulated clock.
 
+use h4_shared::config::{ConfigError, check_range};
 use h4_shared::rng::Rng;
 use nalgebra::Vector4;
 use serde::{Deserialize, Serialize};
@@ -43,6 +44,31 @@ impl Default for SensorConfig {
             sample_rate_hz: 1000.0,
             filter_cutoff_hz: 80.0,
         }
+    }
+}
+
+impl SensorConfig {
+    /// Checks every field, naming it under `prefix` (e.g. `"sensor."`) with its allowed
+    /// range and unit.
+    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("{prefix}{name}");
+        #[rustfmt::skip]
+        let checks: [(&str, f64, f64, f64, &str); 7] = [
+            ("noise_std_n", self.noise_std_n, 0.0, 10.0, "N"),
+            ("noise_std_n_mm", self.noise_std_n_mm, 0.0, 1000.0, "N·mm"),
+            ("quantization_n", self.quantization_n, 0.0, 5.0, "N"),
+            ("quantization_n_mm", self.quantization_n_mm, 0.0, 100.0, "N·mm"),
+            ("bias_n_mm", self.bias_n_mm, -1e4, 1e4, "N·mm"),
+            ("sample_rate_hz", self.sample_rate_hz, 100.0, 100_000.0, "Hz"),
+            ("filter_cutoff_hz", self.filter_cutoff_hz, 1.0, 1e5, "Hz"),
+        ];
+        for (name, value, min, max, unit) in checks {
+            check_range(&field(name), value, min, max, unit)?;
+        }
+        for (i, b) in self.bias_n.iter().enumerate() {
+            check_range(&field(&format!("bias_n[{i}]")), *b, -50.0, 50.0, "N")?;
+        }
+        Ok(())
     }
 }
 
