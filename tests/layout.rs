@@ -101,12 +101,16 @@ fn functions(text: &str) -> Vec<(String, usize, usize)> {
             continue;
         }
         let mut depth = 0i64;
+        let mut nesting = 0i64; // ( and [ of the signature: `[f64; 3]` does not end it
         let mut opened = false;
         let mut end = None;
         'scan: for (j, l) in code.iter().enumerate().skip(start) {
-            for c in l.chars() {
+            let from = if j == start { pos } else { 0 };
+            for c in l[from..].chars() {
                 match c {
-                    ';' if !opened && depth == 0 => break 'scan,
+                    '(' | '[' => nesting += 1,
+                    ')' | ']' => nesting -= 1,
+                    ';' if !opened && depth == 0 && nesting == 0 => break 'scan,
                     '{' => {
                         depth += 1;
                         opened = true;
@@ -163,10 +167,12 @@ fn the_scanner_measures_functions() {
         text.push_str("    x += 1;\n");
     }
     text.push_str("}\nfn short<'a>(x: &'a str) -> &'a str { x }\ntrait T { fn decl(&self); }\n");
+    text.push_str("fn arr(v: [f64; 3]) -> f64 {\n    v[0]\n}\n");
     let f = functions(&text);
-    assert_eq!(f[0], ("long".to_string(), 1, 165));
-    assert_eq!(f[1], ("short".to_string(), 166, 1));
-    assert_eq!(f.len(), 2);
+    assert_eq!(f[0], ("long".to_string(), 1, 164));
+    assert_eq!(f[1], ("short".to_string(), 165, 1));
+    assert_eq!(f[2], ("arr".to_string(), 167, 3));
+    assert_eq!(f.len(), 3);
 }
 
 #[test]
