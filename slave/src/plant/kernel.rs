@@ -3,6 +3,7 @@
 //! the contact with the surface, specialised per surface shape.
 
 use h4_shared::kinematics::Pose;
+use h4_shared::vec3::dot3;
 use nalgebra::{Vector3, Vector4};
 
 use super::SimArm;
@@ -390,12 +391,6 @@ impl SimArm {
         self.penetration_mm = pen;
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
     }
-}
-
-/// `a · b` for 3-vectors.
-#[inline]
-fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// Two unit vectors that complete the unit vector `n` to a right-handed orthonormal frame
