@@ -10,6 +10,9 @@
 //! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
 //! * [`teleop`]: [`teleop::SlaveTeleop`], the slave's per-cycle teleoperation endpoint
 //!   (gate, watchdog and safe stop, passivity port, controller, feedback).
+//! * [`world`]: [`world::SlaveWorld`], the slave-side configuration sections (arm,
+//!   surface, sensor, plant, controller) and the one place that builds the simulated arm
+//!   and its controller from them.
 //! * [`server`]: `h4-slave run`, the slave as a real-time process on a link.
 
 pub mod arm;
@@ -20,3 +23,4 @@ pub mod kin_tool;
 pub mod plant;
 pub mod server;
 pub mod teleop;
+pub mod world;

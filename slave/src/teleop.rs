@@ -30,8 +30,8 @@ use h4_transport::Link;
 use h4_transport::gate::{Gate, GateCounters};
 use serde::Serialize;
 
+use crate::arm::ArmDriver;
 use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
-use crate::plant::ArmDriver;
 
 /// Settings of the endpoint.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -569,7 +569,10 @@ struct PortCommand {
 mod tests {
     use super::*;
     use crate::controller::ControllerParams;
-    use crate::plant::{MaterialPreset, PlantConfig, SensorConfig, SimArm, Surface, SurfaceShape};
+    use crate::plant::{
+        MaterialPreset, PlantConfig, SensorConfig, ShapeKind, SimArm, SurfaceConfig,
+    };
+    use crate::world::SlaveWorld;
     use h4_shared::config::ArmConfig;
     use h4_shared::kinematics::Pose;
     use h4_transport::inproc::{self, InprocEnd};
@@ -577,27 +580,18 @@ mod tests {
     const PERIOD_NS: u64 = 1_000_000;
 
     fn endpoint(passivity: bool) -> SlaveTeleop<SimArm> {
-        let arm_cfg = ArmConfig::default();
-        let ws = arm_cfg.workspace();
-        let assumed = arm_cfg.stiffness().unwrap();
-        let surface = Surface {
-            shape: SurfaceShape::Plane {
-                point_mm: [0.0, 0.0, -260.0],
-                normal: [0.0, 0.0, 1.0],
-            },
-            material: MaterialPreset::Resin.material(),
+        let world = SlaveWorld {
+            arm: ArmConfig::default(),
+            surface: SurfaceConfig::new(
+                ShapeKind::Plane,
+                MaterialPreset::Resin,
+                [0.0, 0.0, -260.0],
+            ),
+            sensor: SensorConfig::default(),
+            plant: PlantConfig::default(),
+            controller: ControllerParams::default(),
         };
-        let arm = SimArm::new(
-            ws.params,
-            arm_cfg.actuator_stiffness_n_per_mm,
-            PlantConfig::default(),
-            SensorConfig::default(),
-            surface,
-            Pose::new(0.0, 0.0, -250.0, 0.0),
-            1,
-        )
-        .unwrap();
-        let ctrl = SlaveController::new(ws, assumed, ControllerParams::default());
+        let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
         let mut p = TeleopParams::default();
         p.passivity.enabled = passivity;
         SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap()

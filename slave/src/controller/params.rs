@@ -1,6 +1,6 @@
 //! The controller's tuning, `controller.*` in experiment and session files.
 
-use h4_shared::config::{ConfigError, check_range};
+use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// Tuning of the controller (`controller.*` in experiment files).
@@ -115,17 +115,18 @@ impl Default for ControllerParams {
     }
 }
 
-impl ControllerParams {
-    /// Checks every field, naming it under `prefix` (e.g. `"controller."`) with its allowed
-    /// range and unit.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+impl Section for ControllerParams {
+    /// Checks every field (the two switches aside), naming it under `prefix` (e.g.
+    /// `"controller."`) with its allowed range and unit.
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
-        let checks: [(&str, f64, f64, f64, &str); 26] = [
+        let checks: [(&str, f64, f64, f64, &str); 28] = [
             ("force_limit_n", self.force_limit_n, 1.0, 1000.0, "N"),
             ("max_speed_mm_per_s", self.max_speed_mm_per_s, 0.1, 1000.0, "mm/s"),
             ("force_accel_mm_per_s2", self.force_accel_mm_per_s2, 1.0, 1e7, "mm/s²"),
             ("max_accel_mm_per_s2", self.max_accel_mm_per_s2, 1.0, 1e5, "mm/s²"),
+            ("track_accel_mm_per_s2", self.track_accel_mm_per_s2, 0.01, 1e5, "mm/s²"),
             ("max_theta_rate_rad_per_s", self.max_theta_rate_rad_per_s, 0.01, 10.0, "rad/s"),
             (
                 "approach_speed_mm_per_s",
@@ -140,6 +141,7 @@ impl ControllerParams {
             ),
             ("contact_lost_cycles", f64::from(self.contact_lost_cycles), 1.0, 10_000.0, "cycles"),
             ("setpoint_time_constant_s", self.setpoint_time_constant_s, 0.0, 10.0, "s"),
+            ("tool_mass_kg", self.tool_mass_kg, 0.01, 100.0, "kg"),
             ("kp", self.kp, 0.0, 10.0, ""),
             ("feedforward_gain", self.feedforward_gain, 0.0, 1.5, ""),
             ("ki_per_s", self.ki_per_s, 0.0, 1000.0, "1/s"),

@@ -1,74 +1,14 @@
-//! An experiment file: its sections and their checks.
+//! An experiment file: its sections and their checks. The slave-side sections (arm,
+//! surface, sensor, plant, controller) are a [`SlaveWorld`]; the experiment adds the
+//! force set-point, the tracking motion, the approach and the summary.
 
-use h4_shared::config::{ArmConfig, ConfigError, Validate, check_range};
+use h4_shared::config::{ArmConfig, ConfigError, Section, Validate, check_range};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::controller::ControllerParams;
-use crate::plant::{Material, MaterialPreset, PlantConfig, SensorConfig, Surface, SurfaceShape};
-
-/// Shape of the experiment's surface.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ShapeKind {
-    /// A plane, tilted about y by `tilt_deg`.
-    Plane,
-    /// A cylinder of `radius_mm` whose axis is `cylinder_axis`, touched on top.
-    Cylinder,
-    /// A sphere of `radius_mm`, touched on top.
-    Sphere,
-}
-
-/// A horizontal axis.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Axis {
-    /// The robot's x axis.
-    X,
-    /// The robot's y axis.
-    Y,
-}
-
-/// The surface the controller does not know.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SurfaceConfig {
-    /// `plane`, `cylinder` or `sphere`.
-    pub shape: ShapeKind,
-    /// `resin`, `steel` or `aluminium`.
-    pub material: MaterialPreset,
-    /// Tilt of the surface normal at the contact point about the robot's y axis, degrees.
-    #[serde(default)]
-    pub tilt_deg: f64,
-    /// Radius of a cylinder or sphere, mm.
-    #[serde(default = "default_radius")]
-    pub radius_mm: f64,
-    /// Overrides the material's contact stiffness, N/mm.
-    #[serde(default)]
-    pub stiffness_n_per_mm: Option<f64>,
-    /// Overrides the material's contact damping ratio.
-    #[serde(default)]
-    pub damping_ratio: Option<f64>,
-    /// Overrides the material's friction coefficient.
-    #[serde(default)]
-    pub friction_coefficient: Option<f64>,
-    /// Where the tool first touches the surface, mm.
-    #[serde(default = "default_contact_point")]
-    pub contact_point_mm: [f64; 3],
-    /// Axis of a cylinder (`x` or `y`).
-    #[serde(default = "default_axis")]
-    pub cylinder_axis: Axis,
-}
-
-fn default_radius() -> f64 {
-    200.0
-}
-fn default_contact_point() -> [f64; 3] {
-    [0.0, 0.0, -250.0]
-}
-fn default_axis() -> Axis {
-    Axis::Y
-}
+use crate::plant::{PlantConfig, SensorConfig, Surface, SurfaceConfig};
+use crate::world::SlaveWorld;
 
 /// One set-point change.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -194,11 +134,7 @@ pub struct ExperimentConfig {
 impl Validate for ExperimentConfig {
     fn validate(&self) -> Result<(), ConfigError> {
         check_range("duration_s", self.duration_s, 0.01, 3600.0, "s")?;
-        self.arm.validate_at("arm.")?;
-        self.surface.validate_at("surface.")?;
-        self.sensor.validate_at("sensor.")?;
-        self.plant.validate_at("plant.")?;
-        self.controller.validate_at("controller.")?;
+        self.world().validate_at("")?;
         self.track.validate_at("track.")?;
         self.approach.validate_at("approach.")?;
         self.summary.validate_at("summary.")?;
@@ -247,39 +183,10 @@ impl ExperimentConfig {
     }
 }
 
-impl SurfaceConfig {
-    /// Checks every field, naming it under `prefix` (e.g. `"surface."`) with its allowed
-    /// range and unit.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
-        let field = |name: &str| format!("{prefix}{name}");
-        check_range(&field("tilt_deg"), self.tilt_deg, -60.0, 60.0, "deg")?;
-        check_range(&field("radius_mm"), self.radius_mm, 10.0, 1e5, "mm")?;
-        if let Some(k) = self.stiffness_n_per_mm {
-            check_range(&field("stiffness_n_per_mm"), k, 0.1, 1e6, "N/mm")?;
-        }
-        if let Some(z) = self.damping_ratio {
-            check_range(&field("damping_ratio"), z, 0.0, 2.0, "")?;
-        }
-        if let Some(mu) = self.friction_coefficient {
-            check_range(&field("friction_coefficient"), mu, 0.0, 2.0, "")?;
-        }
-        for (i, v) in self.contact_point_mm.iter().enumerate() {
-            check_range(
-                &field(&format!("contact_point_mm[{i}]")),
-                *v,
-                -1e4,
-                1e4,
-                "mm",
-            )?;
-        }
-        Ok(())
-    }
-}
-
-impl TrackConfig {
-    /// Checks the fields of the section alone (the speed's limit is the controller's),
-    /// naming them under `prefix`.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+impl Section for TrackConfig {
+    /// Checks the fields of the section alone (the speed's limit is the controller's:
+    /// [`ExperimentConfig`] checks it).
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let d = Vector3::from(self.direction).norm();
         check_range(&format!("{prefix}direction (length)"), d, 1e-6, 1e6, "")?;
         check_range(
@@ -292,9 +199,8 @@ impl TrackConfig {
     }
 }
 
-impl ApproachConfig {
-    /// Checks every field, naming it under `prefix`.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+impl Section for ApproachConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         check_range(&format!("{prefix}gap_mm"), self.gap_mm, 0.0, 100.0, "mm")?;
         check_range(
             &format!("{prefix}target_depth_mm"),
@@ -306,9 +212,8 @@ impl ApproachConfig {
     }
 }
 
-impl SummaryConfig {
-    /// Checks every field, naming it under `prefix`.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+impl Section for SummaryConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         check_range(&field("transient_s"), self.transient_s, 0.0, 3600.0, "s")?;
         check_range(
@@ -328,44 +233,19 @@ impl SummaryConfig {
     }
 }
 impl ExperimentConfig {
-    /// The surface the simulation owns: shape placed so the tool first touches it at
-    /// `contact_point_mm`, with the normal there tilted by `tilt_deg` about y.
+    /// The slave-side sections: arm, surface, sensor, plant, controller.
+    pub fn world(&self) -> SlaveWorld {
+        SlaveWorld {
+            arm: self.arm,
+            surface: self.surface,
+            sensor: self.sensor,
+            plant: self.plant,
+            controller: self.controller,
+        }
+    }
+
+    /// The surface the simulation owns (see [`SurfaceConfig::surface`]).
     pub fn surface(&self) -> Surface {
-        let s = &self.surface;
-        let preset = s.material.material();
-        let material = Material {
-            stiffness_n_per_mm: s.stiffness_n_per_mm.unwrap_or(preset.stiffness_n_per_mm),
-            damping_ratio: s.damping_ratio.unwrap_or(preset.damping_ratio),
-            friction_coefficient: s
-                .friction_coefficient
-                .unwrap_or(preset.friction_coefficient),
-        };
-        let t = s.tilt_deg.to_radians();
-        let n = [t.sin(), 0.0, t.cos()];
-        let p = s.contact_point_mm;
-        let centre = [
-            p[0] - s.radius_mm * n[0],
-            p[1] - s.radius_mm * n[1],
-            p[2] - s.radius_mm * n[2],
-        ];
-        let shape = match s.shape {
-            ShapeKind::Plane => SurfaceShape::Plane {
-                point_mm: p,
-                normal: n,
-            },
-            ShapeKind::Sphere => SurfaceShape::Sphere {
-                centre_mm: centre,
-                radius_mm: s.radius_mm,
-            },
-            ShapeKind::Cylinder => SurfaceShape::Cylinder {
-                axis_point_mm: centre,
-                axis_dir: match s.cylinder_axis {
-                    Axis::X => [1.0, 0.0, 0.0],
-                    Axis::Y => [0.0, 1.0, 0.0],
-                },
-                radius_mm: s.radius_mm,
-            },
-        };
-        Surface { shape, material }
+        self.surface.surface()
     }
 }

@@ -13,9 +13,9 @@ pub mod metrics;
 mod record;
 mod run;
 
+pub use crate::plant::{Axis, ShapeKind, SurfaceConfig};
 pub use config::{
-    ApproachConfig, Axis, ExperimentConfig, ForceConfig, ForceStep, ShapeKind, SummaryConfig,
-    SurfaceConfig, TrackConfig,
+    ApproachConfig, ExperimentConfig, ForceConfig, ForceStep, SummaryConfig, TrackConfig,
 };
 pub use metrics::{EventSummary, Summary};
 pub use run::run;

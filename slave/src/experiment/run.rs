@@ -16,8 +16,8 @@ use super::config::ExperimentConfig;
 use super::metrics::{self, Summary};
 use super::record::Channels;
 use crate::arm::ArmDriver;
-use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
-use crate::plant::{SimArm, SimError};
+use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, Status};
+use crate::plant::SimArm;
 
 /// The control period, ns.
 const CYCLE_NS: u64 = 1_000_000;
@@ -157,22 +157,10 @@ pub fn run(
     mut recorder: Option<&mut Recorder>,
 ) -> Result<Summary, ExperimentError> {
     cfg.validate()?;
-    let ws = cfg.arm.workspace();
-    let assumed = cfg.arm.stiffness().map_err(SimError::from)?;
-    let surface = cfg.surface();
     let p = cfg.surface.contact_point_mm;
     let start = Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
     let target = [p[0], p[1], p[2] - cfg.approach.target_depth_mm, 0.0];
-    let mut arm = SimArm::new(
-        ws.params,
-        cfg.arm.actuator_stiffness_n_per_mm,
-        cfg.plant,
-        cfg.sensor,
-        surface,
-        start,
-        cfg.seed,
-    )?;
-    let mut ctrl = SlaveController::new(ws, assumed, cfg.controller);
+    let (mut arm, mut ctrl) = cfg.world().build(start, cfg.seed)?;
     let channels = match recorder.as_deref_mut() {
         Some(r) => Some(Channels::add(r)?),
         None => None,
@@ -207,6 +195,6 @@ pub fn run(
         }
     }
     let wall_time_s = wall.elapsed().as_secs_f64();
-    let env_true = surface.material.stiffness_n_per_mm;
+    let env_true = arm.surface().material.stiffness_n_per_mm;
     Ok(metrics::summarise(cfg, &trace, env_true, wall_time_s))
 }

@@ -1,6 +1,6 @@
 //! The mechanical and servo parameters of the simulated arm (`plant.*`).
 
-use h4_shared::config::{ConfigError, check_range};
+use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// The mechanical and servo parameters of the simulated arm.
@@ -65,10 +65,10 @@ impl Default for PlantConfig {
     }
 }
 
-impl PlantConfig {
+impl Section for PlantConfig {
     /// Checks every field, naming it under `prefix` (e.g. `"plant."`) with its allowed
     /// range and unit.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
         let checks: [(&str, f64, f64, f64, &str); 15] = [

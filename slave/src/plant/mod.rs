@@ -28,7 +28,9 @@ mod surface;
 pub use crate::arm::{ArmDriver, ArmReading};
 pub use config::PlantConfig;
 pub use sensor::SensorConfig;
-pub use surface::{Material, MaterialPreset, Surface, SurfaceShape};
+pub use surface::{
+    Axis, Material, MaterialPreset, ShapeKind, Surface, SurfaceConfig, SurfaceShape,
+};
 
 use h4_shared::kinematics::{Actuators, H4Params, Pose};
 use nalgebra::{Matrix4, Vector4};

@@ -2,7 +2,7 @@
 //! Gaussian noise, a constant bias, quantisation and a second-order Butterworth low-pass
 //! filter, sampled at its own rate on the simulated clock.
 
-use h4_shared::config::{ConfigError, check_range};
+use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::rng::Rng;
 use nalgebra::Vector4;
 use serde::{Deserialize, Serialize};
@@ -47,10 +47,10 @@ impl Default for SensorConfig {
     }
 }
 
-impl SensorConfig {
+impl Section for SensorConfig {
     /// Checks every field, naming it under `prefix` (e.g. `"sensor."`) with its allowed
     /// range and unit.
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
         let checks: [(&str, f64, f64, f64, &str); 7] = [
