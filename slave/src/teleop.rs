@@ -22,6 +22,7 @@
 
 use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::process::Watchdog;
+use h4_shared::vec3::norm3;
 use h4_shared::wire::{
     Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, Feedback, Mode,
     PROTOCOL_VERSION, SlaveState,
@@ -443,7 +444,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             self.desired_theta,
         ];
         let mut vel = ps.velocity_mm_per_s;
-        let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
+        let speed = norm3(&vel);
         if speed > max_v {
             for v in vel.iter_mut() {
                 *v *= max_v / speed;
