@@ -1,7 +1,9 @@
 //! The experiment's recording: every cycle on `/slave/force`, `/slave/pose` and
-//! `/slave/contact`, stamped with the simulated time.
+//! `/slave/contact`, stamped with the simulated time; the schemas are generated from the
+//! message types.
 
 use h4_shared::recording::{ChannelId, Recorder, RecordingError};
+use schemars::JsonSchema;
 use serde::Serialize;
 
 use super::run::Truth;
@@ -14,55 +16,52 @@ pub(super) struct Channels {
     contact: ChannelId,
 }
 
-const FORCE_SCHEMA: &str = r#"{"type":"object","title":"h4.SlaveForce","properties":{
-"fn_measured_n":{"type":"number","description":"measured force along the estimated normal, N"},
-"fn_true_n":{"type":"number","description":"true contact force along the true normal, N"},
-"fn_desired_n":{"type":"number","description":"prefiltered set-point, N"},
-"setpoint_n":{"type":"number","description":"commanded set-point, N"},
-"wrench_measured":{"type":"array","items":{"type":"number"},"description":"[Fx,Fy,Fz,My] bias-corrected, N, N·mm"},
-"wrench_desired":{"type":"array","items":{"type":"number"},"description":"[Fx,Fy,Fz,My] desired, N, N·mm"},
-"env_stiffness_n_per_mm":{"type":"number"},
-"compliance_mm_per_n":{"type":"number"},
-"status":{"type":"integer"}}}"#;
-
-const POSE_SCHEMA: &str = r#"{"type":"object","title":"h4.SlavePose","properties":{
-"measured":{"type":"array","items":{"type":"number"},"description":"[x,y,z,theta] mm, rad"},
-"commanded":{"type":"array","items":{"type":"number"},"description":"[x,y,z,theta] mm, rad"},
-"true_pose":{"type":"array","items":{"type":"number"},"description":"[x,y,z,theta] mm, rad (simulation truth)"},
-"actuators_cmd_mm":{"type":"array","items":{"type":"number"}}}}"#;
-
-const CONTACT_SCHEMA: &str = r#"{"type":"object","title":"h4.SlaveContact","properties":{
-"normal":{"type":"array","items":{"type":"number"},"description":"estimated outward contact normal"},
-"tracking_direction":{"type":"array","items":{"type":"number"}},
-"true_normal":{"type":"array","items":{"type":"number"}},
-"penetration_mm":{"type":"number"}}}"#;
-
-#[derive(Serialize)]
+/// `/slave/force` (`h4.SlaveForce`).
+#[derive(Serialize, JsonSchema)]
 struct ForceMsg {
+    /// Measured force along the estimated normal, N.
     fn_measured_n: f64,
+    /// True contact force along the true normal, N.
     fn_true_n: f64,
+    /// Prefiltered set-point, N.
     fn_desired_n: f64,
+    /// Commanded set-point, N.
     setpoint_n: f64,
+    /// `[Fx, Fy, Fz, My]` bias-corrected, N, N·mm.
     wrench_measured: [f64; 4],
+    /// `[Fx, Fy, Fz, My]` desired, N, N·mm.
     wrench_desired: [f64; 4],
+    /// The environment stiffness the loop uses, N/mm.
     env_stiffness_n_per_mm: f64,
+    /// Total compliance along the normal the loop uses, mm/N.
     compliance_mm_per_n: f64,
+    /// The controller's state (`Status::code`).
     status: u8,
 }
 
-#[derive(Serialize)]
+/// `/slave/pose` (`h4.SlavePose`).
+#[derive(Serialize, JsonSchema)]
 struct PoseMsg {
+    /// Measured `[x, y, z, theta]`, mm, rad.
     measured: [f64; 4],
+    /// Commanded `[x, y, z, theta]`, mm, rad.
     commanded: [f64; 4],
+    /// True `[x, y, z, theta]`, mm, rad (simulation truth).
     true_pose: [f64; 4],
+    /// Actuator commands, mm.
     actuators_cmd_mm: [f64; 4],
 }
 
-#[derive(Serialize)]
+/// `/slave/contact` (`h4.SlaveContact`).
+#[derive(Serialize, JsonSchema)]
 struct ContactMsg {
+    /// Estimated outward contact normal.
     normal: [f64; 3],
+    /// Tracking direction on the surface.
     tracking_direction: [f64; 3],
+    /// True outward normal (simulation truth).
     true_normal: [f64; 3],
+    /// True penetration into the surface, mm.
     penetration_mm: f64,
 }
 
@@ -70,9 +69,9 @@ impl Channels {
     /// Adds the channels to `r`.
     pub(super) fn add(r: &mut Recorder) -> Result<Self, RecordingError> {
         Ok(Channels {
-            force: r.add_channel("/slave/force", "h4.SlaveForce", FORCE_SCHEMA)?,
-            pose: r.add_channel("/slave/pose", "h4.SlavePose", POSE_SCHEMA)?,
-            contact: r.add_channel("/slave/contact", "h4.SlaveContact", CONTACT_SCHEMA)?,
+            force: r.add_channel_for::<ForceMsg>("/slave/force", "h4.SlaveForce")?,
+            pose: r.add_channel_for::<PoseMsg>("/slave/pose", "h4.SlavePose")?,
+            contact: r.add_channel_for::<ContactMsg>("/slave/contact", "h4.SlaveContact")?,
         })
     }
 
