@@ -23,7 +23,7 @@ use h4_shared::wire::{CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION
 use serde::{Deserialize, Serialize};
 
 use crate::device::DeviceState;
-use h4_shared::passivity::ImpedancePort;
+use h4_shared::passivity::{ImpedancePort, PassivityParams};
 
 /// Coupling mode.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -33,6 +33,88 @@ pub enum CouplingMode {
     PositionForce,
     /// The master guides motion along the surface and sets the contact force by pushing.
     ForceGuided,
+}
+
+/// The coupling.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CouplingConfig {
+    /// `position-force` or `force-guided`.
+    pub mode: CouplingMode,
+    /// Largest force rendered to the operator, N.
+    pub force_limit_n: f64,
+    /// Feedback silence after which the rendered force fades, ms.
+    pub feedback_timeout_ms: f64,
+    /// Duration of the fade, ms.
+    pub fade_ms: f64,
+    /// Force-guided: stiffness of the virtual spring the operator pushes, N/mm.
+    pub guide_stiffness_n_per_mm: f64,
+    /// Force-guided: largest contact-force set-point, N.
+    pub guide_setpoint_max_n: f64,
+    /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
+    pub guide_approach_depth_mm: f64,
+    /// Local damping the master renders against the handle's velocity (position–force),
+    /// N·s/mm.
+    pub master_damping_n_s_per_mm: f64,
+    /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
+    /// (0: unfiltered).
+    pub force_filter_hz: f64,
+    /// Model-mediated rendering (position–force): a local model of the slave's contact.
+    pub model: bool,
+    /// Largest stiffness the local model renders at the handle, N/mm.
+    pub model_stiffness_max_n_per_mm: f64,
+    /// Stiffness the model assumes before its first estimate, N/mm at the slave.
+    pub model_stiffness_initial_n_per_mm: f64,
+    /// Slave force above which feedback counts as contact for the model, N.
+    pub model_contact_n: f64,
+    /// Forgetting time constant of the model's stiffness estimator, s.
+    pub model_estimator_time_constant_s: f64,
+    /// Largest speed at which the model's plane pushes the handle out, mm/s at the slave.
+    pub model_plane_rate_mm_per_s: f64,
+    /// Feedback silence after which the model's force fades out, ms.
+    pub model_hold_ms: f64,
+}
+
+impl Default for CouplingConfig {
+    fn default() -> Self {
+        CouplingConfig {
+            mode: CouplingMode::PositionForce,
+            force_limit_n: 30.0,
+            feedback_timeout_ms: 100.0,
+            fade_ms: 50.0,
+            guide_stiffness_n_per_mm: 1.0,
+            guide_setpoint_max_n: 50.0,
+            guide_approach_depth_mm: 20.0,
+            master_damping_n_s_per_mm: 0.3,
+            force_filter_hz: 0.0,
+            model: ModelParams::default().enabled,
+            model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
+            model_stiffness_initial_n_per_mm: ModelParams::default().stiffness_initial_n_per_mm,
+            model_contact_n: ModelParams::default().contact_n,
+            model_estimator_time_constant_s: ModelParams::default().estimator_time_constant_s,
+            model_plane_rate_mm_per_s: ModelParams::default().plane_rate_mm_per_s,
+            model_hold_ms: ModelParams::default().hold_ms,
+        }
+    }
+}
+
+/// Motion and force scaling.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScaleConfig {
+    /// Slave translation per master translation.
+    pub motion: f64,
+    /// Master force per slave force.
+    pub force: f64,
+}
+
+impl Default for ScaleConfig {
+    fn default() -> Self {
+        ScaleConfig {
+            motion: 1.0,
+            force: 0.5,
+        }
+    }
 }
 
 /// Parameters of the coupling.
@@ -59,7 +141,7 @@ pub struct CouplingParams {
     /// Passivity controller on (the observer always runs).
     pub passivity: bool,
     /// The master port's passivity controller settings (damping cap, release, reserve).
-    pub passivity_params: h4_shared::passivity::PassivityParams,
+    pub passivity_params: PassivityParams,
     /// Force-guided: stiffness of the virtual spring the operator pushes, N/mm.
     pub guide_stiffness_n_per_mm: f64,
     /// Force-guided: largest set-point, N.
@@ -76,6 +158,50 @@ pub struct CouplingParams {
     pub model: ModelParams,
     /// Arm id in the commands.
     pub arm_id: u16,
+}
+
+impl CouplingParams {
+    /// The coupling of the sections `coupling`, `scale` and `passivity` of a session file,
+    /// mapping into `slave_workspace` with the master's home at `slave_anchor` (slave
+    /// frame), commanding at most `slave_speed_limit_mm_per_s`, for arm `arm_id`.
+    pub fn from_config(
+        c: &CouplingConfig,
+        scale: &ScaleConfig,
+        passivity: &PassivityParams,
+        slave_workspace: Workspace,
+        slave_anchor: [f64; 4],
+        slave_speed_limit_mm_per_s: f64,
+        arm_id: u16,
+    ) -> Self {
+        CouplingParams {
+            mode: c.mode,
+            motion_scale: scale.motion,
+            force_scale: scale.force,
+            slave_workspace,
+            slave_anchor,
+            force_limit_n: c.force_limit_n,
+            slave_speed_limit_mm_per_s,
+            feedback_timeout_ms: c.feedback_timeout_ms,
+            fade_ms: c.fade_ms,
+            passivity: passivity.enabled,
+            passivity_params: *passivity,
+            guide_stiffness_n_per_mm: c.guide_stiffness_n_per_mm,
+            guide_setpoint_max_n: c.guide_setpoint_max_n,
+            guide_approach_depth_mm: c.guide_approach_depth_mm,
+            master_damping_n_s_per_mm: c.master_damping_n_s_per_mm,
+            force_filter_hz: c.force_filter_hz,
+            model: ModelParams {
+                enabled: c.model,
+                stiffness_max_n_per_mm: c.model_stiffness_max_n_per_mm,
+                stiffness_initial_n_per_mm: c.model_stiffness_initial_n_per_mm,
+                contact_n: c.model_contact_n,
+                estimator_time_constant_s: c.model_estimator_time_constant_s,
+                plane_rate_mm_per_s: c.model_plane_rate_mm_per_s,
+                hold_ms: c.model_hold_ms,
+            },
+            arm_id,
+        }
+    }
 }
 
 /// Settings of the master's local contact model (`coupling.model_*`).

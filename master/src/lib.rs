@@ -7,6 +7,9 @@
 //! * [`coupling`]: [`coupling::MasterCoupling`], the master's pure 1 kHz step
 //!   (position–force and force-guided coupling, scaling, clutch, workspace mapping,
 //!   saturation, feedback-loss fade).
+//! * [`teleop`]: [`teleop::MasterTeleop`], the master's per-cycle endpoint (device,
+//!   operator, receive gate, coupling, round trip), stepped by the simulation and the
+//!   process alike.
 //! * passivity: `h4_shared::passivity` (both sides use it).
 //! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
 
@@ -15,3 +18,4 @@ pub mod device;
 pub mod operator;
 pub mod server;
 pub mod session;
+pub mod teleop;

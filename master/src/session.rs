@@ -22,15 +22,15 @@ use h4_slave::plant::{
     Material, MaterialPreset, PlantConfig, SensorConfig, SimArm, SimError, Surface, SurfaceShape,
 };
 use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError, TeleopParams};
-use h4_transport::Link;
-use h4_transport::gate::{Gate, GateCounters};
 use h4_transport::impair::{Impaired, ImpairmentConfig, LinkEvent};
 use h4_transport::inproc::{self, InprocEnd};
 use serde::{Deserialize, Serialize};
 
-use crate::coupling::{CouplingMode, CouplingParams, MasterCoupling, MasterStep, ModelParams};
-use crate::device::{HapticDevice, MasterArmConfig, SimMasterArm};
-use crate::operator::{HandConfig, IntentError, IntentSegment, Operator, Script};
+pub use crate::coupling::{CouplingConfig, ScaleConfig};
+use crate::device::MasterArmConfig;
+use crate::operator::{HandConfig, IntentError, IntentSegment, Script};
+pub use crate::teleop::MasterCycle;
+use crate::teleop::{MasterTeleop, MasterTeleopConfig, MasterTeleopError};
 
 const CYCLE_NS: u64 = 1_000_000;
 const DT_S: f64 = 1e-3;
@@ -70,6 +70,13 @@ impl Default for EnvironmentConfig {
 }
 
 impl EnvironmentConfig {
+    /// Where the slave starts, `gap_mm` above the contact point, slave frame, `[x_mm, y_mm,
+    /// z_mm, theta_rad]`: the master's home pose maps to it.
+    pub fn slave_start_pose(&self) -> [f64; 4] {
+        let p = self.contact_point_mm;
+        [p[0], p[1], p[2] + self.gap_mm, 0.0]
+    }
+
     /// The surface.
     pub fn surface(&self) -> Surface {
         let m = self.material.material();
@@ -104,88 +111,6 @@ impl EnvironmentConfig {
 /// Passivity control (`passivity.*`): the same settings on both sides.
 pub type PassivityConfig = PassivityParams;
 
-/// The coupling.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct CouplingConfig {
-    /// `position-force` or `force-guided`.
-    pub mode: CouplingMode,
-    /// Largest force rendered to the operator, N.
-    pub force_limit_n: f64,
-    /// Feedback silence after which the rendered force fades, ms.
-    pub feedback_timeout_ms: f64,
-    /// Duration of the fade, ms.
-    pub fade_ms: f64,
-    /// Force-guided: stiffness of the virtual spring the operator pushes, N/mm.
-    pub guide_stiffness_n_per_mm: f64,
-    /// Force-guided: largest contact-force set-point, N.
-    pub guide_setpoint_max_n: f64,
-    /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
-    pub guide_approach_depth_mm: f64,
-    /// Local damping the master renders against the handle's velocity (position–force),
-    /// N·s/mm.
-    pub master_damping_n_s_per_mm: f64,
-    /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
-    /// (0: unfiltered).
-    pub force_filter_hz: f64,
-    /// Model-mediated rendering (position–force): a local model of the slave's contact.
-    pub model: bool,
-    /// Largest stiffness the local model renders at the handle, N/mm.
-    pub model_stiffness_max_n_per_mm: f64,
-    /// Stiffness the model assumes before its first estimate, N/mm at the slave.
-    pub model_stiffness_initial_n_per_mm: f64,
-    /// Slave force above which feedback counts as contact for the model, N.
-    pub model_contact_n: f64,
-    /// Forgetting time constant of the model's stiffness estimator, s.
-    pub model_estimator_time_constant_s: f64,
-    /// Largest speed at which the model's plane pushes the handle out, mm/s at the slave.
-    pub model_plane_rate_mm_per_s: f64,
-    /// Feedback silence after which the model's force fades out, ms.
-    pub model_hold_ms: f64,
-}
-
-impl Default for CouplingConfig {
-    fn default() -> Self {
-        CouplingConfig {
-            mode: CouplingMode::PositionForce,
-            force_limit_n: 30.0,
-            feedback_timeout_ms: 100.0,
-            fade_ms: 50.0,
-            guide_stiffness_n_per_mm: 1.0,
-            guide_setpoint_max_n: 50.0,
-            guide_approach_depth_mm: 20.0,
-            master_damping_n_s_per_mm: 0.3,
-            force_filter_hz: 0.0,
-            model: ModelParams::default().enabled,
-            model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
-            model_stiffness_initial_n_per_mm: ModelParams::default().stiffness_initial_n_per_mm,
-            model_contact_n: ModelParams::default().contact_n,
-            model_estimator_time_constant_s: ModelParams::default().estimator_time_constant_s,
-            model_plane_rate_mm_per_s: ModelParams::default().plane_rate_mm_per_s,
-            model_hold_ms: ModelParams::default().hold_ms,
-        }
-    }
-}
-
-/// Motion and force scaling.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ScaleConfig {
-    /// Slave translation per master translation.
-    pub motion: f64,
-    /// Master force per slave force.
-    pub force: f64,
-}
-
-impl Default for ScaleConfig {
-    fn default() -> Self {
-        ScaleConfig {
-            motion: 1.0,
-            force: 0.5,
-        }
-    }
-}
-
 /// The operator.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -197,6 +122,18 @@ pub struct OperatorConfig {
     /// A recorded master trajectory to replay instead (JSON lines), relative to the
     /// session file.
     pub replay_file: Option<PathBuf>,
+}
+
+impl OperatorConfig {
+    /// The operator's script: the replay file if one is set, else the intent; validated.
+    pub fn script(&self) -> Result<Script, IntentError> {
+        let script = match &self.replay_file {
+            Some(path) => Script::load_replay(path)?,
+            None => Script::Segments(self.intent.clone()),
+        };
+        script.validate()?;
+        Ok(script)
+    }
 }
 
 /// The slave side.
@@ -317,6 +254,24 @@ pub struct SessionConfig {
     /// The stability detector.
     #[serde(default)]
     pub detector: DetectorConfig,
+}
+
+impl SessionConfig {
+    /// The master's endpoint configuration for arm `arm_id`: the master's sections, the
+    /// slave arm it maps into, the slave's start pose as the anchor of the master's home.
+    pub fn master_teleop(&self, arm_id: u16) -> MasterTeleopConfig {
+        MasterTeleopConfig {
+            arm_id,
+            master: self.master,
+            hand: self.operator.hand,
+            coupling: self.coupling,
+            scale: self.scale,
+            passivity: self.passivity,
+            slave_arm: self.slave.arm,
+            slave_from_master_anchor: self.environment.slave_start_pose(),
+            slave_max_speed_mm_per_s: self.slave.controller.max_speed_mm_per_s,
+        }
+    }
 }
 
 impl Validate for SessionConfig {
@@ -822,86 +777,12 @@ struct Channels {
 type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
 type SlaveEnd = Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>;
 
-/// The master side of the session: device, operator, gate, coupling.
-pub struct MasterSide {
-    /// The simulated master arm.
-    pub device: SimMasterArm,
-    /// The operator.
-    pub operator: Operator,
-    gate: Gate<Feedback>,
-    /// The coupling.
-    pub coupling: MasterCoupling,
-    rtt_sum_ms: f64,
-    rtt_n: u64,
-}
-
-/// What the master side did this cycle.
-#[derive(Clone, Copy, Debug)]
-pub struct MasterCycle {
-    /// The coupling's step.
-    pub step: MasterStep,
-    /// The wrench the device applied.
-    pub rendered: [f64; 4],
-    /// Device state.
-    pub device: crate::device::DeviceState,
-    /// The hand.
-    pub hand: crate::operator::HandOutput,
-}
-
-impl MasterSide {
-    /// The same side speaking for arm `arm_id`: its commands carry it and its gate rejects
-    /// another arm's feedback.
-    pub fn for_arm(mut self, arm_id: u16) -> Self {
-        self.gate = Gate::new(arm_id, 1_000_000_000);
-        self.coupling.set_arm_id(arm_id);
-        self
-    }
-
-    /// What the receive gate accepted and rejected.
-    pub fn gate_counters(&self) -> &GateCounters {
-        &self.gate.counters
-    }
-
-    /// One master cycle at `now_ns`.
-    pub fn step<L: Link<Command, Feedback>>(
-        &mut self,
-        link: &mut L,
-        now_ns: u64,
-    ) -> Result<MasterCycle, SessionError> {
-        let before = self.device.read();
-        let hand = self
-            .operator
-            .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, DT_S);
-        self.device.set_hand(hand.wrench, hand.clutch);
-        let dev = self.device.read();
-        while let Some(fb) = link.try_recv()? {
-            if let Ok(f) = self.gate.accept(&fb, now_ns) {
-                self.coupling.receive(&f, now_ns);
-                if f.echo_send_time_ns > 0 {
-                    self.rtt_sum_ms += now_ns.saturating_sub(f.echo_send_time_ns) as f64 * 1e-6;
-                    self.rtt_n += 1;
-                }
-            }
-        }
-        let step = self.coupling.step(&dev, now_ns, DT_S);
-        let rendered = self.device.write_wrench(&step.wrench);
-        let cmd = self.coupling.finish(&rendered, &dev, now_ns);
-        link.publish(&cmd)?;
-        Ok(MasterCycle {
-            step,
-            rendered,
-            device: dev,
-            hand,
-        })
-    }
-}
-
 /// A session ready to run: both sides and the link.
 pub struct Session {
     cfg: SessionConfig,
     clock: SimClock,
-    /// The master side.
-    pub master: MasterSide,
+    /// The master's endpoint.
+    pub master: MasterTeleop,
     /// The slave side.
     pub slave: SlaveTeleop<SimArm>,
     master_end: MasterEnd,
@@ -916,11 +797,7 @@ impl Session {
     /// Builds a session from a validated configuration.
     pub fn new(cfg: &SessionConfig) -> Result<Self, SessionError> {
         cfg.validate()?;
-        let script = match &cfg.operator.replay_file {
-            Some(path) => Script::load_replay(path)?,
-            None => Script::Segments(cfg.operator.intent.clone()),
-        };
-        script.validate()?;
+        let script = cfg.operator.script()?;
         let clock = SimClock::new();
         let (m_end, s_end) = inproc::pair(1024);
         let mut rng = Rng::fork(cfg.seed, cfg.link.seed);
@@ -934,69 +811,31 @@ impl Session {
         let env = &cfg.environment;
         let ws = cfg.slave.arm.workspace();
         let assumed = cfg.slave.arm.stiffness().map_err(SimError::from)?;
-        let p = env.contact_point_mm;
-        let slave_home = [p[0], p[1], p[2] + env.gap_mm, 0.0];
         let arm = SimArm::new(
             ws.params,
             cfg.slave.arm.actuator_stiffness_n_per_mm,
             cfg.slave.plant,
             cfg.slave.sensor,
             env.surface(),
-            Pose::from(slave_home),
+            Pose::from(env.slave_start_pose()),
             cfg.seed,
         )?;
         let ctrl = SlaveController::new(ws, assumed, cfg.slave.controller);
-        let pc = &cfg.passivity;
         let slave = SlaveTeleop::new(
             TeleopParams {
                 arm_id: 0,
                 watchdog_ms: cfg.slave.command_timeout_ms,
                 restart_silence_ms: 1000.0,
-                passivity: *pc,
+                passivity: cfg.passivity,
                 speed_margin: 0.9,
             },
             ctrl,
             arm,
             CYCLE_NS,
         )?;
-        let device = SimMasterArm::new(cfg.master).map_err(SessionError::Master)?;
-        let operator = Operator::new(cfg.operator.hand, script, cfg.master.home_pose);
-        let coupling = MasterCoupling::new(CouplingParams {
-            mode: cfg.coupling.mode,
-            motion_scale: cfg.scale.motion,
-            force_scale: cfg.scale.force,
-            slave_workspace: ws,
-            slave_anchor: slave_home,
-            force_limit_n: cfg.coupling.force_limit_n,
-            slave_speed_limit_mm_per_s: cfg.slave.controller.max_speed_mm_per_s * 0.9,
-            feedback_timeout_ms: cfg.coupling.feedback_timeout_ms,
-            fade_ms: cfg.coupling.fade_ms,
-            passivity: pc.enabled,
-            passivity_params: *pc,
-            guide_stiffness_n_per_mm: cfg.coupling.guide_stiffness_n_per_mm,
-            guide_setpoint_max_n: cfg.coupling.guide_setpoint_max_n,
-            guide_approach_depth_mm: cfg.coupling.guide_approach_depth_mm,
-            master_damping_n_s_per_mm: cfg.coupling.master_damping_n_s_per_mm,
-            force_filter_hz: cfg.coupling.force_filter_hz,
-            model: ModelParams {
-                enabled: cfg.coupling.model,
-                stiffness_max_n_per_mm: cfg.coupling.model_stiffness_max_n_per_mm,
-                stiffness_initial_n_per_mm: cfg.coupling.model_stiffness_initial_n_per_mm,
-                contact_n: cfg.coupling.model_contact_n,
-                estimator_time_constant_s: cfg.coupling.model_estimator_time_constant_s,
-                plane_rate_mm_per_s: cfg.coupling.model_plane_rate_mm_per_s,
-                hold_ms: cfg.coupling.model_hold_ms,
-            },
-            arm_id: 0,
-        });
-        let master = MasterSide {
-            device,
-            operator,
-            gate: Gate::new(0, 1_000_000_000),
-            coupling,
-            rtt_sum_ms: 0.0,
-            rtt_n: 0,
-        };
+        let master = MasterTeleop::new(&cfg.master_teleop(0), script).map_err(|e| match e {
+            MasterTeleopError::Device(k) => SessionError::Master(k),
+        })?;
         Ok(Session {
             cfg: cfg.clone(),
             clock,
@@ -1010,9 +849,9 @@ impl Session {
     /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms.
     pub fn cycle(&mut self) -> Result<(MasterCycle, TeleopCycle), SessionError> {
         let now = self.clock.now_ns();
-        let m = self.master.step(&mut self.master_end, now)?;
+        let m = self.master.step(&mut self.master_end, now, DT_S);
         let s = self.slave.step(&mut self.slave_end, now, DT_S);
-        self.master.device.advance(CYCLE_NS);
+        self.master.device_mut().advance(CYCLE_NS);
         self.slave.arm_mut().advance(CYCLE_NS);
         self.clock.advance_ns(CYCLE_NS);
         Ok((m, s))
@@ -1059,7 +898,7 @@ impl Session {
                 drift_mm: {
                     // The master–slave mismatch: the slave's own drift plus the offset the
                     // master's contact model put into the target.
-                    let o = self.master.coupling.model_offset_mm();
+                    let o = self.master.coupling().model_offset_mm();
                     norm3(&[
                         s.drift_mm[0] + o[0],
                         s.drift_mm[1] + o[1],
@@ -1078,7 +917,7 @@ impl Session {
             });
             if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
                 let t = t_ns + CYCLE_NS;
-                let me = self.master.coupling.port.energy;
+                let me = self.master.coupling().port.energy;
                 r.write(
                     ch.master,
                     t,
@@ -1154,14 +993,11 @@ impl Session {
         }
         let wall_time_s = wall.elapsed().as_secs_f64();
         let dissipated =
-            self.master.coupling.port.energy.dissipated_j + self.slave.port().energy.dissipated_j;
+            self.master.coupling().port.energy.dissipated_j + self.slave.port().energy.dissipated_j;
         let lost = self.master_end.counters.dropped() + self.slave_end.counters.dropped();
-        let rejected = self.master.gate.counters.rejected() + self.slave.gate_counters().rejected();
-        let rtt = if self.master.rtt_n > 0 {
-            self.master.rtt_sum_ms / self.master.rtt_n as f64
-        } else {
-            f64::NAN
-        };
+        let rejected =
+            self.master.gate_counters().rejected() + self.slave.gate_counters().rejected();
+        let rtt = self.master.round_trip().mean_ms();
         Ok(ev.finish(
             cfg.name.clone(),
             dissipated,
