@@ -185,6 +185,22 @@ impl Recorder {
         Ok(ChannelId(id))
     }
 
+    /// Adds a channel on `topic` whose messages are `T` serialised as JSON, with the JSON
+    /// Schema generated from `T` itself (so the schema always declares the fields, their types
+    /// and which are required) under the name `schema_name`. Distinct shapes get distinct names.
+    pub fn add_channel_for<T: schemars::JsonSchema>(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+    ) -> Result<ChannelId, RecordingError> {
+        let schema = schemars::schema_for!(T);
+        let text = serde_json::to_string(&schema).map_err(|e| RecordingError::BadSchema {
+            schema: schema_name.to_string(),
+            message: e.to_string(),
+        })?;
+        self.add_channel(topic, schema_name, &text)
+    }
+
     /// Writes one message, timestamped `log_time_ns` (log and publish time).
     pub fn write<T: Serialize>(
         &mut self,
@@ -412,6 +428,45 @@ mod tests {
     #[derive(Serialize)]
     struct Sample {
         t: f64,
+    }
+
+    #[derive(Serialize, schemars::JsonSchema)]
+    struct Typed {
+        /// Force, N.
+        force_n: f64,
+        count: u64,
+    }
+
+    #[test]
+    fn typed_channel_schema_declares_the_fields_as_required() {
+        let mut rec = Recorder::in_memory().unwrap();
+        let ch = rec.add_channel_for::<Typed>("/t", "h4.Typed").unwrap();
+        rec.write(
+            ch,
+            1,
+            &Typed {
+                force_n: 1.5,
+                count: 2,
+            },
+        )
+        .unwrap();
+        let bytes = rec.finish_into_bytes().unwrap();
+        let msg = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap();
+        let schema = msg.channel.schema.as_ref().unwrap();
+        assert_eq!(schema.name, "h4.Typed");
+        let v: serde_json::Value = serde_json::from_slice(&schema.data).unwrap();
+        assert_eq!(v["properties"]["force_n"]["type"], "number");
+        let required: Vec<&str> = v["required"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.as_str().unwrap())
+            .collect();
+        assert_eq!(required, ["force_n", "count"]);
     }
 
     fn record() -> Vec<u8> {
