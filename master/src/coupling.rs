@@ -18,6 +18,7 @@
 //! * **Saturation**: the rendered force is limited to `force_limit_n` keeping its direction
 //!   (passive), and faded to zero when feedback stops arriving.
 
+use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::kinematics::{Pose, Workspace};
 use h4_shared::vec3::{dot3, norm3};
 use h4_shared::wire::{CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION};
@@ -115,6 +116,101 @@ impl Default for ScaleConfig {
             motion: 1.0,
             force: 0.5,
         }
+    }
+}
+
+impl Section for CouplingConfig {
+    /// The section's own ranges; `guide_setpoint_max_n` is also bounded by the slave's
+    /// force limit, a check across sections (`SessionConfig`'s).
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        check_range(&f("force_limit_n"), self.force_limit_n, 0.0, 200.0, "N")?;
+        check_range(
+            &f("feedback_timeout_ms"),
+            self.feedback_timeout_ms,
+            1.0,
+            1e5,
+            "ms",
+        )?;
+        check_range(&f("fade_ms"), self.fade_ms, 1.0, 1e4, "ms")?;
+        check_range(
+            &f("guide_stiffness_n_per_mm"),
+            self.guide_stiffness_n_per_mm,
+            0.01,
+            100.0,
+            "N/mm",
+        )?;
+        check_range(
+            &f("guide_setpoint_max_n"),
+            self.guide_setpoint_max_n,
+            0.0,
+            1000.0,
+            "N",
+        )?;
+        check_range(
+            &f("master_damping_n_s_per_mm"),
+            self.master_damping_n_s_per_mm,
+            0.0,
+            1.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            &f("force_filter_hz"),
+            self.force_filter_hz,
+            0.0,
+            500.0,
+            "Hz",
+        )?;
+        check_range(
+            &f("model_stiffness_max_n_per_mm"),
+            self.model_stiffness_max_n_per_mm,
+            0.01,
+            1000.0,
+            "N/mm",
+        )?;
+        check_range(
+            &f("model_stiffness_initial_n_per_mm"),
+            self.model_stiffness_initial_n_per_mm,
+            0.01,
+            1e4,
+            "N/mm",
+        )?;
+        check_range(
+            &f("model_contact_n"),
+            self.model_contact_n,
+            0.01,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &f("model_estimator_time_constant_s"),
+            self.model_estimator_time_constant_s,
+            0.001,
+            100.0,
+            "s",
+        )?;
+        check_range(
+            &f("model_plane_rate_mm_per_s"),
+            self.model_plane_rate_mm_per_s,
+            0.0,
+            1e4,
+            "mm/s",
+        )?;
+        check_range(&f("model_hold_ms"), self.model_hold_ms, 1.0, 1e5, "ms")?;
+        check_range(
+            &f("guide_approach_depth_mm"),
+            self.guide_approach_depth_mm,
+            0.0,
+            100.0,
+            "mm",
+        )
+    }
+}
+
+impl Section for ScaleConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        check_range(&format!("{prefix}motion"), self.motion, 0.01, 100.0, "")?;
+        check_range(&format!("{prefix}force"), self.force, 0.01, 100.0, "")
     }
 }
 

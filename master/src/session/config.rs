@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use h4_shared::config::{ArmConfig, ConfigError, Validate, check_range};
+use h4_shared::config::{ArmConfig, ConfigError, Section, Validate, check_range};
 use h4_shared::passivity::PassivityParams;
 use h4_slave::controller::ControllerParams;
 use h4_slave::plant::{Material, MaterialPreset, PlantConfig, SensorConfig, Surface, SurfaceShape};
@@ -202,321 +202,126 @@ impl SessionConfig {
     }
 }
 
-impl Validate for SessionConfig {
-    fn validate(&self) -> Result<(), ConfigError> {
-        check_range("duration_s", self.duration_s, 0.01, 3600.0, "s")?;
-        self.link.validate_at("link.")?;
-        let e = &self.environment;
-        if e.stiffness_n_per_mm != 0.0 {
+impl Section for EnvironmentConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        if self.stiffness_n_per_mm != 0.0 {
             check_range(
-                "environment.stiffness_n_per_mm",
-                e.stiffness_n_per_mm,
+                &f("stiffness_n_per_mm"),
+                self.stiffness_n_per_mm,
                 0.1,
                 1e5,
                 "N/mm (0 = the material's)",
             )?;
         }
         check_range(
-            "environment.damping_ratio",
-            e.damping_ratio,
+            &f("damping_ratio"),
+            self.damping_ratio,
             -1.0,
             2.0,
             "(negative = the material's)",
         )?;
         check_range(
-            "environment.friction_coefficient",
-            e.friction_coefficient,
+            &f("friction_coefficient"),
+            self.friction_coefficient,
             -1.0,
             2.0,
             "(negative = the material's)",
         )?;
-        for (i, v) in e.contact_point_mm.iter().enumerate() {
-            check_range(
-                &format!("environment.contact_point_mm[{i}]"),
-                *v,
-                -1e3,
-                1e3,
-                "mm",
-            )?;
+        for (i, v) in self.contact_point_mm.iter().enumerate() {
+            check_range(&f(&format!("contact_point_mm[{i}]")), *v, -1e3, 1e3, "mm")?;
         }
-        check_range("environment.tilt_deg", e.tilt_deg, -45.0, 45.0, "deg")?;
-        check_range("environment.gap_mm", e.gap_mm, 0.0, 100.0, "mm")?;
-        self.passivity.validate_at("passivity.")?;
-        let c = &self.coupling;
-        check_range("coupling.force_limit_n", c.force_limit_n, 0.0, 200.0, "N")?;
-        check_range(
-            "coupling.feedback_timeout_ms",
-            c.feedback_timeout_ms,
-            1.0,
-            1e5,
-            "ms",
-        )?;
-        check_range("coupling.fade_ms", c.fade_ms, 1.0, 1e4, "ms")?;
-        check_range(
-            "coupling.guide_stiffness_n_per_mm",
-            c.guide_stiffness_n_per_mm,
-            0.01,
-            100.0,
-            "N/mm",
-        )?;
-        check_range(
-            "coupling.guide_setpoint_max_n",
-            c.guide_setpoint_max_n,
-            0.0,
-            self.slave.controller.force_limit_n,
-            "N (up to slave.controller.force_limit_n)",
-        )?;
-        check_range(
-            "coupling.master_damping_n_s_per_mm",
-            c.master_damping_n_s_per_mm,
-            0.0,
-            1.0,
-            "N·s/mm",
-        )?;
-        check_range(
-            "coupling.force_filter_hz",
-            c.force_filter_hz,
-            0.0,
-            500.0,
-            "Hz",
-        )?;
-        check_range(
-            "coupling.model_stiffness_max_n_per_mm",
-            c.model_stiffness_max_n_per_mm,
-            0.01,
-            1000.0,
-            "N/mm",
-        )?;
-        check_range(
-            "coupling.model_stiffness_initial_n_per_mm",
-            c.model_stiffness_initial_n_per_mm,
-            0.01,
-            1e4,
-            "N/mm",
-        )?;
-        check_range(
-            "coupling.model_contact_n",
-            c.model_contact_n,
-            0.01,
-            100.0,
-            "N",
-        )?;
-        check_range(
-            "coupling.model_estimator_time_constant_s",
-            c.model_estimator_time_constant_s,
-            0.001,
-            100.0,
-            "s",
-        )?;
-        check_range(
-            "coupling.model_plane_rate_mm_per_s",
-            c.model_plane_rate_mm_per_s,
-            0.0,
-            1e4,
-            "mm/s",
-        )?;
-        check_range("coupling.model_hold_ms", c.model_hold_ms, 1.0, 1e5, "ms")?;
-        check_range(
-            "coupling.guide_approach_depth_mm",
-            c.guide_approach_depth_mm,
-            0.0,
-            100.0,
-            "mm",
-        )?;
-        check_range("scale.motion", self.scale.motion, 0.01, 100.0, "")?;
-        check_range("scale.force", self.scale.force, 0.01, 100.0, "")?;
-        let m = &self.master;
-        m.geometry.validate().map_err(|e| ConfigError::OutOfRange {
-            field: "master.geometry".into(),
-            value: String::new(),
-            allowed: e.to_string(),
-        })?;
-        for (i, v) in m.home_pose.iter().enumerate() {
-            check_range(&format!("master.home_pose[{i}]"), *v, -1e3, 1e3, "mm / rad")?;
-        }
-        check_range(
-            "master.carriage_mass_kg",
-            m.carriage_mass_kg,
-            0.001,
-            100.0,
-            "kg",
-        )?;
-        check_range(
-            "master.handle_mass_kg",
-            m.handle_mass_kg,
-            0.001,
-            100.0,
-            "kg",
-        )?;
-        check_range(
-            "master.handle_inertia_kg_mm2",
-            m.handle_inertia_kg_mm2,
-            0.1,
-            1e6,
-            "kg·mm²",
-        )?;
-        check_range(
-            "master.coulomb_friction_n",
-            m.coulomb_friction_n,
-            0.0,
-            100.0,
-            "N",
-        )?;
-        check_range(
-            "master.viscous_friction_n_s_per_mm",
-            m.viscous_friction_n_s_per_mm,
-            0.0,
-            10.0,
-            "N·s/mm",
-        )?;
-        check_range(
-            "master.friction_velocity_mm_per_s",
-            m.friction_velocity_mm_per_s,
-            0.01,
-            100.0,
-            "mm/s",
-        )?;
-        check_range(
-            "master.motor_force_max_n",
-            m.motor_force_max_n,
-            0.0,
-            1e3,
-            "N",
-        )?;
-        check_range("master.substeps", f64::from(m.substeps), 1.0, 1000.0, "")?;
-        let h = &self.operator.hand;
-        check_range(
-            "operator.hand.hand_mass_kg",
-            h.hand_mass_kg,
-            0.01,
-            10.0,
-            "kg",
-        )?;
-        check_range(
-            "operator.hand.arm_stiffness_n_per_mm",
-            h.arm_stiffness_n_per_mm,
-            0.0,
-            100.0,
-            "N/mm",
-        )?;
-        check_range(
-            "operator.hand.arm_damping_n_s_per_mm",
-            h.arm_damping_n_s_per_mm,
-            0.0,
-            10.0,
-            "N·s/mm",
-        )?;
-        check_range(
-            "operator.hand.grip_stiffness_n_per_mm",
-            h.grip_stiffness_n_per_mm,
-            0.01,
-            20.0,
-            "N/mm",
-        )?;
-        check_range(
-            "operator.hand.grip_damping_n_s_per_mm",
-            h.grip_damping_n_s_per_mm,
-            0.0,
-            10.0,
-            "N·s/mm",
-        )?;
-        if self.operator.replay_file.is_none() {
-            Script::Segments(self.operator.intent.clone())
+        check_range(&f("tilt_deg"), self.tilt_deg, -45.0, 45.0, "deg")?;
+        check_range(&f("gap_mm"), self.gap_mm, 0.0, 100.0, "mm")
+    }
+}
+
+impl Section for OperatorConfig {
+    /// The hand, and the scripted intent unless a replay file replaces it (the replay file
+    /// is checked when it is read).
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        self.hand.validate_at(&format!("{prefix}hand."))?;
+        if self.replay_file.is_none() {
+            Script::Segments(self.intent.clone())
                 .validate()
                 .map_err(|e| ConfigError::OutOfRange {
-                    field: "operator.intent".into(),
+                    field: format!("{prefix}intent"),
                     value: String::new(),
                     allowed: e.to_string(),
                 })?;
         }
-        self.slave.arm.validate_at("slave.arm.")?;
+        Ok(())
+    }
+}
+
+impl Section for SlaveConfig {
+    // SLAVE SECTIONS (to wire at merge): the slave crate's `Section` impls of
+    // `ControllerParams` (controller), `PlantConfig` (plant), `SensorConfig` (sensor) and
+    // `ArmConfig` (arm) replace the few checks below: `self.controller.validate_at(&f("controller."))`,
+    // and likewise for `plant.` and `sensor.`; `command_timeout_ms` stays here.
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        self.arm.validate_at(&f("arm."))?;
         check_range(
-            "slave.command_timeout_ms",
-            self.slave.command_timeout_ms,
+            &f("command_timeout_ms"),
+            self.command_timeout_ms,
             1.0,
             1e5,
             "ms",
         )?;
-        let sc = &self.slave.controller;
+        let sc = &self.controller;
         check_range(
-            "slave.controller.force_limit_n",
+            &f("controller.force_limit_n"),
             sc.force_limit_n,
             1.0,
             1000.0,
             "N",
         )?;
         check_range(
-            "slave.controller.max_speed_mm_per_s",
+            &f("controller.max_speed_mm_per_s"),
             sc.max_speed_mm_per_s,
             1.0,
             1000.0,
             "mm/s",
         )?;
         check_range(
-            "slave.plant.servo_rate_hz",
-            self.slave.plant.servo_rate_hz,
+            &f("plant.servo_rate_hz"),
+            self.plant.servo_rate_hz,
             1000.0,
             1e5,
             "Hz",
         )?;
         check_range(
-            "slave.sensor.sample_rate_hz",
-            self.slave.sensor.sample_rate_hz,
+            &f("sensor.sample_rate_hz"),
+            self.sensor.sample_rate_hz,
             100.0,
             1e5,
             "Hz",
-        )?;
-        let d = &self.detector;
+        )
+    }
+}
+
+impl Validate for SessionConfig {
+    /// Every section's own checks, then the checks across sections.
+    fn validate(&self) -> Result<(), ConfigError> {
+        check_range("duration_s", self.duration_s, 0.01, 3600.0, "s")?;
+        self.link.validate_at("link.")?;
+        self.environment.validate_at("environment.")?;
+        self.passivity.validate_at("passivity.")?;
+        self.coupling.validate_at("coupling.")?;
+        // Across sections: the force-guided set-point stays within the slave's force limit.
         check_range(
-            "detector.contact_threshold_n",
-            d.contact_threshold_n,
-            0.01,
-            100.0,
-            "N",
-        )?;
-        check_range(
-            "detector.mean_time_constant_s",
-            d.mean_time_constant_s,
-            0.001,
-            10.0,
-            "s",
-        )?;
-        check_range("detector.settle_s", d.settle_s, 0.0, 100.0, "s")?;
-        check_range("detector.contact_gap_s", d.contact_gap_s, 0.0, 100.0, "s")?;
-        check_range("detector.impact_force_n", d.impact_force_n, 0.0, 1e4, "N")?;
-        check_range("detector.bounce_gap_s", d.bounce_gap_s, 0.0, 100.0, "s")?;
-        check_range(
-            "detector.bounce_limit",
-            d.bounce_limit as f64,
-            2.0,
-            1e6,
-            "impacts in a row",
-        )?;
-        check_range("detector.window_s", d.window_s, 0.05, 100.0, "s")?;
-        check_range(
-            "detector.oscillation_limit_n",
-            d.oscillation_limit_n,
+            "coupling.guide_setpoint_max_n",
+            self.coupling.guide_setpoint_max_n,
             0.0,
-            1e3,
-            "N",
+            self.slave.controller.force_limit_n,
+            "N (up to slave.controller.force_limit_n)",
         )?;
-        check_range("detector.growth_limit", d.growth_limit, 0.0, 1e3, "")?;
-        check_range(
-            "detector.oscillation_floor_n",
-            d.oscillation_floor_n,
-            0.0,
-            100.0,
-            "N",
-        )?;
-        check_range(
-            "detector.energy_tolerance_j",
-            d.energy_tolerance_j,
-            0.0,
-            1e3,
-            "J",
-        )?;
-        check_range("detector.force_limit_n", d.force_limit_n, 0.0, 1e4, "N")?;
-        Ok(())
+        self.scale.validate_at("scale.")?;
+        self.master.validate_at("master.")?;
+        self.operator.validate_at("operator.")?;
+        self.slave.validate_at("slave.")?;
+        self.detector.validate_at("detector.")
     }
 }
 
@@ -531,4 +336,36 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<SessionConfig, SessionE
         cfg.operator.replay_file = Some(dir.join(rf));
     }
     Ok(cfg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each section names its own fields, under the section's dotted path, with the range.
+    #[test]
+    fn sections_name_their_fields() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
+        assert!(load(&path, &[]).is_ok());
+        for (set, field) in [
+            ("environment.tilt_deg=50", "environment.tilt_deg"),
+            ("coupling.fade_ms=0", "coupling.fade_ms"),
+            (
+                "coupling.guide_setpoint_max_n=900",
+                "coupling.guide_setpoint_max_n",
+            ),
+            ("scale.force=0", "scale.force"),
+            ("master.substeps=0", "master.substeps"),
+            ("operator.hand.hand_mass_kg=0", "operator.hand.hand_mass_kg"),
+            ("detector.window_s=0", "detector.window_s"),
+            ("slave.command_timeout_ms=0", "slave.command_timeout_ms"),
+        ] {
+            let err = load(&path, &[set.to_string()]).err().map(|e| e.to_string());
+            let text = err.unwrap_or_default();
+            assert!(
+                text.contains(field) && text.contains("allowed"),
+                "{set}: {text}"
+            );
+        }
+    }
 }

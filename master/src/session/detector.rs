@@ -4,6 +4,7 @@
 
 use std::ops::Range;
 
+use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 use super::DT_S;
@@ -57,6 +58,61 @@ impl Default for DetectorConfig {
             energy_tolerance_j: 0.01,
             force_limit_n: 100.0,
         }
+    }
+}
+
+impl Section for DetectorConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        check_range(
+            &f("contact_threshold_n"),
+            self.contact_threshold_n,
+            0.01,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &f("mean_time_constant_s"),
+            self.mean_time_constant_s,
+            0.001,
+            10.0,
+            "s",
+        )?;
+        check_range(&f("settle_s"), self.settle_s, 0.0, 100.0, "s")?;
+        check_range(&f("contact_gap_s"), self.contact_gap_s, 0.0, 100.0, "s")?;
+        check_range(&f("impact_force_n"), self.impact_force_n, 0.0, 1e4, "N")?;
+        check_range(&f("bounce_gap_s"), self.bounce_gap_s, 0.0, 100.0, "s")?;
+        check_range(
+            &f("bounce_limit"),
+            self.bounce_limit as f64,
+            2.0,
+            1e6,
+            "impacts in a row",
+        )?;
+        check_range(&f("window_s"), self.window_s, 0.05, 100.0, "s")?;
+        check_range(
+            &f("oscillation_limit_n"),
+            self.oscillation_limit_n,
+            0.0,
+            1e3,
+            "N",
+        )?;
+        check_range(&f("growth_limit"), self.growth_limit, 0.0, 1e3, "")?;
+        check_range(
+            &f("oscillation_floor_n"),
+            self.oscillation_floor_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &f("energy_tolerance_j"),
+            self.energy_tolerance_j,
+            0.0,
+            1e3,
+            "J",
+        )?;
+        check_range(&f("force_limit_n"), self.force_limit_n, 0.0, 1e4, "N")
     }
 }
 
