@@ -229,7 +229,7 @@ pub struct CouplingParams {
     /// The slave's workspace (targets are mapped into it).
     pub slave_workspace: Workspace,
     /// Slave pose that corresponds to the master's start pose.
-    pub slave_anchor: [f64; 4],
+    pub slave_anchor_pose: [f64; 4],
     /// Largest force rendered, N.
     pub force_limit_n: f64,
     /// Largest slave speed commanded, mm/s (below the slave's speed limit).
@@ -262,14 +262,14 @@ pub struct CouplingParams {
 
 impl CouplingParams {
     /// The coupling of the sections `coupling`, `scale` and `passivity` of a session file,
-    /// mapping into `slave_workspace` with the master's home at `slave_anchor` (slave
+    /// mapping into `slave_workspace` with the master's home at `slave_anchor_pose` (slave
     /// frame), commanding at most `slave_speed_limit_mm_per_s`, for arm `arm_id`.
     pub fn from_config(
         c: &CouplingConfig,
         scale: &ScaleConfig,
         passivity: &PassivityParams,
         slave_workspace: Workspace,
-        slave_anchor: [f64; 4],
+        slave_anchor_pose: [f64; 4],
         slave_speed_limit_mm_per_s: f64,
         arm_id: u16,
     ) -> Self {
@@ -278,7 +278,7 @@ impl CouplingParams {
             motion_scale: scale.motion,
             force_scale: scale.force,
             slave_workspace,
-            slave_anchor,
+            slave_anchor_pose,
             force_limit_n: c.force_limit_n,
             slave_speed_limit_mm_per_s,
             feedback_timeout_ms: c.feedback_timeout_ms,
@@ -368,8 +368,8 @@ impl MasterCoupling {
         MasterCoupling {
             port: ImpedancePort::from_params(&p.passivity_params),
             handle_anchor_pose: [0.0; 4],
-            slave_anchor_pose: p.slave_anchor,
-            last_slave_target: p.slave_anchor,
+            slave_anchor_pose: p.slave_anchor_pose,
+            last_slave_target: p.slave_anchor_pose,
             clutched: false,
             started: false,
             seq: 0,

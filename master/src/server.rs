@@ -256,7 +256,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
         side.device_mut().advance(period_ns * (1 + tick.missed));
         s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
 
-        let force = norm3(&m.rendered);
+        let force = norm3(&m.rendered_wrench);
         s.max_rendered_force_n = s.max_rendered_force_n.max(force);
         s.max_rendered_force_step_n = s.max_rendered_force_step_n.max((force - prev_force).abs());
         prev_force = force;
@@ -296,7 +296,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
             s.contact_cycles += 1;
             let mut d = [0.0; 3];
             for (i, di) in d.iter_mut().enumerate() {
-                *di = m.rendered[i] / force_scale - slave_force[i];
+                *di = m.rendered_wrench[i] / force_scale - slave_force[i];
             }
             trans_abs += norm3(&d);
             trans_ref += fs;
@@ -306,9 +306,9 @@ pub fn run_then<L: Link<Command, Feedback>>(
             CycleRecord {
                 time_ns: now,
                 lateness_us: us(tick.lateness_ns),
-                pose: m.device.pose,
+                pose: m.handle.pose,
                 hand_wrench: m.hand.wrench,
-                rendered_wrench: m.rendered,
+                rendered_wrench: m.rendered_wrench,
                 fade,
                 slave_target: m.step.slave_target,
                 slave_force_n: slave_force,

@@ -56,9 +56,9 @@ pub struct MasterTeleopConfig {
     pub passivity: PassivityParams,
     /// The slave arm (`slave.arm.*`): targets are mapped into its workspace.
     pub slave_arm: ArmConfig,
-    /// The slave pose the master's home pose maps to, slave frame, `[x_mm, y_mm, z_mm,
-    /// theta_rad]`.
-    pub slave_from_master_anchor: [f64; 4],
+    /// The slave pose the master's home pose maps to (the anchor of the master→slave
+    /// mapping), slave frame, `[x_mm, y_mm, z_mm, theta_rad]`.
+    pub slave_anchor_pose: [f64; 4],
     /// The slave controller's speed limit (`slave.controller.max_speed_mm_per_s`), mm/s:
     /// the master commands at most 90 % of it.
     pub slave_max_speed_mm_per_s: f64,
@@ -77,7 +77,7 @@ impl MasterTeleopConfig {
             &self.scale,
             &self.passivity,
             self.slave_workspace(),
-            self.slave_from_master_anchor,
+            self.slave_anchor_pose,
             self.slave_max_speed_mm_per_s * SLAVE_SPEED_MARGIN,
             self.arm_id,
         )
@@ -170,10 +170,11 @@ pub struct MasterTeleopCounters {
 pub struct MasterCycle {
     /// The coupling's step.
     pub step: MasterStep,
-    /// The wrench the device applied.
-    pub rendered: [f64; 4],
-    /// Device state.
-    pub device: DeviceState,
+    /// The wrench the device applied to the handle, master frame, `[Fx_n, Fy_n, Fz_n,
+    /// My_n_mm]` (after the device's own limits).
+    pub rendered_wrench: [f64; 4],
+    /// The handle: pose, velocity and clutch as read this cycle, master frame.
+    pub handle: DeviceState,
     /// The hand.
     pub hand: HandOutput,
     /// A feedback message was accepted this cycle.
@@ -312,8 +313,8 @@ impl MasterTeleop {
         let dev = self.device.read();
         let fresh = self.receive(link, now_ns);
         let step = self.coupling.step(&dev, now_ns, dt_s);
-        let rendered = self.device.write_wrench(&step.wrench);
-        let cmd = self.coupling.finish(&rendered, &dev, now_ns);
+        let rendered_wrench = self.device.write_wrench(&step.wrench);
+        let cmd = self.coupling.finish(&rendered_wrench, &dev, now_ns);
         match link.publish(&cmd) {
             Ok(()) => self.counters.commands_published += 1,
             Err(_) => self.counters.link_errors += 1,
@@ -321,8 +322,8 @@ impl MasterTeleop {
         self.counters.cycles += 1;
         MasterCycle {
             step,
-            rendered,
-            device: dev,
+            rendered_wrench,
+            handle: dev,
             hand,
             fresh,
         }
@@ -347,7 +348,7 @@ mod tests {
             scale: ScaleConfig::default(),
             passivity: PassivityParams::default(),
             slave_arm: ArmConfig::default(),
-            slave_from_master_anchor: [0.0, 0.0, -245.0, 0.0],
+            slave_anchor_pose: [0.0, 0.0, -245.0, 0.0],
             slave_max_speed_mm_per_s: 100.0,
         }
     }

@@ -196,7 +196,7 @@ impl SessionConfig {
             scale: self.scale,
             passivity: self.passivity,
             slave_arm: self.slave.arm,
-            slave_from_master_anchor: self.environment.slave_start_pose(),
+            slave_anchor_pose: self.environment.slave_start_pose(),
             slave_max_speed_mm_per_s: self.slave.controller.max_speed_mm_per_s,
         }
     }

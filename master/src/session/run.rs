@@ -101,24 +101,28 @@ impl Session {
     }
 
     /// What the detector takes from one cycle: the master's cycle `m`, the slave's `s`, the
-    /// true contact force at the slave `true_f` (N).
-    fn sample(&self, m: &MasterCycle, s: &TeleopCycle, true_f: &[f64; 3]) -> Sample {
+    /// true contact force at the slave `true_force_slave_n` (N).
+    fn sample(&self, m: &MasterCycle, s: &TeleopCycle, true_force_slave_n: &[f64; 3]) -> Sample {
         let force_scale = self.cfg.scale.force;
         let intent = m.hand.intent;
         let meas = s.out.measured_pose;
         Sample {
-            true_force_n: norm3(true_f),
-            master_force_n: norm3(&m.rendered),
-            master_force_vec_n: [m.rendered[0], m.rendered[1], m.rendered[2]],
+            true_force_n: norm3(true_force_slave_n),
+            master_force_n: norm3(&m.rendered_wrench),
+            master_force_vec_n: [
+                m.rendered_wrench[0],
+                m.rendered_wrench[1],
+                m.rendered_wrench[2],
+            ],
             transparency_abs_n: {
                 let mut d = [0.0; 3];
                 for (i, di) in d.iter_mut().enumerate() {
-                    *di = m.rendered[i] / force_scale - s.out.wrench_measured[i];
+                    *di = m.rendered_wrench[i] / force_scale - s.out.wrench_measured[i];
                 }
                 norm3(&d)
             },
             slave_force_n: norm3(&s.out.wrench_measured),
-            steady: intent.steady && !intent.clutch && !m.device.clutch,
+            steady: intent.steady && !intent.clutch && !m.handle.clutch,
             observed_min_j: m.step.observed_j.min(s.port.observed_j),
             drift_mm: {
                 // The master–slave mismatch: the slave's own drift plus the offset the
@@ -137,7 +141,7 @@ impl Session {
             ]),
             free_motion: s.mode == Mode::Position,
             rejected: s.out.status == Status::Rejected,
-            finite: m.device.pose.iter().all(|v| v.is_finite())
+            finite: m.handle.pose.iter().all(|v| v.is_finite())
                 && meas.iter().all(|v| v.is_finite()),
         }
     }
@@ -149,10 +153,10 @@ impl Session {
         ch: &Channels,
         t_ns: u64,
         (m, s): (&MasterCycle, &TeleopCycle),
-        true_f: [f64; 3],
+        true_force_slave_n: [f64; 3],
     ) -> Result<(), RecordingError> {
         let me = self.master.coupling().port.energy;
-        ch.write_cycle(r, t_ns, (m, me), (s, &self.slave), true_f)?;
+        ch.write_cycle(r, t_ns, (m, me), (s, &self.slave), true_force_slave_n)?;
         ch.write_link_events(r, "command", |f| self.master_end.drain_events(f))?;
         ch.write_link_events(r, "feedback", |f| self.slave_end.drain_events(f))
     }
@@ -170,11 +174,15 @@ impl Session {
         for _ in 0..cycles {
             let t_ns = self.clock.now_ns();
             let (m, s) = self.cycle()?;
-            let true_w = self.slave.arm().true_contact_wrench();
-            let true_f = [true_w[0], true_w[1], true_w[2]];
-            ev.push(self.sample(&m, &s, &true_f));
+            let true_wrench_slave = self.slave.arm().true_contact_wrench();
+            let true_force_slave_n = [
+                true_wrench_slave[0],
+                true_wrench_slave[1],
+                true_wrench_slave[2],
+            ];
+            ev.push(self.sample(&m, &s, &true_force_slave_n));
             if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
-                self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_f)?;
+                self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_force_slave_n)?;
             }
         }
         let wall_time_s = wall.elapsed().as_secs_f64();
