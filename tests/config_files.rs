@@ -39,3 +39,56 @@ fn bad_arm_configs_are_named() {
     let err = config::parse::<ArmConfig>("geometry = 5", "inline.toml", &[]).unwrap_err();
     assert!(err.to_string().contains("inline.toml"), "{err}");
 }
+
+/// One value, one verdict: a slave section's field is judged the same in a session file
+/// (`slave.<section>.<field>`) as in an experiment file (`<section>.<field>`), and the session's
+/// environment takes the experiment's surface ranges.
+#[test]
+fn a_value_gets_the_same_verdict_in_every_file() {
+    use h4_master::session;
+    use h4_slave::experiment::ExperimentConfig;
+    let session_file = config_dir().join("sessions/wall-push.toml");
+    let experiment_file = config_dir().join("experiments/fig6b.toml");
+    let verdict = |e: Result<(), ConfigError>| match e {
+        Ok(()) => "accepted".to_string(),
+        Err(ConfigError::OutOfRange { value, allowed, .. }) => format!("{value}: {allowed}"),
+        Err(other) => panic!("not a range verdict: {other}"),
+    };
+    let cases = [
+        ("controller.kp", "-5"),
+        ("controller.kp", "5"),
+        ("controller.tool_mass_kg", "0"),
+        ("controller.max_speed_mm_per_s", "0.5"),
+        ("plant.stiffness_scale", "20"),
+        ("plant.servo_rate_hz", "500"),
+        ("sensor.noise_std_n", "11"),
+        ("sensor.filter_cutoff_hz", "0.5"),
+    ];
+    for (key, value) in cases {
+        let in_session = session::load(&session_file, &[format!("slave.{key}={value}")]);
+        let in_experiment =
+            config::load::<ExperimentConfig>(&experiment_file, &[format!("{key}={value}")]);
+        let s = verdict(in_session.map(|_| ()).map_err(|e| match e {
+            session::SessionError::Config(c) => c,
+            other => panic!("{other}"),
+        }));
+        let x = verdict(in_experiment.map(|_| ()));
+        assert_eq!(s, x, "{key}={value}: session {s}, experiment {x}");
+        if value == "-5" {
+            assert_ne!(s, "accepted", "slave.controller.kp=-5 must be refused");
+        }
+    }
+    for (env_key, surface_key, value) in [
+        ("tilt_deg", "tilt_deg", "50"),
+        ("tilt_deg", "tilt_deg", "61"),
+        ("stiffness_n_per_mm", "stiffness_n_per_mm", "500000"),
+        ("stiffness_n_per_mm", "stiffness_n_per_mm", "2000000"),
+    ] {
+        let s = session::load(&session_file, &[format!("environment.{env_key}={value}")]);
+        let x = config::load::<ExperimentConfig>(
+            &experiment_file,
+            &[format!("surface.{surface_key}={value}")],
+        );
+        assert_eq!(s.is_ok(), x.is_ok(), "{env_key}={value}");
+    }
+}

@@ -61,12 +61,16 @@ fn run(cfg: &SessionConfig) -> Vec<Rec> {
         let w = s.slave.arm().true_contact_wrench();
         out.push(Rec {
             t_s: (k + 1) as f64 * 1e-3,
-            handle_mm: [m.device.pose[0], m.device.pose[1], m.device.pose[2]],
+            handle_mm: [m.handle.pose[0], m.handle.pose[1], m.handle.pose[2]],
             hand_n: [m.hand.wrench[0], m.hand.wrench[1], m.hand.wrench[2]],
-            rendered_n: [m.rendered[0], m.rendered[1], m.rendered[2]],
+            rendered_n: [
+                m.rendered_wrench[0],
+                m.rendered_wrench[1],
+                m.rendered_wrench[2],
+            ],
             saturated: m.step.saturated,
             workspace_limited: m.step.workspace_limited,
-            clutch: m.device.clutch,
+            clutch: m.handle.clutch,
             slave_target_mm: m.step.slave_target,
             setpoint_n: m.step.setpoint_n,
             slave_measured_mm: [

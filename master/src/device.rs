@@ -10,6 +10,7 @@
 //! task space, `M(x) ẍ = F_hand + Jᵀ(τ − τ_friction) − b ẋ` with `M = M_platform + Jᵀ M_c J`,
 //! at `substeps` per 1 ms step. Units: mm, rad, N, N·mm, kg, s.
 
+use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::kinematics::{H4Params, KinError, Pose};
 use nalgebra::{Matrix3, Matrix4, Vector4};
 use serde::{Deserialize, Serialize};
@@ -81,6 +82,72 @@ impl Default for MasterArmConfig {
             motor_force_max_n: 12.0,
             substeps: 10,
         }
+    }
+}
+
+impl Section for MasterArmConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        self.geometry
+            .validate()
+            .map_err(|e| ConfigError::OutOfRange {
+                field: f("geometry"),
+                value: String::new(),
+                allowed: e.to_string(),
+            })?;
+        for (i, v) in self.home_pose.iter().enumerate() {
+            check_range(&f(&format!("home_pose[{i}]")), *v, -1e3, 1e3, "mm / rad")?;
+        }
+        check_range(
+            &f("carriage_mass_kg"),
+            self.carriage_mass_kg,
+            0.001,
+            100.0,
+            "kg",
+        )?;
+        check_range(
+            &f("handle_mass_kg"),
+            self.handle_mass_kg,
+            0.001,
+            100.0,
+            "kg",
+        )?;
+        check_range(
+            &f("handle_inertia_kg_mm2"),
+            self.handle_inertia_kg_mm2,
+            0.1,
+            1e6,
+            "kg·mm²",
+        )?;
+        check_range(
+            &f("coulomb_friction_n"),
+            self.coulomb_friction_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &f("viscous_friction_n_s_per_mm"),
+            self.viscous_friction_n_s_per_mm,
+            0.0,
+            10.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            &f("friction_velocity_mm_per_s"),
+            self.friction_velocity_mm_per_s,
+            0.01,
+            100.0,
+            "mm/s",
+        )?;
+        check_range(
+            &f("motor_force_max_n"),
+            self.motor_force_max_n,
+            0.0,
+            1e3,
+            "N",
+        )?;
+        check_range(&f("substeps"), f64::from(self.substeps), 1.0, 1000.0, "")
     }
 }
 

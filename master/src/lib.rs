@@ -7,11 +7,18 @@
 //! * [`coupling`]: [`coupling::MasterCoupling`], the master's pure 1 kHz step
 //!   (position–force and force-guided coupling, scaling, clutch, workspace mapping,
 //!   saturation, feedback-loss fade).
+//! * [`contact_model`]: [`contact_model::ContactModel`], the master's local model of the
+//!   slave's contact (model-mediated rendering).
+//! * [`teleop`]: [`teleop::MasterTeleop`], the master's per-cycle endpoint (device,
+//!   operator, receive gate, coupling, round trip), stepped by the simulation and the
+//!   process alike.
 //! * passivity: `h4_shared::passivity` (both sides use it).
 //! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
 
+pub mod contact_model;
 pub mod coupling;
 pub mod device;
 pub mod operator;
 pub mod server;
 pub mod session;
+pub mod teleop;

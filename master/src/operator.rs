@@ -12,6 +12,7 @@
 
 use std::path::Path;
 
+use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// One segment of a scripted intent.
@@ -90,6 +91,41 @@ impl Default for HandConfig {
             grip_stiffness_n_per_mm: 2.0,
             grip_damping_n_s_per_mm: 0.01,
         }
+    }
+}
+
+impl Section for HandConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        check_range(&f("hand_mass_kg"), self.hand_mass_kg, 0.01, 10.0, "kg")?;
+        check_range(
+            &f("arm_stiffness_n_per_mm"),
+            self.arm_stiffness_n_per_mm,
+            0.0,
+            100.0,
+            "N/mm",
+        )?;
+        check_range(
+            &f("arm_damping_n_s_per_mm"),
+            self.arm_damping_n_s_per_mm,
+            0.0,
+            10.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            &f("grip_stiffness_n_per_mm"),
+            self.grip_stiffness_n_per_mm,
+            0.01,
+            20.0,
+            "N/mm",
+        )?;
+        check_range(
+            &f("grip_damping_n_s_per_mm"),
+            self.grip_damping_n_s_per_mm,
+            0.0,
+            10.0,
+            "N·s/mm",
+        )
     }
 }
 

@@ -1,5 +1,5 @@
 //! `h4-master run`: the master as a real process. A 1 kHz loop on absolute deadlines steps
-//! the session's master side ([`MasterSide`]: simulated master arm, scripted operator,
+//! the master's endpoint ([`MasterTeleop`]: simulated master arm, scripted operator,
 //! receive gate, coupling with its passivity port and feedback-loss fade) on the process's
 //! monotonic clock, and publishes one command per cycle on the link.
 //!
@@ -16,12 +16,13 @@ use std::time::Duration;
 use h4_shared::clock::{Clock, MonotonicClock};
 use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{Histogram, LoopReport, Pacer};
+use h4_shared::rt::{LoopReport, Pacer};
 use h4_shared::wire::{Command, Feedback, SlaveState};
-use h4_transport::{Link, LinkError};
+use h4_transport::Link;
 use serde::{Deserialize, Serialize};
 
-use crate::session::{MasterSide, Session, SessionConfig, SessionError};
+use crate::session::{SessionConfig, SessionError};
+use crate::teleop::{MasterTeleop, MasterTeleopError};
 
 /// How the master loop runs.
 #[derive(Clone, Debug)]
@@ -68,8 +69,10 @@ pub struct MasterRunSummary {
     /// slave) of the loop (fields flattened into this summary).
     #[serde(flatten)]
     pub run: LoopReport,
-    /// Round trips measured: a command's send time to the master cycle that first receives
-    /// feedback echoing it (includes the phase of both 1 kHz loops), count.
+    /// Round trips measured, count: every feedback message the gate accepted that echoes a
+    /// command, its age at reception (now − the echoed send time, master clock; includes
+    /// the phase of both loops). The definition of `crate::teleop::RoundTrip`, the same as
+    /// the simulation's `rtt_mean_ms`.
     pub round_trip_samples: u64,
     /// Round trip p50, µs.
     pub round_trip_p50_us: f64,
@@ -81,8 +84,8 @@ pub struct MasterRunSummary {
     pub round_trip_max_us: f64,
     /// Feedback messages received from the link (before the gate).
     pub feedback_received: u64,
-    /// Feedback messages that failed validation (malformed, wrong version) or were for
-    /// another arm: the gate rejects them, they never reach the coupling.
+    /// Feedback messages the gate rejected as malformed (undecodable included), of another
+    /// protocol version or for another arm: they never reach the coupling.
     pub feedback_invalid: u64,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
@@ -124,9 +127,12 @@ pub struct MasterRunSummary {
 /// Why the master could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum MasterRunError {
-    /// The session could not be set up.
+    /// The session file could not be used (the operator's script).
     #[error("{0}")]
     Session(#[from] SessionError),
+    /// The master's endpoint could not be built.
+    #[error("{0}")]
+    Master(#[from] MasterTeleopError),
     /// No feedback from a slave within the wait.
     #[error(
         "no feedback from a slave within {0} s: is `h4-slave run` running with the same transport, arm id and prefix/endpoints?"
@@ -135,66 +141,6 @@ pub enum MasterRunError {
     /// The recording could not be written.
     #[error("recording: {0}")]
     Recording(String),
-}
-
-/// The link as the master loop sees it: errors are counted (the loop goes on; the fade
-/// handles a silent link), and every feedback message is watched for round-trip times.
-struct Watched<L> {
-    inner: L,
-    arm_id: u16,
-    now_ns: u64,
-    last_echo_seq: u64,
-    round_trip: Histogram,
-    last_round_trip_ns: u64,
-    received: u64,
-    invalid: u64,
-    link_errors: u64,
-    latest_valid: Option<Feedback>,
-}
-
-impl<L: Link<Command, Feedback>> Link<Command, Feedback> for Watched<L> {
-    fn publish(&mut self, msg: &Command) -> Result<(), LinkError> {
-        if self.inner.publish(msg).is_err() {
-            self.link_errors += 1;
-        }
-        Ok(())
-    }
-
-    fn try_recv(&mut self) -> Result<Option<Feedback>, LinkError> {
-        // Bounded: undecodable messages are skipped (counted), at most a queue's worth.
-        for _ in 0..256 {
-            match self.inner.try_recv() {
-                Ok(Some(fb)) => {
-                    self.received += 1;
-                    if fb.validate().is_err() || fb.arm_id != self.arm_id {
-                        self.invalid += 1;
-                    } else {
-                        self.latest_valid = Some(fb);
-                        let now = self.now_ns;
-                        if fb.echo_seq > self.last_echo_seq
-                            && fb.echo_send_time_ns > 0
-                            && fb.echo_send_time_ns <= now
-                        {
-                            self.last_echo_seq = fb.echo_seq;
-                            self.last_round_trip_ns = now - fb.echo_send_time_ns;
-                            self.round_trip.record(self.last_round_trip_ns);
-                        }
-                    }
-                    return Ok(Some(fb));
-                }
-                Ok(None) => return Ok(None),
-                Err(LinkError::Decode(_)) => {
-                    self.received += 1;
-                    self.invalid += 1;
-                }
-                Err(_) => {
-                    self.link_errors += 1;
-                    return Ok(None);
-                }
-            }
-        }
-        Ok(None)
-    }
 }
 
 /// One master cycle as recorded.
@@ -227,9 +173,11 @@ fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
 }
 
-/// The master side of a session, for `arm_id`.
-pub fn master_side(cfg: &SessionConfig, arm_id: u16) -> Result<MasterSide, MasterRunError> {
-    Ok(Session::new(cfg)?.master.for_arm(arm_id))
+/// The master's endpoint of a session file, for `arm_id` (the master's sections only: no
+/// simulated slave is built).
+pub fn master_teleop(cfg: &SessionConfig, arm_id: u16) -> Result<MasterTeleop, MasterRunError> {
+    let script = cfg.operator.script().map_err(SessionError::from)?;
+    Ok(MasterTeleop::new(&cfg.master_teleop(arm_id), script)?)
 }
 
 /// Runs the master until stopped (SIGINT/SIGTERM or the duration), on `link`.
@@ -247,22 +195,10 @@ pub fn run<L: Link<Command, Feedback>>(
 pub fn run_then<L: Link<Command, Feedback>>(
     cfg: &SessionConfig,
     opts: &MasterRunOptions,
-    link: L,
+    mut link: L,
     at_loop_end: impl FnOnce(),
 ) -> Result<MasterRunSummary, MasterRunError> {
-    let mut side = master_side(cfg, opts.arm_id)?;
-    let mut link = Watched {
-        inner: link,
-        arm_id: opts.arm_id,
-        now_ns: 0,
-        last_echo_seq: 0,
-        round_trip: Histogram::new(),
-        last_round_trip_ns: 0,
-        received: 0,
-        invalid: 0,
-        link_errors: 0,
-        latest_valid: None,
-    };
+    let mut side = master_teleop(cfg, opts.arm_id)?;
     let mut recorder = BackgroundRecorder::<CycleRecord>::start(
         opts.record.as_deref(),
         "/master/cycle",
@@ -282,10 +218,8 @@ pub fn run_then<L: Link<Command, Feedback>>(
             if stop_requested() {
                 break;
             }
-            if let Ok(Some(fb)) = link.inner.try_recv()
-                && fb.validate().is_ok()
-                && fb.arm_id == opts.arm_id
-            {
+            // Before the loop's clock starts: the gate sees this message at time 0.
+            if side.poll_peer(&mut link, 0) {
                 break;
             }
             if wait.elapsed().as_secs_f64() > opts.wait_for_slave_s {
@@ -298,6 +232,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
 
     let clock = MonotonicClock::new();
     let period_ns = opts.period_ns.max(1);
+    let dt_s = period_ns as f64 * 1e-9;
     let mut pacer = Pacer::new(
         Duration::from_nanos(period_ns),
         Duration::from_nanos(opts.spin_ns),
@@ -317,12 +252,11 @@ pub fn run_then<L: Link<Command, Feedback>>(
         if stop_requested() || end_ns.is_some_and(|e| now >= e) {
             break;
         }
-        link.now_ns = now;
-        let m = side.step(&mut link, now)?;
-        side.device.advance(period_ns * (1 + tick.missed));
+        let m = side.step(&mut link, now, dt_s);
+        side.device_mut().advance(period_ns * (1 + tick.missed));
         s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
 
-        let force = norm3(&m.rendered);
+        let force = norm3(&m.rendered_wrench);
         s.max_rendered_force_n = s.max_rendered_force_n.max(force);
         s.max_rendered_force_step_n = s.max_rendered_force_step_n.max((force - prev_force).abs());
         prev_force = force;
@@ -345,7 +279,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
         prev_fade = fade;
         let mut slave_force = [0.0; 3];
         let mut slave_state = SlaveState::Idle as u8;
-        if let Some(fb) = &link.latest_valid {
+        if let Some(fb) = side.latest_feedback() {
             slave_force = [
                 fb.wrench_measured[0],
                 fb.wrench_measured[1],
@@ -362,7 +296,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
             s.contact_cycles += 1;
             let mut d = [0.0; 3];
             for (i, di) in d.iter_mut().enumerate() {
-                *di = m.rendered[i] / force_scale - slave_force[i];
+                *di = m.rendered_wrench[i] / force_scale - slave_force[i];
             }
             trans_abs += norm3(&d);
             trans_ref += fs;
@@ -372,14 +306,14 @@ pub fn run_then<L: Link<Command, Feedback>>(
             CycleRecord {
                 time_ns: now,
                 lateness_us: us(tick.lateness_ns),
-                pose: m.device.pose,
+                pose: m.handle.pose,
                 hand_wrench: m.hand.wrench,
-                rendered_wrench: m.rendered,
+                rendered_wrench: m.rendered_wrench,
                 fade,
                 slave_target: m.step.slave_target,
                 slave_force_n: slave_force,
                 slave_state,
-                round_trip_us: us(link.last_round_trip_ns),
+                round_trip_us: us(side.round_trip().last_ns()),
             },
         );
         cycles += 1;
@@ -393,7 +327,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
                 cycles,
                 us(pacer.lateness.quantile(0.99)),
                 pacer.misses,
-                us(link.round_trip.quantile(0.99)),
+                us(side.round_trip().histogram().quantile(0.99)),
                 force,
                 fade,
                 state_name(slave_state),
@@ -405,15 +339,16 @@ pub fn run_then<L: Link<Command, Feedback>>(
     }
     at_loop_end();
     status_line.finish();
-    let r = &link.round_trip;
+    let r = side.round_trip().histogram();
     s.round_trip_samples = r.count();
     s.round_trip_p50_us = us(r.quantile(0.5));
     s.round_trip_p99_us = us(r.quantile(0.99));
     s.round_trip_p999_us = us(r.quantile(0.999));
     s.round_trip_max_us = us(r.max());
-    s.feedback_received = link.received;
-    s.feedback_invalid = link.invalid;
-    s.link_errors = link.link_errors;
+    let gate = side.gate_counters();
+    s.feedback_received = side.counters().feedback_received;
+    s.feedback_invalid = gate.wrong_version + gate.malformed + gate.wrong_arm;
+    s.link_errors = side.counters().link_errors;
     s.force_transparency_err_pct = if trans_ref > 0.0 {
         100.0 * trans_abs / trans_ref
     } else {
@@ -438,7 +373,6 @@ pub fn state_name(code: u8) -> &'static str {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use h4_shared::wire::Feedback;
     use h4_transport::inproc;
 
     fn wall_push() -> SessionConfig {
@@ -449,33 +383,14 @@ mod tests {
         crate::session::load(std::path::Path::new(path), &[]).expect("wall-push loads")
     }
 
-    /// A master for arm 3 commands arm 3 and takes only arm 3's feedback.
+    /// The endpoint of a session file speaks for the process's arm.
     #[test]
-    fn master_side_speaks_for_its_arm() {
+    fn master_teleop_speaks_for_its_arm() {
         let cfg = wall_push();
-        let mut side = master_side(&cfg, 3).expect("master side");
+        let mut side = master_teleop(&cfg, 3).expect("master endpoint");
         let (mut master_end, mut slave_end) = inproc::pair(16);
-        let mut t_ns = 0;
-        for _ in 0..5 {
-            t_ns += 1_000_000;
-            side.step(&mut master_end, t_ns).expect("step");
-        }
+        side.step(&mut master_end, 1_000_000, 1e-3);
         let cmd = slave_end.recv_latest().expect("link").expect("a command");
         assert_eq!(cmd.arm_id, 3);
-        // Feedback of another arm is rejected, of this arm accepted.
-        for (seq, arm_id) in [(1, 0), (2, 3)] {
-            let fb = Feedback {
-                seq,
-                send_time_ns: t_ns,
-                arm_id,
-                ..Feedback::default()
-            };
-            slave_end.publish(&fb).expect("publish");
-            t_ns += 1_000_000;
-            side.step(&mut master_end, t_ns).expect("step");
-        }
-        let counters = side.gate_counters();
-        assert_eq!(counters.wrong_arm, 1, "{counters:?}");
-        assert_eq!(counters.accepted, 1, "{counters:?}");
     }
 }

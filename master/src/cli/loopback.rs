@@ -12,8 +12,7 @@ use std::time::{Duration, Instant};
 use h4_master::server::MasterRunSummary;
 use h4_master::session::{self, SessionConfig};
 use h4_slave::experiment::{
-    ApproachConfig, Axis, ExperimentConfig, ForceConfig, ShapeKind, SummaryConfig, SurfaceConfig,
-    TrackConfig,
+    ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
 use h4_slave::server::cli::{LoopArgs, TransportArgs, TransportKind};
@@ -346,18 +345,7 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
         seed: cfg.seed,
         duration_s: cfg.duration_s.max(0.01),
         arm: cfg.slave.arm,
-        surface: SurfaceConfig {
-            shape: ShapeKind::Plane,
-            material: env.material,
-            tilt_deg: env.tilt_deg,
-            radius_mm: 200.0,
-            stiffness_n_per_mm: (env.stiffness_n_per_mm > 0.0).then_some(env.stiffness_n_per_mm),
-            damping_ratio: (env.damping_ratio >= 0.0).then_some(env.damping_ratio),
-            friction_coefficient: (env.friction_coefficient >= 0.0)
-                .then_some(env.friction_coefficient),
-            contact_point_mm: env.contact_point_mm,
-            cylinder_axis: Axis::Y,
-        },
+        surface: env.surface_config(),
         // Not used by `h4-slave run` (the master commands set-points), but must validate.
         force: ForceConfig {
             setpoint_n: 5.0,

@@ -1,0 +1,637 @@
+//! The stability detector and the session's summary: per-cycle samples accumulated by the
+//! [`Evaluator`], contact episodes, bouncing and the contact force's oscillation found at the
+//! end, and the verdict with its reasons.
+
+use std::ops::Range;
+
+use h4_shared::config::{ConfigError, Section, check_range};
+use serde::{Deserialize, Serialize};
+
+use super::DT_S;
+
+/// The stability detector.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    /// Contact force above which the tool counts as in contact, N.
+    pub contact_threshold_n: f64,
+    /// Time constant of the moving mean the oscillation is measured around, s.
+    pub mean_time_constant_s: f64,
+    /// Contact time skipped after the start of each contact episode, s.
+    pub settle_s: f64,
+    /// Contact lost for less than this and regained is one episode (a bounce), s.
+    pub contact_gap_s: f64,
+    /// An episode shorter than `settle_s` whose force reaches this is an impact, N.
+    pub impact_force_n: f64,
+    /// Impacts less than this apart are in a row (one bouncing run), s.
+    pub bounce_gap_s: f64,
+    /// This many impacts in a row or more is sustained bouncing: unstable.
+    pub bounce_limit: u64,
+    /// Length of the early and late windows of contact, s.
+    pub window_s: f64,
+    /// Late-contact oscillation (RMS around the moving mean) above which the run is unstable, N.
+    pub oscillation_limit_n: f64,
+    /// Oscillation growth (late over early) above which the run is unstable.
+    pub growth_limit: f64,
+    /// Floor of the early oscillation in the growth ratio, N (sensor noise).
+    pub oscillation_floor_n: f64,
+    /// Observer energy below −this is unstable, J.
+    pub energy_tolerance_j: f64,
+    /// Contact force above which the run is unstable, N.
+    pub force_limit_n: f64,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        DetectorConfig {
+            contact_threshold_n: 0.5,
+            mean_time_constant_s: 0.1,
+            settle_s: 0.5,
+            contact_gap_s: 0.25,
+            impact_force_n: 2.0,
+            bounce_gap_s: 2.0,
+            bounce_limit: 4,
+            window_s: 2.0,
+            oscillation_limit_n: 1.5,
+            growth_limit: 3.0,
+            oscillation_floor_n: 0.5,
+            energy_tolerance_j: 0.01,
+            force_limit_n: 100.0,
+        }
+    }
+}
+
+impl Section for DetectorConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        check_range(
+            &f("contact_threshold_n"),
+            self.contact_threshold_n,
+            0.01,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &f("mean_time_constant_s"),
+            self.mean_time_constant_s,
+            0.001,
+            10.0,
+            "s",
+        )?;
+        check_range(&f("settle_s"), self.settle_s, 0.0, 100.0, "s")?;
+        check_range(&f("contact_gap_s"), self.contact_gap_s, 0.0, 100.0, "s")?;
+        check_range(&f("impact_force_n"), self.impact_force_n, 0.0, 1e4, "N")?;
+        check_range(&f("bounce_gap_s"), self.bounce_gap_s, 0.0, 100.0, "s")?;
+        check_range(
+            &f("bounce_limit"),
+            self.bounce_limit as f64,
+            2.0,
+            1e6,
+            "impacts in a row",
+        )?;
+        check_range(&f("window_s"), self.window_s, 0.05, 100.0, "s")?;
+        check_range(
+            &f("oscillation_limit_n"),
+            self.oscillation_limit_n,
+            0.0,
+            1e3,
+            "N",
+        )?;
+        check_range(&f("growth_limit"), self.growth_limit, 0.0, 1e3, "")?;
+        check_range(
+            &f("oscillation_floor_n"),
+            self.oscillation_floor_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &f("energy_tolerance_j"),
+            self.energy_tolerance_j,
+            0.0,
+            1e3,
+            "J",
+        )?;
+        check_range(&f("force_limit_n"), self.force_limit_n, 0.0, 1e4, "N")
+    }
+}
+
+/// The result of one session.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    /// The session's name.
+    pub name: String,
+    /// The detector's verdict: no growing or sustained oscillation in contact, observers
+    /// within tolerance, forces within limits, nothing diverged.
+    pub stable: bool,
+    /// Why the detector said unstable (empty when stable).
+    pub unstable_reasons: Vec<String>,
+    /// Lowest energy of the passivity observers (master and slave ports), J.
+    pub energy_min_j: f64,
+    /// Largest contact force at the slave (simulation truth), N.
+    pub max_force_n: f64,
+    /// Largest force rendered to the operator, N.
+    pub max_master_force_n: f64,
+    /// Chatter of the force rendered to the operator: the largest RMS, over any
+    /// `CHATTER_WINDOW_MS` (100 ms) window, of the cycle-to-cycle change of the rendered
+    /// force vector (|F_k − F_{k−1}|), N per cycle. A smooth push changes it by a fraction of
+    /// a newton per cycle; a handle whose velocity flips sign every cycle under too much
+    /// damping swings it by tens of newtons.
+    pub master_force_chatter_n: f64,
+    /// Contact-force oscillation late in contact over early (RMS around the moving mean);
+    /// < 1 means decaying.
+    pub oscillation_growth: f64,
+    /// Contact-force oscillation early in contact, N RMS.
+    pub oscillation_early_n: f64,
+    /// Contact-force oscillation late in contact, N RMS.
+    pub oscillation_late_n: f64,
+    /// Position drift the slave's passivity controller left (commanded minus desired slave
+    /// position), mean over the last 0.5 s of contact, mm.
+    pub position_drift_mm: f64,
+    /// Largest position drift during the run, mm.
+    pub position_drift_max_mm: f64,
+    /// |F_master / scale.force − F_slave| over |F_slave|, steady contact, %.
+    pub force_transparency_err_pct: f64,
+    /// RMS of |slave measured − slave desired position| in free space, mm.
+    pub position_tracking_err_mm: f64,
+    /// Energy dissipated by both passivity controllers, J.
+    pub passivity_dissipated_j: f64,
+    /// Messages lost in both directions (loss, blackouts, overflow).
+    pub packets_lost: u64,
+    /// Messages the receive gates rejected (duplicates, reordered).
+    pub packets_rejected: u64,
+    /// Mean round-trip time measured by the master from the echoed send times, ms.
+    pub rtt_mean_ms: f64,
+    /// Settled contact time (contact episodes after `detector.settle_s`), s.
+    pub contact_time_s: f64,
+    /// Times the tool lost and regained contact within `detector.contact_gap_s` (bounces).
+    pub contact_bounces: u64,
+    /// The most impacts in a row (touches shorter than `detector.settle_s` reaching
+    /// `detector.impact_force_n`, each within `detector.bounce_gap_s` of the last).
+    pub bouncing_impacts: u64,
+    /// Cycles whose command the slave controller rejected.
+    pub slave_rejected_cycles: u64,
+    /// Control cycles run (1 ms each, both sides).
+    pub cycles: u64,
+    /// Simulated time, s.
+    pub sim_time_s: f64,
+    /// Wall-clock time of the simulation, s (the only field that is not deterministic).
+    pub wall_time_s: f64,
+}
+
+/// Window of [`Summary::master_force_chatter_n`], cycles (1 ms each).
+const CHATTER_WINDOW_MS: usize = 100;
+
+pub(super) struct Sample {
+    pub(super) true_force_n: f64,
+    pub(super) master_force_n: f64,
+    pub(super) master_force_vec_n: [f64; 3],
+    pub(super) transparency_abs_n: f64,
+    pub(super) slave_force_n: f64,
+    pub(super) steady: bool,
+    pub(super) observed_min_j: f64,
+    pub(super) drift_mm: f64,
+    pub(super) tracking_err_mm: f64,
+    pub(super) free_motion: bool,
+    pub(super) rejected: bool,
+    pub(super) finite: bool,
+}
+
+/// Contact episodes: runs of cycles with the contact force above `threshold_n`, runs less
+/// than `gap` cycles apart joined into one (the cycles between them belong to it: a tool
+/// that bounces on and off the surface is one contact, and its bounces are oscillation).
+/// Returns the episodes and the number of joins (bounces).
+fn contact_episodes(force_n: &[f64], threshold_n: f64, gap: usize) -> (Vec<Range<usize>>, u64) {
+    let mut episodes: Vec<Range<usize>> = Vec::new();
+    let mut bounces = 0;
+    let mut k = 0;
+    while k < force_n.len() {
+        if force_n[k] <= threshold_n {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < force_n.len() && force_n[k] > threshold_n {
+            k += 1;
+        }
+        match episodes.last_mut() {
+            Some(last) if start - last.end < gap => {
+                last.end = k;
+                bounces += 1;
+            }
+            _ => episodes.push(start..k),
+        }
+    }
+    (episodes, bounces)
+}
+
+/// The longest run of impacts in a row: episodes shorter than `settle` cycles whose force
+/// reaches `impact_force_n`, each starting less than `gap` cycles after the last one ended
+/// (a tool bouncing off the surface while the operator pushes: each touch too short to
+/// settle, so the oscillation measure never sees it).
+fn bouncing_impacts(
+    force_n: &[f64],
+    episodes: &[Range<usize>],
+    settle: usize,
+    impact_force_n: f64,
+    gap: usize,
+) -> u64 {
+    let mut best = 0;
+    let mut run = 0;
+    let mut last_end: Option<usize> = None;
+    for e in episodes {
+        let impact = e.len() < settle && force_n[e.clone()].iter().any(|&f| f >= impact_force_n);
+        if !impact {
+            run = 0;
+            last_end = None;
+            continue;
+        }
+        run = match last_end {
+            Some(end) if e.start - end < gap => run + 1,
+            _ => 1,
+        };
+        last_end = Some(e.end);
+        best = best.max(run);
+    }
+    best
+}
+
+/// The contact force's oscillation: for each sample of an episode past its first `settle`
+/// cycles, the force minus its zero-phase moving mean. The mean is a first-order low-pass
+/// (`tau_s`) run forwards then backwards over one episode at a time, the episode extended at
+/// both ends by odd reflection, so that a ramp (a push, a release) leaves no residual; an
+/// oscillation of frequency f leaves (2πfτ)² / (1 + (2πfτ)²) of its amplitude. Also returns,
+/// for each residual, its cycle.
+fn contact_residuals(
+    force_n: &[f64],
+    episodes: &[Range<usize>],
+    settle: usize,
+    tau_s: f64,
+) -> Vec<(usize, f64)> {
+    let a = (DT_S / tau_s.max(DT_S)).min(1.0);
+    let mut out = Vec::with_capacity(force_n.len());
+    let mut ext = Vec::new();
+    for e in episodes {
+        let seg = &force_n[e.clone()];
+        let len = seg.len();
+        let pad = ((5.0 * tau_s / DT_S).ceil() as usize).min(len - 1);
+        let (first, last) = (seg[0], seg[len - 1]);
+        ext.clear();
+        ext.extend((1..=pad).rev().map(|k| 2.0 * first - seg[k]));
+        ext.extend_from_slice(seg);
+        ext.extend((1..=pad).map(|k| 2.0 * last - seg[len - 1 - k]));
+        for i in 1..ext.len() {
+            ext[i] = ext[i - 1] + a * (ext[i] - ext[i - 1]);
+        }
+        for i in (0..ext.len() - 1).rev() {
+            ext[i] = ext[i + 1] + a * (ext[i] - ext[i + 1]);
+        }
+        for (j, f) in seg.iter().enumerate().skip(settle) {
+            out.push((e.start + j, f - ext[pad + j]));
+        }
+    }
+    out
+}
+
+/// Summary statistics, accumulated per cycle (the per-cycle buffers are allocated once).
+pub(super) struct Evaluator {
+    det: DetectorConfig,
+    /// True contact force of every cycle, N (contact episodes and their oscillation are
+    /// found at the end: [`contact_episodes`], [`contact_residuals`]).
+    force_n: Vec<f64>,
+    /// Position drift of every cycle, mm.
+    drift_mm: Vec<f64>,
+    steady_s: f64,
+    energy_min: f64,
+    max_force: f64,
+    max_master: f64,
+    chatter_ring: Vec<f64>,
+    chatter_sum: f64,
+    chatter_k: usize,
+    chatter_max: f64,
+    prev_master_n: Option<[f64; 3]>,
+    trans_abs: f64,
+    trans_ref: f64,
+    track_sq: f64,
+    track_n: u64,
+    drift_max: f64,
+    rejected: u64,
+    diverged: bool,
+}
+
+impl Evaluator {
+    pub(super) fn new(det: DetectorConfig, cycles: usize) -> Self {
+        Evaluator {
+            det,
+            force_n: Vec::with_capacity(cycles),
+            drift_mm: Vec::with_capacity(cycles),
+            steady_s: 0.0,
+            energy_min: 0.0,
+            max_force: 0.0,
+            max_master: 0.0,
+            chatter_ring: vec![0.0; CHATTER_WINDOW_MS],
+            chatter_sum: 0.0,
+            chatter_k: 0,
+            chatter_max: 0.0,
+            prev_master_n: None,
+            trans_abs: 0.0,
+            trans_ref: 0.0,
+            track_sq: 0.0,
+            track_n: 0,
+            drift_max: 0.0,
+            rejected: 0,
+            diverged: false,
+        }
+    }
+
+    pub(super) fn push(&mut self, s: Sample) {
+        let d = &self.det;
+        if !s.finite || !s.true_force_n.is_finite() {
+            self.diverged = true;
+            return;
+        }
+        self.energy_min = self.energy_min.min(s.observed_min_j);
+        self.max_force = self.max_force.max(s.true_force_n);
+        self.max_master = self.max_master.max(s.master_force_n);
+        if let Some(p) = self.prev_master_n {
+            let d = [
+                s.master_force_vec_n[0] - p[0],
+                s.master_force_vec_n[1] - p[1],
+                s.master_force_vec_n[2] - p[2],
+            ];
+            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            let slot = self.chatter_k % CHATTER_WINDOW_MS;
+            self.chatter_sum += d2 - self.chatter_ring[slot];
+            self.chatter_ring[slot] = d2;
+            self.chatter_k += 1;
+            // Re-summed once per window: no drift of the running sum.
+            if self.chatter_k.is_multiple_of(CHATTER_WINDOW_MS) {
+                self.chatter_sum = self.chatter_ring.iter().sum();
+            }
+            let rms = (self.chatter_sum.max(0.0) / CHATTER_WINDOW_MS as f64).sqrt();
+            self.chatter_max = self.chatter_max.max(rms);
+        }
+        self.prev_master_n = Some(s.master_force_vec_n);
+        self.drift_max = self.drift_max.max(s.drift_mm);
+        if s.rejected {
+            self.rejected += 1;
+        }
+        let in_contact = s.true_force_n > d.contact_threshold_n;
+        self.force_n.push(s.true_force_n);
+        self.drift_mm.push(s.drift_mm);
+        if !in_contact && s.free_motion && s.steady {
+            self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
+            self.track_n += 1;
+        }
+        self.steady_s = if s.steady { self.steady_s + DT_S } else { 0.0 };
+        if in_contact && self.steady_s >= 1.0 {
+            self.trans_abs += s.transparency_abs_n;
+            self.trans_ref += s.slave_force_n;
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn finish(
+        self,
+        name: String,
+        dissipated_j: f64,
+        packets_lost: u64,
+        packets_rejected: u64,
+        rtt_mean_ms: f64,
+        cycles: u64,
+        wall_time_s: f64,
+    ) -> Summary {
+        let d = self.det;
+        let win = (d.window_s / DT_S).round() as usize;
+        let gap = (d.contact_gap_s / DT_S).round() as usize;
+        let (episodes, bounces) = contact_episodes(&self.force_n, d.contact_threshold_n, gap);
+        let settle = (d.settle_s / DT_S).round() as usize;
+        let impacts = bouncing_impacts(
+            &self.force_n,
+            &episodes,
+            settle,
+            d.impact_force_n,
+            (d.bounce_gap_s / DT_S).round() as usize,
+        );
+        let (cycle, residual): (Vec<usize>, Vec<f64>) =
+            contact_residuals(&self.force_n, &episodes, settle, d.mean_time_constant_s)
+                .into_iter()
+                .unzip();
+        let n = residual.len();
+        let rms = |s: &[f64]| {
+            if s.is_empty() {
+                0.0
+            } else {
+                (s.iter().map(|x| x * x).sum::<f64>() / s.len() as f64).sqrt()
+            }
+        };
+        let early = rms(&residual[..win.min(n)]);
+        let late = rms(&residual[n.saturating_sub(win)..]);
+        let growth = late / early.max(d.oscillation_floor_n);
+        // The drift over the last 0.5 s of settled contact (cycles in touch).
+        let drift_tail: Vec<f64> = cycle
+            .iter()
+            .rev()
+            .filter(|&&k| self.force_n[k] > d.contact_threshold_n)
+            .take(500)
+            .map(|&k| self.drift_mm[k])
+            .collect();
+        let drift = if drift_tail.is_empty() {
+            0.0
+        } else {
+            drift_tail.iter().sum::<f64>() / drift_tail.len() as f64
+        };
+        let mut reasons = Vec::new();
+        if self.diverged {
+            reasons.push("diverged".to_string());
+        }
+        if late > d.oscillation_limit_n {
+            reasons.push(format!(
+                "oscillation: late contact-force oscillation {late:.2} N RMS > {} N",
+                d.oscillation_limit_n
+            ));
+        }
+        if growth > d.growth_limit {
+            reasons.push(format!(
+                "growth: oscillation grew {growth:.2}x > {}x",
+                d.growth_limit
+            ));
+        }
+        if impacts >= d.bounce_limit {
+            reasons.push(format!(
+                "bouncing: {impacts} impacts in a row (touches shorter than {} s reaching {} N, \
+                 each within {} s of the last) >= {}",
+                d.settle_s, d.impact_force_n, d.bounce_gap_s, d.bounce_limit
+            ));
+        }
+        if self.energy_min < -d.energy_tolerance_j {
+            reasons.push(format!(
+                "energy: observer reached {:.4} J < -{} J",
+                self.energy_min, d.energy_tolerance_j
+            ));
+        }
+        if self.max_force > d.force_limit_n {
+            reasons.push(format!(
+                "force: contact force {:.1} N > {} N",
+                self.max_force, d.force_limit_n
+            ));
+        }
+        let sim_time_s = cycles as f64 * DT_S;
+        Summary {
+            name,
+            stable: reasons.is_empty(),
+            unstable_reasons: reasons,
+            energy_min_j: self.energy_min,
+            max_force_n: self.max_force,
+            max_master_force_n: self.max_master,
+            master_force_chatter_n: self.chatter_max,
+            oscillation_growth: growth,
+            oscillation_early_n: early,
+            oscillation_late_n: late,
+            position_drift_mm: drift,
+            position_drift_max_mm: self.drift_max,
+            force_transparency_err_pct: if self.trans_ref > 0.0 {
+                100.0 * self.trans_abs / self.trans_ref
+            } else {
+                f64::NAN
+            },
+            position_tracking_err_mm: if self.track_n > 0 {
+                (self.track_sq / self.track_n as f64).sqrt()
+            } else {
+                f64::NAN
+            },
+            passivity_dissipated_j: dissipated_j,
+            packets_lost,
+            packets_rejected,
+            rtt_mean_ms,
+            contact_time_s: n as f64 * DT_S,
+            contact_bounces: bounces,
+            bouncing_impacts: impacts,
+            slave_rejected_cycles: self.rejected,
+            cycles,
+            sim_time_s,
+            wall_time_s,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rms(v: &[f64]) -> f64 {
+        (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+    }
+
+    /// `n` samples of `f` (1 ms apart), as one contact episode, all settled.
+    fn residuals_of(f: impl Fn(f64) -> f64, n: usize, tau: f64) -> Vec<f64> {
+        let force: Vec<f64> = (0..n).map(|k| f(k as f64 * DT_S)).collect();
+        contact_residuals(&force, std::slice::from_ref(&(0..n)), 0, tau)
+            .into_iter()
+            .map(|(_, r)| r)
+            .collect()
+    }
+
+    /// A push and a release (ramps, also at the ends of the episode) are not oscillation;
+    /// an oscillation is, by the documented fraction; episodes are filtered one at a time.
+    #[test]
+    fn contact_residuals_ignore_ramps_and_measure_oscillation() {
+        let tau = 0.1;
+        // Ramp up 0 → 20 N in 0.3 s, hold, ramp down to 0.5 N in 0.3 s at the end.
+        let push_hold_release = |t: f64| {
+            if t < 0.3 {
+                20.0 * t / 0.3
+            } else if t < 2.7 {
+                20.0
+            } else {
+                20.0 - 19.5 * (t - 2.7) / 0.3
+            }
+        };
+        let r = residuals_of(push_hold_release, 3000, tau);
+        assert_eq!(r.len(), 3000);
+        // Along a ramp and a hold nothing; a change of slope leaves about slope·τ/2
+        // (here 3.3 N) for about τ. (The causal moving mean this replaced left slope·τ,
+        // 6.7 N, over each whole ramp, the release included.)
+        assert!(r[1000..2000].iter().all(|x| x.abs() < 0.01), "hold");
+        assert!(r[2850..].iter().all(|x| x.abs() < 1.0), "release");
+        assert!(rms(&r) < 1.0, "{}", rms(&r));
+        // A 5 Hz, 2 N-amplitude oscillation on 10 N: (2πfτ)²/(1+(2πfτ)²) ≈ 0.91 of it.
+        let osc = |t: f64| 10.0 + 2.0 * (2.0 * std::f64::consts::PI * 5.0 * t).sin();
+        let r = residuals_of(osc, 4000, tau);
+        let w = 2.0 * std::f64::consts::PI * 5.0 * tau;
+        let expect = 2.0 / 2f64.sqrt() * w * w / (1.0 + w * w);
+        let got = rms(&r[500..3500]);
+        assert!((got - expect).abs() < 0.05 * expect, "{got} {expect}");
+        // Two episodes at different levels: no step between them shows as oscillation.
+        let mut two = vec![5.0; 1000];
+        two.extend(vec![30.0; 1000]);
+        let r = contact_residuals(&two, &[0..1000, 1000..2000], 0, tau);
+        assert!(r.iter().all(|x| x.1.abs() < 1e-9));
+        // Samples before the settle time are filtered but not reported; cycles are kept.
+        let r = contact_residuals(&[5.0; 100], std::slice::from_ref(&(0..100)), 40, tau);
+        assert_eq!(r.len(), 60);
+        assert_eq!(r[0].0, 40);
+    }
+
+    /// Touches closer than the gap are one episode (the bounces counted); a release and a
+    /// new push further apart are two.
+    #[test]
+    fn contact_episodes_join_bounces() {
+        let th = 0.5;
+        // 0.2 s free, then a tool bouncing at 8 Hz (60 ms on at 30 N, 60 ms off) for 1.2 s,
+        // then 1 s free, then a held push of 1 s.
+        let mut f = vec![0.0; 200];
+        for _ in 0..10 {
+            f.extend(vec![30.0; 60]);
+            f.extend(vec![0.0; 60]);
+        }
+        f.extend(vec![0.0; 1000]);
+        f.extend(vec![10.0; 1000]);
+        f.push(0.0);
+        let (e, bounces) = contact_episodes(&f, th, 250);
+        assert_eq!(e, vec![200..1340, 2400..3400]);
+        assert_eq!(bounces, 9);
+        // With no gap every touch is its own episode.
+        let (each, bounces) = contact_episodes(&f, th, 0);
+        assert_eq!((each.len(), bounces), (11, 0));
+        // The bouncing episode is an oscillation of about 15 N RMS around its mean: the
+        // detector sees it (touch by touch it saw nothing, each touch shorter than the
+        // settle time).
+        let r: Vec<f64> = contact_residuals(&f, &e[..1], 0, 0.1)
+            .into_iter()
+            .map(|x| x.1)
+            .collect();
+        assert!(rms(&r[200..]) > 10.0, "{}", rms(&r));
+    }
+
+    /// A tool that bounces off the wall slowly (each touch shorter than the settle time,
+    /// gaps longer than the episode gap) is counted impact by impact; a long touch, a touch
+    /// too light, or a gap too long ends the run.
+    #[test]
+    fn bouncing_impacts_count_short_touches_in_a_row() {
+        // Touches of 160 ms at 70 N every 630 ms (the bare coupling at 100 ms round trip).
+        let mut f = vec![0.0; 100];
+        for _ in 0..6 {
+            f.extend(vec![70.0; 160]);
+            f.extend(vec![0.0; 470]);
+        }
+        // A held push (a long touch), then three light taps, then two impacts 3 s apart.
+        f.extend(vec![20.0; 2000]);
+        f.extend(vec![0.0; 300]);
+        for _ in 0..3 {
+            f.extend(vec![1.5; 100]);
+            f.extend(vec![0.0; 300]);
+        }
+        for _ in 0..2 {
+            f.extend(vec![0.0; 3000]);
+            f.extend(vec![50.0; 100]);
+        }
+        let (e, _) = contact_episodes(&f, 0.5, 250);
+        assert_eq!(e.len(), 6 + 1 + 3 + 2);
+        assert_eq!(bouncing_impacts(&f, &e, 500, 2.0, 2000), 6);
+        // The light taps count only if the impact force is below them.
+        assert_eq!(bouncing_impacts(&f, &e[6..], 500, 1.0, 2000), 3);
+        // With a longer settle time the held push is an impact too.
+        assert_eq!(bouncing_impacts(&f, &e, 2500, 2.0, 2000), 7);
+    }
+}

@@ -1,0 +1,200 @@
+//! [`Session`]: the master's and the slave's endpoints, an impaired in-process link in each
+//! direction and both simulated arms, stepped in lockstep on the simulated clock.
+
+use std::time::Instant;
+
+use h4_shared::clock::{Clock, SimClock};
+use h4_shared::config::Validate;
+use h4_shared::kinematics::Pose;
+use h4_shared::recording::{Recorder, RecordingError};
+use h4_shared::rng::Rng;
+use h4_shared::vec3::norm3;
+use h4_shared::wire::{Command, Feedback, Mode};
+use h4_slave::controller::Status;
+use h4_slave::plant::SimArm;
+use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopParams};
+use h4_transport::impair::Impaired;
+use h4_transport::inproc::{self, InprocEnd};
+
+use super::detector::{Evaluator, Sample};
+use super::record::Channels;
+use super::{CYCLE_NS, DT_S, SessionConfig, SessionError, Summary};
+use crate::teleop::{MasterCycle, MasterTeleop, MasterTeleopError};
+
+type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
+type SlaveEnd = Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>;
+
+/// A session ready to run: both sides and the link.
+pub struct Session {
+    cfg: SessionConfig,
+    clock: SimClock,
+    /// The master's endpoint.
+    pub master: MasterTeleop,
+    /// The slave side.
+    pub slave: SlaveTeleop<SimArm>,
+    master_end: MasterEnd,
+    slave_end: SlaveEnd,
+}
+
+impl Session {
+    /// Builds a session from a validated configuration.
+    pub fn new(cfg: &SessionConfig) -> Result<Self, SessionError> {
+        cfg.validate()?;
+        let script = cfg.operator.script()?;
+        let clock = SimClock::new();
+        let (m_end, s_end) = inproc::pair(1024);
+        let mut rng = Rng::fork(cfg.seed, cfg.link.seed);
+        let mut down = cfg.link;
+        down.seed = rng.next_u64();
+        let mut up = cfg.link;
+        up.seed = rng.next_u64();
+        let master_end = Impaired::new(m_end, clock.clone(), down, CYCLE_NS)?;
+        let slave_end = Impaired::new(s_end, clock.clone(), up, CYCLE_NS)?;
+
+        let (arm, ctrl) = cfg
+            .slave_world()
+            .build(Pose::from(cfg.environment.slave_start_pose()), cfg.seed)?;
+        let slave = SlaveTeleop::new(
+            TeleopParams {
+                arm_id: 0,
+                watchdog_ms: cfg.slave.command_timeout_ms,
+                restart_silence_ms: 1000.0,
+                passivity: cfg.passivity,
+                speed_margin: 0.9,
+            },
+            ctrl,
+            arm,
+            CYCLE_NS,
+        )?;
+        let master = MasterTeleop::new(&cfg.master_teleop(0), script).map_err(|e| match e {
+            MasterTeleopError::Device(k) => SessionError::Master(k),
+        })?;
+        Ok(Session {
+            cfg: cfg.clone(),
+            clock,
+            master,
+            slave,
+            master_end,
+            slave_end,
+        })
+    }
+
+    /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms.
+    pub fn cycle(&mut self) -> Result<(MasterCycle, TeleopCycle), SessionError> {
+        let now = self.clock.now_ns();
+        let m = self.master.step(&mut self.master_end, now, DT_S);
+        let s = self.slave.step(&mut self.slave_end, now, DT_S);
+        self.master.device_mut().advance(CYCLE_NS);
+        self.slave.arm_mut().advance(CYCLE_NS);
+        self.clock.advance_ns(CYCLE_NS);
+        Ok((m, s))
+    }
+
+    /// What the detector takes from one cycle: the master's cycle `m`, the slave's `s`, the
+    /// true contact force at the slave `true_force_slave_n` (N).
+    fn sample(&self, m: &MasterCycle, s: &TeleopCycle, true_force_slave_n: &[f64; 3]) -> Sample {
+        let force_scale = self.cfg.scale.force;
+        let intent = m.hand.intent;
+        let meas = s.out.measured_pose;
+        Sample {
+            true_force_n: norm3(true_force_slave_n),
+            master_force_n: norm3(&m.rendered_wrench),
+            master_force_vec_n: [
+                m.rendered_wrench[0],
+                m.rendered_wrench[1],
+                m.rendered_wrench[2],
+            ],
+            transparency_abs_n: {
+                let mut d = [0.0; 3];
+                for (i, di) in d.iter_mut().enumerate() {
+                    *di = m.rendered_wrench[i] / force_scale - s.out.wrench_measured[i];
+                }
+                norm3(&d)
+            },
+            slave_force_n: norm3(&s.out.wrench_measured),
+            steady: intent.steady && !intent.clutch && !m.handle.clutch,
+            observed_min_j: m.step.observed_j.min(s.port.observed_j),
+            drift_mm: {
+                // The master–slave mismatch: the slave's own drift plus the offset the
+                // master's contact model put into the target.
+                let o = self.master.coupling().model_offset_mm();
+                norm3(&[
+                    s.drift_mm[0] + o[0],
+                    s.drift_mm[1] + o[1],
+                    s.drift_mm[2] + o[2],
+                ])
+            },
+            tracking_err_mm: norm3(&[
+                meas[0] - s.desired_mm[0],
+                meas[1] - s.desired_mm[1],
+                meas[2] - s.desired_mm[2],
+            ]),
+            free_motion: s.mode == Mode::Position,
+            rejected: s.out.status == Status::Rejected,
+            finite: m.handle.pose.iter().all(|v| v.is_finite())
+                && meas.iter().all(|v| v.is_finite()),
+        }
+    }
+
+    /// Writes one cycle of both sides and the link's events since the last one, at `t_ns`.
+    fn record(
+        &mut self,
+        r: &mut Recorder,
+        ch: &Channels,
+        t_ns: u64,
+        (m, s): (&MasterCycle, &TeleopCycle),
+        true_force_slave_n: [f64; 3],
+    ) -> Result<(), RecordingError> {
+        let me = self.master.coupling().port.energy;
+        ch.write_cycle(r, t_ns, (m, me), (s, &self.slave), true_force_slave_n)?;
+        ch.write_link_events(r, "command", |f| self.master_end.drain_events(f))?;
+        ch.write_link_events(r, "feedback", |f| self.slave_end.drain_events(f))
+    }
+
+    /// Runs the whole session; with a recorder every cycle of both sides and every link
+    /// event is recorded.
+    pub fn run(mut self, mut recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+        let channels = match recorder.as_deref_mut() {
+            Some(r) => Some(Channels::add(r)?),
+            None => None,
+        };
+        let cycles = (self.cfg.duration_s * 1000.0).round() as u64;
+        let mut ev = Evaluator::new(self.cfg.detector, cycles as usize);
+        let wall = Instant::now();
+        for _ in 0..cycles {
+            let t_ns = self.clock.now_ns();
+            let (m, s) = self.cycle()?;
+            let true_wrench_slave = self.slave.arm().true_contact_wrench();
+            let true_force_slave_n = [
+                true_wrench_slave[0],
+                true_wrench_slave[1],
+                true_wrench_slave[2],
+            ];
+            ev.push(self.sample(&m, &s, &true_force_slave_n));
+            if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
+                self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_force_slave_n)?;
+            }
+        }
+        let wall_time_s = wall.elapsed().as_secs_f64();
+        let dissipated =
+            self.master.coupling().port.energy.dissipated_j + self.slave.port().energy.dissipated_j;
+        let lost = self.master_end.counters.dropped() + self.slave_end.counters.dropped();
+        let rejected =
+            self.master.gate_counters().rejected() + self.slave.gate_counters().rejected();
+        let rtt = self.master.round_trip().mean_ms();
+        Ok(ev.finish(
+            self.cfg.name.clone(),
+            dissipated,
+            lost,
+            rejected,
+            rtt,
+            cycles,
+            wall_time_s,
+        ))
+    }
+}
+
+/// Runs a session from its configuration.
+pub fn run(cfg: &SessionConfig, recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+    Session::new(cfg)?.run(recorder)
+}

@@ -1,0 +1,405 @@
+//! The master's teleoperation endpoint: everything the master does in one cycle of a
+//! teleoperation session, on any [`Link`]. The lockstep session simulation (`h4-master sim`)
+//! and the real process (`h4-master run`, and so `h4-master loopback`) both step this, so
+//! there is one piece of code for the master's per-cycle logic. It mirrors the slave's
+//! endpoint, `h4_slave::teleop::SlaveTeleop`.
+//!
+//! One [`MasterTeleop::step`]:
+//! 1. the operator's hand acts on the handle (the simulated master arm, [`SimMasterArm`]),
+//!    and the handle is read;
+//! 2. drains the link through the receive gate, the only check of incoming feedback (wrong
+//!    version, wrong arm, malformed, undecodable, duplicated or reordered feedback is
+//!    counted and dropped); each accepted message goes to the coupling and to the round-trip
+//!    figure ([`RoundTrip`]);
+//! 3. the coupling step ([`MasterCoupling`]: mapping of the handle into the slave's
+//!    workspace, the rendered force with its passivity port, clutch, fade);
+//! 4. writes the wrench to the device and publishes the command.
+//!
+//! It allocates nothing, blocks on nothing, logs nothing and never panics; link errors are
+//! counted, not returned.
+
+use h4_shared::config::ArmConfig;
+use h4_shared::kinematics::{KinError, Workspace};
+use h4_shared::passivity::PassivityParams;
+use h4_shared::rt::Histogram;
+use h4_shared::wire::{Command, Feedback};
+use h4_transport::gate::{Gate, GateCounters};
+use h4_transport::{Link, LinkError};
+use serde::Serialize;
+
+use crate::coupling::{CouplingConfig, CouplingParams, MasterCoupling, MasterStep, ScaleConfig};
+use crate::device::{DeviceState, HapticDevice, MasterArmConfig, SimMasterArm};
+use crate::operator::{HandConfig, HandOutput, Operator, Script};
+
+/// After this much feedback silence a message whose sequence number went backwards is taken
+/// as a restarted slave, ms.
+const RESTART_SILENCE_MS: f64 = 1000.0;
+
+/// Share of the slave controller's speed limit the master commands at most.
+const SLAVE_SPEED_MARGIN: f64 = 0.9;
+
+/// What the master's endpoint is built from: the master's sections of a session file
+/// (master arm, operator's hand, coupling, scale, passivity) and the slave it maps into.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MasterTeleopConfig {
+    /// Arm id: commands carry it, feedback for another arm is rejected.
+    pub arm_id: u16,
+    /// The master arm (`master.*`).
+    pub master: MasterArmConfig,
+    /// The operator's hand (`operator.hand.*`).
+    pub hand: HandConfig,
+    /// The coupling (`coupling.*`).
+    pub coupling: CouplingConfig,
+    /// Motion and force scaling (`scale.*`).
+    pub scale: ScaleConfig,
+    /// Passivity control (`passivity.*`).
+    pub passivity: PassivityParams,
+    /// The slave arm (`slave.arm.*`): targets are mapped into its workspace.
+    pub slave_arm: ArmConfig,
+    /// The slave pose the master's home pose maps to (the anchor of the master→slave
+    /// mapping), slave frame, `[x_mm, y_mm, z_mm, theta_rad]`.
+    pub slave_anchor_pose: [f64; 4],
+    /// The slave controller's speed limit (`slave.controller.max_speed_mm_per_s`), mm/s:
+    /// the master commands at most 90 % of it.
+    pub slave_max_speed_mm_per_s: f64,
+}
+
+impl MasterTeleopConfig {
+    /// The slave's workspace.
+    pub fn slave_workspace(&self) -> Workspace {
+        self.slave_arm.workspace()
+    }
+
+    /// The coupling's parameters.
+    pub fn coupling_params(&self) -> CouplingParams {
+        CouplingParams::from_config(
+            &self.coupling,
+            &self.scale,
+            &self.passivity,
+            self.slave_workspace(),
+            self.slave_anchor_pose,
+            self.slave_max_speed_mm_per_s * SLAVE_SPEED_MARGIN,
+            self.arm_id,
+        )
+    }
+}
+
+/// Why the endpoint could not be built.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum MasterTeleopError {
+    /// The master arm's geometry or home pose is not usable.
+    #[error("master arm: {0}")]
+    Device(KinError),
+}
+
+/// The round trip the master measures, one definition for the simulation's summary and the
+/// process's: for every feedback message the gate accepts that echoes a command
+/// (`echo_send_time_ns > 0`), the age of the echoed command at reception, `now −
+/// echo_send_time_ns` on the master's clock. It includes the link's delay both ways and the
+/// phase of both loops; a command echoed by several feedback messages (the slave repeats its
+/// newest command while no newer one arrives) is counted at every one of them.
+#[derive(Clone, Debug)]
+pub struct RoundTrip {
+    samples: u64,
+    sum_ms: f64,
+    last_ns: u64,
+    histogram: Histogram,
+}
+
+impl RoundTrip {
+    fn new() -> Self {
+        RoundTrip {
+            samples: 0,
+            sum_ms: 0.0,
+            last_ns: 0,
+            histogram: Histogram::new(),
+        }
+    }
+
+    fn record(&mut self, fb: &Feedback, now_ns: u64) {
+        if fb.echo_send_time_ns > 0 {
+            let ns = now_ns.saturating_sub(fb.echo_send_time_ns);
+            self.sum_ms += ns as f64 * 1e-6;
+            self.samples += 1;
+            self.last_ns = ns;
+            self.histogram.record(ns);
+        }
+    }
+
+    /// Round trips measured.
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    /// Mean round trip, ms (NaN before the first).
+    pub fn mean_ms(&self) -> f64 {
+        if self.samples > 0 {
+            self.sum_ms / self.samples as f64
+        } else {
+            f64::NAN
+        }
+    }
+
+    /// The newest round trip, ns (0 before the first).
+    pub fn last_ns(&self) -> u64 {
+        self.last_ns
+    }
+
+    /// All round trips, ns.
+    pub fn histogram(&self) -> &Histogram {
+        &self.histogram
+    }
+}
+
+/// Counters over the endpoint's life.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct MasterTeleopCounters {
+    /// Cycles stepped.
+    pub cycles: u64,
+    /// Feedback messages received from the link, before the gate (undecodable ones
+    /// included).
+    pub feedback_received: u64,
+    /// Link errors while receiving or publishing.
+    pub link_errors: u64,
+    /// Commands published.
+    pub commands_published: u64,
+}
+
+/// What one master cycle did (plain data, no allocation).
+#[derive(Clone, Copy, Debug)]
+pub struct MasterCycle {
+    /// The coupling's step.
+    pub step: MasterStep,
+    /// The wrench the device applied to the handle, master frame, `[Fx_n, Fy_n, Fz_n,
+    /// My_n_mm]` (after the device's own limits).
+    pub rendered_wrench: [f64; 4],
+    /// The handle: pose, velocity and clutch as read this cycle, master frame.
+    pub handle: DeviceState,
+    /// The hand.
+    pub hand: HandOutput,
+    /// A feedback message was accepted this cycle.
+    pub fresh: bool,
+}
+
+/// The master's teleoperation endpoint: the simulated master arm with the operator's hand
+/// on it, the receive gate, the coupling.
+pub struct MasterTeleop {
+    device: SimMasterArm,
+    operator: Operator,
+    gate: Gate<Feedback>,
+    coupling: MasterCoupling,
+    round_trip: RoundTrip,
+    counters: MasterTeleopCounters,
+}
+
+impl MasterTeleop {
+    /// An endpoint from its configuration; the operator follows `script`.
+    pub fn new(cfg: &MasterTeleopConfig, script: Script) -> Result<Self, MasterTeleopError> {
+        let device = SimMasterArm::new(cfg.master).map_err(MasterTeleopError::Device)?;
+        Ok(MasterTeleop {
+            device,
+            operator: Operator::new(cfg.hand, script, cfg.master.home_pose),
+            gate: Gate::new(cfg.arm_id, (RESTART_SILENCE_MS * 1e6) as u64),
+            coupling: MasterCoupling::new(cfg.coupling_params()),
+            round_trip: RoundTrip::new(),
+            counters: MasterTeleopCounters::default(),
+        })
+    }
+
+    /// The simulated master arm.
+    pub fn device(&self) -> &SimMasterArm {
+        &self.device
+    }
+
+    /// The simulated master arm, mutable (it is advanced by its owner).
+    pub fn device_mut(&mut self) -> &mut SimMasterArm {
+        &mut self.device
+    }
+
+    /// The operator.
+    pub fn operator(&self) -> &Operator {
+        &self.operator
+    }
+
+    /// The coupling.
+    pub fn coupling(&self) -> &MasterCoupling {
+        &self.coupling
+    }
+
+    /// What the receive gate accepted and rejected.
+    pub fn gate_counters(&self) -> &GateCounters {
+        &self.gate.counters
+    }
+
+    /// The newest feedback the gate accepted.
+    pub fn latest_feedback(&self) -> Option<&Feedback> {
+        self.gate.latest()
+    }
+
+    /// The round trip.
+    pub fn round_trip(&self) -> &RoundTrip {
+        &self.round_trip
+    }
+
+    /// Counters.
+    pub fn counters(&self) -> &MasterTeleopCounters {
+        &self.counters
+    }
+
+    /// Receives one feedback message through the gate only (nothing reaches the coupling):
+    /// true once one was accepted. For waiting until a slave answers, before the first
+    /// [`MasterTeleop::step`].
+    pub fn poll_peer<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
+        match link.try_recv() {
+            Ok(Some(fb)) => {
+                self.counters.feedback_received += 1;
+                self.gate.accept(&fb, now_ns).is_ok()
+            }
+            Ok(None) => false,
+            Err(e) => {
+                self.count_link_error(e);
+                false
+            }
+        }
+    }
+
+    fn count_link_error(&mut self, e: LinkError) {
+        match e {
+            LinkError::Decode(w) => {
+                self.counters.feedback_received += 1;
+                self.gate.count_undecodable(w);
+            }
+            _ => self.counters.link_errors += 1,
+        }
+    }
+
+    /// Drains the link through the gate; true if a message was accepted.
+    fn receive<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
+        let mut fresh = false;
+        // Bounded: undecodable messages are skipped (counted), at most a queue's worth.
+        for _ in 0..MAX_RECEIVED_PER_CYCLE {
+            match link.try_recv() {
+                Ok(Some(fb)) => {
+                    self.counters.feedback_received += 1;
+                    if let Ok(f) = self.gate.accept(&fb, now_ns) {
+                        self.coupling.receive(&f, now_ns);
+                        self.round_trip.record(&f, now_ns);
+                        fresh = true;
+                    }
+                }
+                Ok(None) => break,
+                Err(e @ LinkError::Decode(_)) => self.count_link_error(e),
+                Err(e) => {
+                    self.count_link_error(e);
+                    break;
+                }
+            }
+        }
+        fresh
+    }
+
+    /// One cycle at `now_ns` of `dt_s` seconds on `link`.
+    pub fn step<L: Link<Command, Feedback>>(
+        &mut self,
+        link: &mut L,
+        now_ns: u64,
+        dt_s: f64,
+    ) -> MasterCycle {
+        let before = self.device.read();
+        let hand = self
+            .operator
+            .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, dt_s);
+        self.device.set_hand(hand.wrench, hand.clutch);
+        let dev = self.device.read();
+        let fresh = self.receive(link, now_ns);
+        let step = self.coupling.step(&dev, now_ns, dt_s);
+        let rendered_wrench = self.device.write_wrench(&step.wrench);
+        let cmd = self.coupling.finish(&rendered_wrench, &dev, now_ns);
+        match link.publish(&cmd) {
+            Ok(()) => self.counters.commands_published += 1,
+            Err(_) => self.counters.link_errors += 1,
+        }
+        self.counters.cycles += 1;
+        MasterCycle {
+            step,
+            rendered_wrench,
+            handle: dev,
+            hand,
+            fresh,
+        }
+    }
+}
+
+/// Most feedback messages taken from the link in one cycle.
+const MAX_RECEIVED_PER_CYCLE: usize = 4096;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::operator::IntentSegment;
+    use h4_transport::inproc;
+
+    fn config(arm_id: u16) -> MasterTeleopConfig {
+        MasterTeleopConfig {
+            arm_id,
+            master: MasterArmConfig::default(),
+            hand: HandConfig::default(),
+            coupling: CouplingConfig::default(),
+            scale: ScaleConfig::default(),
+            passivity: PassivityParams::default(),
+            slave_arm: ArmConfig::default(),
+            slave_anchor_pose: [0.0, 0.0, -245.0, 0.0],
+            slave_max_speed_mm_per_s: 100.0,
+        }
+    }
+
+    fn hold_still() -> Script {
+        Script::Segments(vec![IntentSegment {
+            at_s: 0.0,
+            target_mm: [0.0, 0.0, 0.0],
+            move_s: 1.0,
+            push_n: [0.0; 3],
+            push_ramp_s: 0.3,
+            clutch: false,
+            theta_rad: 0.0,
+        }])
+    }
+
+    /// A master for arm 3 commands arm 3 and takes only arm 3's feedback; each accepted
+    /// feedback that echoes a command is one round trip.
+    #[test]
+    fn speaks_for_its_arm_and_measures_round_trips() {
+        let mut ep = MasterTeleop::new(&config(3), hold_still()).unwrap();
+        let (mut master_end, mut slave_end) = inproc::pair(16);
+        let mut t_ns = 0;
+        for _ in 0..5 {
+            t_ns += 1_000_000;
+            ep.step(&mut master_end, t_ns, 1e-3);
+        }
+        let cmd = slave_end.recv_latest().unwrap().unwrap();
+        assert_eq!(cmd.arm_id, 3);
+        // Feedback of another arm is rejected, of this arm accepted.
+        for (seq, arm_id) in [(1, 0), (2, 3)] {
+            let fb = Feedback {
+                seq,
+                send_time_ns: t_ns,
+                echo_seq: cmd.seq,
+                echo_send_time_ns: cmd.send_time_ns,
+                arm_id,
+                ..Feedback::default()
+            };
+            slave_end.publish(&fb).unwrap();
+            t_ns += 1_000_000;
+            let c = ep.step(&mut master_end, t_ns, 1e-3);
+            assert_eq!(c.fresh, arm_id == 3);
+        }
+        let counters = ep.gate_counters();
+        assert_eq!(counters.wrong_arm, 1, "{counters:?}");
+        assert_eq!(counters.accepted, 1, "{counters:?}");
+        assert_eq!(ep.counters().feedback_received, 2);
+        assert_eq!(ep.counters().commands_published, 7);
+        assert_eq!(ep.round_trip().samples(), 1);
+        assert_eq!(ep.round_trip().last_ns(), t_ns - cmd.send_time_ns);
+        assert!((ep.round_trip().mean_ms() - 2.0).abs() < 1e-9);
+    }
+}
