@@ -9,6 +9,7 @@
 //! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
 //! * [`teleop`]: [`teleop::SlaveTeleop`], the slave's per-cycle teleoperation endpoint
 //!   (gate, watchdog and safe stop, passivity port, controller, feedback).
+//! * [`report`]: PNG figures, metrics and an HTML page from a recording.
 //! * [`server`]: `h4-slave run`, the slave as a real-time process on a link.
 
 pub mod controller;
@@ -16,5 +17,6 @@ pub mod experiment;
 pub mod filter;
 pub mod kin_tool;
 pub mod plant;
+pub mod report;
 pub mod server;
 pub mod teleop;
