@@ -26,6 +26,10 @@ enum Command {
     /// Write the slave's world and passivity files of a session, for
     /// `h4-slave run --config WORLD --passivity-config PASSIVITY`.
     SlaveConfig(cli::loopback::SlaveConfigArgs),
+    /// Draws a recording (MCAP) of a session, the processes or an experiment: PNG figures
+    /// (rendered vs slave force, passivity observers, the link's round trip and losses; force
+    /// against the set-point band), metrics.json and index.html.
+    Report(h4_slave::report::ReportArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -35,6 +39,10 @@ fn main() -> std::process::ExitCode {
         Command::Run(args) => args.run(),
         Command::Loopback(args) => args.run(),
         Command::SlaveConfig(args) => args.run(),
+        Command::Report(args) => args
+            .run()
+            .map(|_| std::process::ExitCode::SUCCESS)
+            .map_err(|e| e.to_string()),
     };
     match result {
         Ok(code) => code,

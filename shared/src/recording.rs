@@ -126,6 +126,10 @@ impl std::fmt::Debug for Recorder {
 /// the mcap crate's version.
 const LIBRARY: &str = "h4-teleop";
 
+/// Uncompressed size of one chunk, bytes: about a quarter of a second of a process's 1 kHz
+/// records, so a killed process loses at most that much.
+const CHUNK_BYTES: u64 = 256 * 1024;
+
 impl Recorder {
     /// Creates (or truncates) the file at `path`.
     pub fn create(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
@@ -147,8 +151,12 @@ impl Recorder {
     }
 
     fn to_sink(sink: Sink, path: String) -> Result<Self, RecordingError> {
+        // zstd chunks of at most CHUNK_BYTES of messages, compressed in the writer's own thread
+        // (no compression workers beside the 1 kHz loops); docs/processes.md, "Recordings".
         let options = mcap::WriteOptions::new()
-            .compression(None)
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_threads(0)
+            .chunk_size(Some(CHUNK_BYTES))
             .profile("")
             .library(LIBRARY);
         let writer = options.create(sink).map_err(mcap_err)?;

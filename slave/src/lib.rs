@@ -10,6 +10,7 @@
 //! * [`experiment`]: autonomous force-tracking experiments on the simulated clock.
 //! * [`teleop`]: [`teleop::SlaveTeleop`], the slave's per-cycle teleoperation endpoint
 //!   (gate, watchdog and safe stop, passivity port, controller, feedback).
+//! * [`report`]: PNG figures, metrics and an HTML page from a recording.
 //! * [`world`]: [`world::SlaveWorld`], the slave-side configuration sections (arm,
 //!   surface, sensor, plant, controller) and the one place that builds the simulated arm
 //!   and its controller from them.
@@ -21,6 +22,7 @@ pub mod experiment;
 pub mod filter;
 pub mod kin_tool;
 pub mod plant;
+pub mod report;
 pub mod server;
 pub mod teleop;
 pub mod world;

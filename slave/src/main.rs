@@ -27,6 +27,10 @@ enum Command {
     /// Runs the slave process: the 1 kHz force loop on the simulated arm, commanded by a
     /// master over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
     Run(h4_slave::server::cli::RunArgs),
+    /// Draws a recording (MCAP): PNG figures (force against the set-point and its tolerance
+    /// band, force along the path, tracking errors; for sessions the rendered force, the
+    /// passivity observers and the link), metrics.json and index.html.
+    Report(h4_slave::report::ReportArgs),
 }
 
 #[derive(Debug, Args)]
@@ -94,6 +98,7 @@ fn main() -> ExitCode {
         Command::Kin(args) => args.run(),
         Command::Experiment(args) => args.run(),
         Command::Run(args) => args.run(),
+        Command::Report(args) => args.run().map(|_| ()).map_err(|e| e.to_string()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,761 @@
+//! `report`: PNG figures, `metrics.json` and an `index.html` from a recording (MCAP) of an
+//! experiment (`h4-slave experiment --record`), a session (`h4-master sim --record`) or the
+//! processes (`h4-slave run` / `h4-master run` / `loopback --record`).
+//!
+//! The recording is read field by field (JSON messages), so a recording from an older or newer
+//! build still gives the figures whose fields it has. A file cut short (a process killed while
+//! recording) is read up to the last complete message and the report says so.
+//!
+//! Figures, by what the recording holds:
+//! * `/slave/force` (experiments): the true and measured normal force against time with the
+//!   set-point and a ±tolerance band (the paper's figs 6–7), the force along the tool's path,
+//!   and the force and position tracking errors;
+//! * `/master/cycle` + `/slave/cycle` (sessions and processes): the force rendered to the
+//!   operator against the slave's true and measured contact force, both passivity observers
+//!   (sessions), the round trip (processes) and the link's losses over time (`/link/events`).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+use serde::Serialize;
+use serde_json::Value;
+
+/// Why a report could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// The recording could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file is not an MCAP recording, or has no message this report knows.
+    #[error("{path}: {message}")]
+    Recording {
+        /// The file.
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// An output file could not be written.
+    #[error("cannot write {path}: {message}")]
+    Write {
+        /// The file.
+        path: String,
+        /// Why.
+        message: String,
+    },
+}
+
+/// Settings of a report.
+#[derive(Clone, Debug)]
+pub struct ReportOptions {
+    /// Where the files go (created if missing).
+    pub out_dir: PathBuf,
+    /// Half-width of the band drawn around the force set-point, N.
+    pub tolerance_n: f64,
+}
+
+/// What a report wrote.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReportOutput {
+    /// The figures, file names inside the output folder.
+    pub figures: Vec<String>,
+    /// The metrics (also in `metrics.json`).
+    pub metrics: BTreeMap<String, Value>,
+}
+
+/// One topic's messages: time since the recording's first message (s) and the message.
+type Topic = Vec<(f64, Value)>;
+
+/// Reads every complete message; a cut-short file gives what it has, with `truncated` set.
+fn read_topics(path: &Path) -> Result<(BTreeMap<String, Topic>, bool), ReportError> {
+    let bytes = std::fs::read(path).map_err(|source| ReportError::Read {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ReportError::Recording {
+        path: path.display().to_string(),
+        message: format!("not an MCAP file: {e}"),
+    })?;
+    let mut topics: BTreeMap<String, Topic> = BTreeMap::new();
+    let mut first_ns: Option<u64> = None;
+    let mut truncated = false;
+    for msg in stream {
+        let msg = match msg {
+            Ok(m) => m,
+            Err(_) => {
+                truncated = true;
+                break;
+            }
+        };
+        let Ok(value) = serde_json::from_slice::<Value>(&msg.data) else {
+            continue;
+        };
+        let t0 = *first_ns.get_or_insert(msg.log_time);
+        let t_s = msg.log_time.saturating_sub(t0) as f64 * 1e-9;
+        topics
+            .entry(msg.channel.topic.clone())
+            .or_default()
+            .push((t_s, value));
+    }
+    Ok((topics, truncated))
+}
+
+fn num(v: &Value, key: &str) -> Option<f64> {
+    v.get(key).and_then(Value::as_f64)
+}
+
+fn comp(v: &Value, key: &str, i: usize) -> Option<f64> {
+    v.get(key)?.as_array()?.get(i)?.as_f64()
+}
+
+fn norm3_of(v: &Value, key: &str) -> Option<f64> {
+    let a = v.get(key)?.as_array()?;
+    let mut s = 0.0;
+    for x in a.iter().take(3) {
+        let x = x.as_f64()?;
+        s += x * x;
+    }
+    Some(s.sqrt())
+}
+
+/// `(t, f(message))` for every message where `f` has a value.
+fn series(topic: &Topic, f: impl Fn(&Value) -> Option<f64>) -> Vec<(f64, f64)> {
+    topic
+        .iter()
+        .filter_map(|(t, v)| f(v).map(|y| (*t, y)))
+        .filter(|(_, y)| y.is_finite())
+        .collect()
+}
+
+/// A line of a figure.
+struct Line {
+    label: &'static str,
+    color: RGBColor,
+    points: Vec<(f64, f64)>,
+}
+
+/// Keeps at most `2 · buckets` points: the smallest and the largest of each bucket, in order,
+/// so peaks and oscillations survive the thinning.
+fn min_max_thin(points: &[(f64, f64)], buckets: usize) -> Vec<(f64, f64)> {
+    if points.len() <= 2 * buckets {
+        return points.to_vec();
+    }
+    let per = points.len().div_ceil(buckets);
+    let mut out = Vec::with_capacity(2 * buckets);
+    for chunk in points.chunks(per) {
+        let lo = chunk.iter().min_by(|a, b| a.1.total_cmp(&b.1));
+        let hi = chunk.iter().max_by(|a, b| a.1.total_cmp(&b.1));
+        if let (Some(lo), Some(hi)) = (lo, hi) {
+            if lo.0 <= hi.0 {
+                out.extend([*lo, *hi]);
+            } else {
+                out.extend([*hi, *lo]);
+            }
+        }
+    }
+    out
+}
+
+fn bounds(lines: &[Line], extra_y: &[f64]) -> Option<((f64, f64), (f64, f64))> {
+    let mut x = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut y = (f64::INFINITY, f64::NEG_INFINITY);
+    for (px, py) in lines.iter().flat_map(|l| l.points.iter()) {
+        x = (x.0.min(*px), x.1.max(*px));
+        y = (y.0.min(*py), y.1.max(*py));
+    }
+    for v in extra_y {
+        y = (y.0.min(*v), y.1.max(*v));
+    }
+    if !(x.0.is_finite() && y.0.is_finite()) {
+        return None;
+    }
+    if x.1 - x.0 < 1e-9 {
+        x.1 = x.0 + 1.0;
+    }
+    let pad = ((y.1 - y.0) * 0.05).max(1e-6);
+    Some((x, (y.0 - pad, y.1 + pad)))
+}
+
+/// A figure: title, axis names with units, lines, and an optional band `(x, low, high)`.
+struct Figure<'a> {
+    file: &'a str,
+    title: String,
+    x_desc: &'a str,
+    y_desc: &'a str,
+    lines: Vec<Line>,
+    band: Vec<(f64, f64, f64)>,
+}
+
+const WIDTH: u32 = 1200;
+const HEIGHT: u32 = 560;
+const BAND_COLOR: RGBColor = RGBColor(120, 200, 120);
+
+fn draw(fig: &Figure<'_>, dir: &Path) -> Result<bool, ReportError> {
+    let path = dir.join(fig.file);
+    let err = |e: &dyn std::fmt::Display| ReportError::Write {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    };
+    let band_y: Vec<f64> = fig.band.iter().flat_map(|b| [b.1, b.2]).collect();
+    let Some(((x0, x1), (y0, y1))) = bounds(&fig.lines, &band_y) else {
+        return Ok(false);
+    };
+    let root = BitMapBackend::new(&path, (WIDTH, HEIGHT)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(&fig.title, ("sans-serif", 26))
+        .margin(16)
+        .x_label_area_size(48)
+        .y_label_area_size(72)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(fig.x_desc)
+        .y_desc(fig.y_desc)
+        .label_style(("sans-serif", 16))
+        .axis_desc_style(("sans-serif", 18))
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(|e| err(&e))?;
+    if !fig.band.is_empty() {
+        let mut outline: Vec<(f64, f64)> = fig.band.iter().map(|b| (b.0, b.2)).collect();
+        outline.extend(fig.band.iter().rev().map(|b| (b.0, b.1)));
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                outline,
+                BAND_COLOR.mix(0.35).filled(),
+            )))
+            .map_err(|e| err(&e))?
+            .label("set-point ± tolerance")
+            .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 20, y + 6)], BAND_COLOR.filled()));
+    }
+    for line in &fig.lines {
+        let color = line.color;
+        chart
+            .draw_series(LineSeries::new(
+                min_max_thin(&line.points, 3000),
+                color.stroke_width(1),
+            ))
+            .map_err(|e| err(&e))?
+            .label(line.label)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(3)));
+    }
+    chart
+        .configure_series_labels()
+        .label_font(("sans-serif", 16))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|e| err(&e))?;
+    root.present().map_err(|e| err(&e))?;
+    Ok(true)
+}
+
+const C_TRUE: RGBColor = RGBColor(200, 30, 30);
+const C_MEAS: RGBColor = RGBColor(30, 90, 200);
+const C_SET: RGBColor = RGBColor(20, 120, 20);
+const C_MASTER: RGBColor = RGBColor(230, 130, 0);
+const C_OTHER: RGBColor = RGBColor(120, 60, 160);
+
+/// Percentile (0–100) of `v` by nearest rank; NaN for no values.
+fn percentile(v: &[f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let rank = ((p / 100.0) * s.len() as f64).ceil() as usize;
+    s[rank.clamp(1, s.len()) - 1]
+}
+
+fn max_of(points: &[(f64, f64)]) -> f64 {
+    points.iter().map(|p| p.1).fold(f64::NAN, f64::max)
+}
+
+fn min_of(points: &[(f64, f64)]) -> f64 {
+    points.iter().map(|p| p.1).fold(f64::NAN, f64::min)
+}
+
+/// Experiments: force against time with the set-point band, force along the path, errors.
+fn experiment_figures(
+    topics: &BTreeMap<String, Topic>,
+    opts: &ReportOptions,
+    figures: &mut Vec<Figure<'static>>,
+    metrics: &mut BTreeMap<String, Value>,
+) {
+    let Some(force) = topics.get("/slave/force") else {
+        return;
+    };
+    let f_true = series(force, |v| num(v, "fn_true_n"));
+    let f_meas = series(force, |v| num(v, "fn_measured_n"));
+    let set = series(force, |v| num(v, "setpoint_n"));
+    let tol = opts.tolerance_n;
+    let band: Vec<(f64, f64, f64)> = set.iter().map(|(t, s)| (*t, s - tol, s + tol)).collect();
+    figures.push(Figure {
+        file: "force.png",
+        title: "Contact force against time (set-point ± tolerance)".into(),
+        x_desc: "time (s)",
+        y_desc: "normal force (N)",
+        lines: vec![
+            Line {
+                label: "measured force (filtered sensor)",
+                color: C_MEAS,
+                points: f_meas,
+            },
+            Line {
+                label: "true force",
+                color: C_TRUE,
+                points: f_true.clone(),
+            },
+            Line {
+                label: "set-point",
+                color: C_SET,
+                points: set.clone(),
+            },
+        ],
+        band,
+    });
+    // Errors over the whole contact, from the first time the true force reaches half the
+    // set-point: the first touch's transient is kept.
+    let contact_from = f_true
+        .iter()
+        .zip(&set)
+        .find(|((_, f), (_, s))| *s > 0.0 && *f >= 0.5 * s)
+        .map(|((t, _), _)| *t);
+    let err: Vec<(f64, f64)> = f_true
+        .iter()
+        .zip(&set)
+        .filter(|((t, _), _)| contact_from.is_some_and(|c| *t >= c))
+        .map(|((t, f), (_, s))| (*t, f - s))
+        .collect();
+    let abs: Vec<f64> = err.iter().map(|e| e.1.abs()).collect();
+    metrics.insert("first_contact_s".into(), opt_json(contact_from));
+    metrics.insert(
+        "force_error_max_n".into(),
+        json_f(abs.iter().copied().fold(f64::NAN, f64::max)),
+    );
+    metrics.insert("force_error_p99_n".into(), json_f(percentile(&abs, 99.0)));
+    metrics.insert(
+        "force_error_rms_n".into(),
+        json_f((abs.iter().map(|e| e * e).sum::<f64>() / abs.len().max(1) as f64).sqrt()),
+    );
+    metrics.insert("max_force_n".into(), json_f(max_of(&f_true)));
+    metrics.insert("tolerance_n".into(), json_f(tol));
+    if let Some(pose) = topics.get("/slave/pose") {
+        let pos_err = series(pose, |v| {
+            let mut s = 0.0;
+            for i in 0..3 {
+                let d = comp(v, "measured", i)? - comp(v, "commanded", i)?;
+                s += d * d;
+            }
+            Some(s.sqrt())
+        });
+        // Force along the path: distance travelled by the measured tool position.
+        let mut path = Vec::with_capacity(pose.len());
+        let mut dist = 0.0;
+        let mut last: Option<[f64; 3]> = None;
+        for ((_, v), (_, f)) in pose.iter().zip(force.iter()) {
+            let (Some(x), Some(y), Some(z), Some(fv)) = (
+                comp(v, "measured", 0),
+                comp(v, "measured", 1),
+                comp(v, "measured", 2),
+                num(f, "fn_true_n"),
+            ) else {
+                continue;
+            };
+            if let Some(l) = last {
+                dist += ((x - l[0]).powi(2) + (y - l[1]).powi(2) + (z - l[2]).powi(2)).sqrt();
+            }
+            last = Some([x, y, z]);
+            path.push((dist, fv));
+        }
+        metrics.insert("path_length_mm".into(), json_f(dist));
+        figures.push(Figure {
+            file: "force_along_path.png",
+            title: "Contact force along the tool's path".into(),
+            x_desc: "distance travelled (mm)",
+            y_desc: "true normal force (N)",
+            lines: vec![Line {
+                label: "true force",
+                color: C_TRUE,
+                points: path,
+            }],
+            band: Vec::new(),
+        });
+        figures.push(Figure {
+            file: "tracking_error.png",
+            title: "Tracking errors".into(),
+            x_desc: "time (s)",
+            y_desc: "force error (N) / position error (mm)",
+            lines: vec![
+                Line {
+                    label: "force error, true − set-point (N)",
+                    color: C_TRUE,
+                    points: err,
+                },
+                Line {
+                    label: "|measured − commanded position| (mm)",
+                    color: C_OTHER,
+                    points: pos_err,
+                },
+            ],
+            band: Vec::new(),
+        });
+    }
+}
+
+/// Sessions and processes: rendered against slave force, observers, round trip, losses.
+fn teleop_figures(
+    topics: &BTreeMap<String, Topic>,
+    figures: &mut Vec<Figure<'static>>,
+    metrics: &mut BTreeMap<String, Value>,
+) {
+    let master = topics.get("/master/cycle");
+    let slave = topics.get("/slave/cycle");
+    if master.is_none() && slave.is_none() {
+        return;
+    }
+    let mut lines = Vec::new();
+    if let Some(m) = master {
+        let rendered = series(m, |v| norm3_of(v, "rendered_wrench"));
+        metrics.insert("max_master_force_n".into(), json_f(max_of(&rendered)));
+        lines.push(Line {
+            label: "rendered to the operator",
+            color: C_MASTER,
+            points: rendered,
+        });
+    }
+    if let Some(s) = slave {
+        // Session: `true_force_n` (vector) and `wrench_measured`; process: scalars.
+        let true_f = series(s, |v| {
+            norm3_of(v, "true_force_n").or_else(|| num(v, "force_true_n"))
+        });
+        let meas = series(s, |v| {
+            norm3_of(v, "wrench_measured").or_else(|| num(v, "force_measured_n"))
+        });
+        metrics.insert("max_force_n".into(), json_f(max_of(&true_f)));
+        lines.push(Line {
+            label: "slave, measured force",
+            color: C_MEAS,
+            points: meas,
+        });
+        lines.push(Line {
+            label: "slave, true contact force",
+            color: C_TRUE,
+            points: true_f,
+        });
+    }
+    figures.push(Figure {
+        file: "forces.png",
+        title: "Force rendered to the operator and contact force at the slave".into(),
+        x_desc: "time (s)",
+        y_desc: "force magnitude (N)",
+        lines,
+        band: Vec::new(),
+    });
+    let m_obs = master.map(|m| series(m, |v| num(v, "observed_j")));
+    let s_obs = slave.map(|s| series(s, |v| num(v, "observed_j")));
+    let has_obs = m_obs.as_ref().is_some_and(|o| !o.is_empty())
+        || s_obs.as_ref().is_some_and(|o| !o.is_empty());
+    if has_obs {
+        let to_mj = |o: Option<Vec<(f64, f64)>>| -> Vec<(f64, f64)> {
+            o.unwrap_or_default()
+                .into_iter()
+                .map(|(t, e)| (t, e * 1e3))
+                .collect()
+        };
+        let (m_mj, s_mj) = (to_mj(m_obs), to_mj(s_obs));
+        metrics.insert("master_observer_min_mj".into(), json_f(min_of(&m_mj)));
+        metrics.insert("slave_observer_min_mj".into(), json_f(min_of(&s_mj)));
+        figures.push(Figure {
+            file: "observers.png",
+            title: "Passivity observers (energy the link may still release)".into(),
+            x_desc: "time (s)",
+            y_desc: "observed energy (mJ)",
+            lines: vec![
+                Line {
+                    label: "master port",
+                    color: C_MASTER,
+                    points: m_mj,
+                },
+                Line {
+                    label: "slave port",
+                    color: C_MEAS,
+                    points: s_mj,
+                },
+            ],
+            band: Vec::new(),
+        });
+    }
+    link_figure(topics, master, duration_s(topics), figures, metrics);
+}
+
+/// Round trip (when recorded) and messages lost per 100 ms (from `/link/events`).
+fn link_figure(
+    topics: &BTreeMap<String, Topic>,
+    master: Option<&Topic>,
+    duration_s: f64,
+    figures: &mut Vec<Figure<'static>>,
+    metrics: &mut BTreeMap<String, Value>,
+) {
+    let mut lines = Vec::new();
+    if let Some(m) = master {
+        let rtt_ms = series(m, |v| {
+            num(v, "round_trip_us")
+                .map(|us| us * 1e-3)
+                .or_else(|| num(v, "round_trip_ms"))
+        });
+        let rtt: Vec<f64> = rtt_ms.iter().map(|p| p.1).filter(|r| *r > 0.0).collect();
+        if !rtt.is_empty() {
+            metrics.insert("round_trip_p50_ms".into(), json_f(percentile(&rtt, 50.0)));
+            metrics.insert("round_trip_p99_ms".into(), json_f(percentile(&rtt, 99.0)));
+            lines.push(Line {
+                label: "round trip (ms)",
+                color: C_OTHER,
+                points: rtt_ms,
+            });
+        }
+    }
+    if let Some(events) = topics.get("/link/events") {
+        let mut lost: BTreeMap<i64, f64> = BTreeMap::new();
+        let mut total = 0u64;
+        for (t, v) in events {
+            let kind = v
+                .get("event")
+                .and_then(|e| e.get("kind"))
+                .and_then(Value::as_str)
+                .unwrap_or("");
+            if matches!(kind, "lost" | "blacked_out" | "overflowed") {
+                *lost.entry((t / 0.1).floor() as i64).or_default() += 1.0;
+                total += 1;
+            }
+        }
+        // Every 100 ms bin of the recording, the empty ones too.
+        let bins = (duration_s / 0.1).ceil() as i64;
+        for b in 0..bins {
+            lost.entry(b).or_default();
+        }
+        metrics.insert("messages_lost".into(), Value::from(total));
+        lines.push(Line {
+            label: "messages lost per 100 ms",
+            color: C_TRUE,
+            points: lost.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect(),
+        });
+    }
+    if !lines.is_empty() {
+        figures.push(Figure {
+            file: "link.png",
+            title: "The link: round trip and losses".into(),
+            x_desc: "time (s)",
+            y_desc: "ms / messages",
+            lines,
+            band: Vec::new(),
+        });
+    }
+}
+
+/// Time of the recording's last message, s.
+fn duration_s(topics: &BTreeMap<String, Topic>) -> f64 {
+    topics
+        .values()
+        .filter_map(|t| t.last().map(|m| m.0))
+        .fold(0.0, f64::max)
+}
+
+fn json_f(v: f64) -> Value {
+    if v.is_finite() {
+        Value::from(v)
+    } else {
+        Value::Null
+    }
+}
+
+fn opt_json(v: Option<f64>) -> Value {
+    v.map_or(Value::Null, json_f)
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), ReportError> {
+    std::fs::write(path, text).map_err(|e| ReportError::Write {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+fn index_html(title: &str, figures: &[String], metrics: &BTreeMap<String, Value>) -> String {
+    let rows: String = metrics
+        .iter()
+        .map(|(k, v)| {
+            format!(
+                "<tr><td>{}</td><td>{}</td></tr>\n",
+                html_escape(k),
+                html_escape(&v.to_string())
+            )
+        })
+        .collect();
+    let imgs: String = figures
+        .iter()
+        .map(|f| format!("<figure><img src=\"{f}\" alt=\"{f}\"></figure>\n"))
+        .collect();
+    format!(
+        "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n\
+         <style>body{{font-family:sans-serif;margin:2em;max-width:1250px}}\
+         table{{border-collapse:collapse}}td{{border:1px solid #ccc;padding:2px 8px}}\
+         img{{max-width:100%}}</style></head>\n<body><h1>{t}</h1>\n\
+         <h2>Metrics</h2><table>\n{rows}</table>\n<h2>Figures</h2>\n{imgs}</body></html>\n",
+        t = html_escape(title)
+    )
+}
+
+/// Makes the report of `recording` into `opts.out_dir`.
+pub fn report(recording: &Path, opts: &ReportOptions) -> Result<ReportOutput, ReportError> {
+    register_fonts();
+    let (topics, truncated) = read_topics(recording)?;
+    let mut figures = Vec::new();
+    let mut metrics = BTreeMap::new();
+    experiment_figures(&topics, opts, &mut figures, &mut metrics);
+    teleop_figures(&topics, &mut figures, &mut metrics);
+    if figures.is_empty() {
+        let found: Vec<&str> = topics.keys().map(String::as_str).collect();
+        return Err(ReportError::Recording {
+            path: recording.display().to_string(),
+            message: format!(
+                "no topic this report draws (found: {}); expected /slave/force or /master/cycle and /slave/cycle",
+                if found.is_empty() {
+                    "none".to_string()
+                } else {
+                    found.join(", ")
+                }
+            ),
+        });
+    }
+    metrics.insert("duration_s".into(), json_f(duration_s(&topics)));
+    metrics.insert("truncated".into(), Value::from(truncated));
+    for (name, t) in &topics {
+        metrics.insert(format!("messages{name}"), Value::from(t.len()));
+    }
+    std::fs::create_dir_all(&opts.out_dir).map_err(|e| ReportError::Write {
+        path: opts.out_dir.display().to_string(),
+        message: e.to_string(),
+    })?;
+    let mut written = Vec::new();
+    for fig in &figures {
+        if draw(fig, &opts.out_dir)? {
+            written.push(fig.file.to_string());
+        }
+    }
+    let metrics_text = serde_json::to_string_pretty(&metrics).unwrap_or_default() + "\n";
+    write_file(&opts.out_dir.join("metrics.json"), &metrics_text)?;
+    let title = format!(
+        "h4-teleop report: {}",
+        recording
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+    );
+    write_file(
+        &opts.out_dir.join("index.html"),
+        &index_html(&title, &written, &metrics),
+    )?;
+    Ok(ReportOutput {
+        figures: written,
+        metrics,
+    })
+}
+
+/// `report <recording.mcap> [--out DIR] [--tolerance-n N]`, the same in both binaries.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ReportArgs {
+    /// The recording (MCAP) of an experiment, a session or the processes.
+    pub recording: PathBuf,
+    /// Output folder [default: `<recording>-report` beside the recording].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Half-width of the band drawn around the force set-point, N.
+    #[arg(long, default_value_t = 1.0, value_parser = positive_finite)]
+    pub tolerance_n: f64,
+}
+
+fn positive_finite(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("must be a positive finite number, got {v}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+impl ReportArgs {
+    /// Makes the report and prints one line saying where it is.
+    pub fn run(&self) -> Result<ReportOutput, ReportError> {
+        let out_dir = self.out.clone().unwrap_or_else(|| {
+            let stem = self
+                .recording
+                .file_stem()
+                .map_or_else(|| "recording".into(), |s| s.to_string_lossy().into_owned());
+            self.recording.with_file_name(format!("{stem}-report"))
+        });
+        let out = report(
+            &self.recording,
+            &ReportOptions {
+                out_dir: out_dir.clone(),
+                tolerance_n: self.tolerance_n,
+            },
+        )?;
+        println!(
+            "report: {} figures, metrics.json and index.html in {}",
+            out.figures.len(),
+            out_dir.display()
+        );
+        Ok(out)
+    }
+}
+
+/// The embedded font (DejaVu Sans), so the figures have text on any machine.
+fn register_fonts() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // A font that fails to register leaves the figures without text, never without lines.
+        let _ = plotters::style::register_font(
+            "sans-serif",
+            FontStyle::Normal,
+            dejavu::sans::regular(),
+        );
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Bold, dejavu::sans::bold());
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thinning_keeps_the_peaks() {
+        let pts: Vec<(f64, f64)> = (0..10_000)
+            .map(|i| (i as f64, if i == 5_001 { 100.0 } else { (i % 7) as f64 }))
+            .collect();
+        let thin = min_max_thin(&pts, 100);
+        assert!(thin.len() <= 200);
+        assert_eq!(max_of(&thin), 100.0);
+        assert_eq!(min_of(&thin), 0.0);
+        assert!(thin.windows(2).all(|w| w[0].0 <= w[1].0));
+    }
+
+    #[test]
+    fn percentile_by_nearest_rank() {
+        let v: Vec<f64> = (1..=100).map(f64::from).collect();
+        assert_eq!(percentile(&v, 99.0), 99.0);
+        assert_eq!(percentile(&v, 50.0), 50.0);
+        assert!(percentile(&[], 50.0).is_nan());
+    }
+}
