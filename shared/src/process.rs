@@ -1,6 +1,6 @@
 //! Process plumbing for the 1 kHz programs: an orderly-stop flag set by SIGINT/SIGTERM, a
-//! watchdog on the last valid message, and a terminal status line that stays quiet when
-//! the output is not a terminal.
+//! watchdog on the last valid message, a terminal status line that stays quiet when the
+//! output is not a terminal, and the loop options both `run` commands share ([`LoopArgs`]).
 #![allow(unsafe_code)]
 
 use std::io::{IsTerminal, Write};
@@ -173,6 +173,29 @@ pub fn without_cargo_run_env(cmd: &mut std::process::Command) {
             cmd.env_remove(k);
         }
     }
+}
+
+/// What both `run` commands (`h4-slave run`, `h4-master run`) take about their loop: how
+/// long, where the summary and the recording go, real-time settings (flattened into their
+/// clap arguments).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct LoopArgs {
+    /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Write the summary as JSON here (it is also printed on stdout).
+    #[arg(long)]
+    pub summary: Option<std::path::PathBuf>,
+    /// Write an MCAP recording of every cycle here.
+    #[arg(long)]
+    pub record: Option<std::path::PathBuf>,
+    /// Run the loop under SCHED_FIFO at this priority (1–99; needs root or
+    /// CAP_SYS_NICE, otherwise a warning and normal scheduling).
+    #[arg(long)]
+    pub fifo_priority: Option<i32>,
+    /// Lock all memory (mlockall; refused ⇒ a warning).
+    #[arg(long)]
+    pub lock_memory: bool,
 }
 
 #[cfg(test)]

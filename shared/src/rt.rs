@@ -342,6 +342,20 @@ pub fn lock_memory() -> Result<(), RtError> {
     }
 }
 
+/// Applies a process's real-time options: locks memory if `lock`, then puts the calling
+/// thread under `SCHED_FIFO` at `fifo_priority`. A refused setting is not an error: a warning
+/// on stderr says which and why, and the loop runs without it.
+pub fn apply_realtime(fifo_priority: Option<i32>, lock: bool) {
+    if lock && let Err(e) = lock_memory() {
+        eprintln!("warning: {e}");
+    }
+    if let Some(p) = fifo_priority
+        && let Err(e) = set_fifo_priority(p)
+    {
+        eprintln!("warning: {e}");
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

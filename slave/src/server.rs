@@ -15,7 +15,7 @@ use h4_shared::clock::{Clock, MonotonicClock};
 use h4_shared::passivity::PassivityParams;
 use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{LoopReport, Pacer, lock_memory, set_fifo_priority};
+use h4_shared::rt::{LoopReport, Pacer};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
@@ -155,17 +155,8 @@ const CYCLE_SCHEMA: &str = r#"{"type":"object","properties":{
 "contact_normal":{"type":"array","items":{"type":"number"}},
 "command_seq":{"type":"integer"}}}"#;
 
-/// Applies the real-time options, printing a clear message for each one refused.
-pub fn apply_realtime(fifo_priority: Option<i32>, lock: bool) {
-    if lock && let Err(e) = lock_memory() {
-        eprintln!("warning: {e}");
-    }
-    if let Some(p) = fifo_priority
-        && let Err(e) = set_fifo_priority(p)
-    {
-        eprintln!("warning: {e}");
-    }
-}
+/// Moved to h4-shared; kept here until `h4-master`'s loop uses [`h4_shared::rt`] directly.
+pub use h4_shared::rt::apply_realtime;
 
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
@@ -324,167 +315,14 @@ fn norm3(v: &[f64]) -> f64 {
     v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
 }
 
-/// Command-line options shared by `h4-slave run`, `h4-master run` and `h4-master loopback`:
-/// which transport, which arm, and the Zenoh endpoints.
+/// `h4-slave run`'s command-line options.
 #[cfg(feature = "server")]
 pub mod cli {
     use std::path::PathBuf;
 
-    use clap::{Args, ValueEnum};
-    use h4_shared::wire::{Command, Feedback, WireMessage};
-    use h4_transport::Link;
-    use h4_transport::iceoryx2::{self as iox, Iceoryx2Options};
-    use h4_transport::zenoh::{ZenohConfig, ZenohLink, ZenohMode};
-
-    /// The transport between the two processes.
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-    pub enum TransportKind {
-        /// iceoryx2 shared memory (same host).
-        Iceoryx2,
-        /// Eclipse Zenoh (same host or between hosts).
-        Zenoh,
-    }
-
-    /// Transport options.
-    #[derive(Clone, Debug, Args)]
-    pub struct TransportArgs {
-        /// Transport to the other side.
-        #[arg(long, value_enum, default_value_t = TransportKind::Iceoryx2)]
-        pub transport: TransportKind,
-        /// Arm id: selects the iceoryx2 services / Zenoh key expressions `h4/<arm-id>/…`.
-        #[arg(long, default_value_t = 0)]
-        pub arm_id: u16,
-        /// iceoryx2 service name prefix.
-        #[arg(long, default_value = "h4")]
-        pub iceoryx2_prefix: String,
-        /// Zenoh mode: peer or client.
-        #[arg(long, value_parser = ["peer", "client"], default_value = "peer")]
-        pub zenoh_mode: String,
-        /// Zenoh endpoint to listen on (repeatable), e.g. tcp/127.0.0.1:7447. Loopback only
-        /// unless you name another address.
-        #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
-        pub zenoh_listen: Vec<String>,
-        /// Zenoh endpoint to connect to (repeatable), e.g. tcp/127.0.0.1:7447.
-        #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
-        pub zenoh_connect: Vec<String>,
-        /// Zenoh json5 configuration file (TLS, user/password, access control); the options
-        /// above are applied over it.
-        #[arg(long = "zenoh-config", value_name = "FILE")]
-        pub zenoh_config: Option<PathBuf>,
-    }
-
-    impl TransportArgs {
-        /// The arguments that reproduce these options on another command line.
-        pub fn to_args(&self) -> Vec<String> {
-            let mut v = vec![
-                "--transport".to_string(),
-                match self.transport {
-                    TransportKind::Iceoryx2 => "iceoryx2",
-                    TransportKind::Zenoh => "zenoh",
-                }
-                .to_string(),
-                "--arm-id".to_string(),
-                self.arm_id.to_string(),
-                "--iceoryx2-prefix".to_string(),
-                self.iceoryx2_prefix.clone(),
-                "--zenoh-mode".to_string(),
-                self.zenoh_mode.clone(),
-            ];
-            for e in &self.zenoh_listen {
-                v.extend(["--zenoh-listen".to_string(), e.clone()]);
-            }
-            for e in &self.zenoh_connect {
-                v.extend(["--zenoh-connect".to_string(), e.clone()]);
-            }
-            if let Some(f) = &self.zenoh_config {
-                v.extend(["--zenoh-config".to_string(), f.display().to_string()]);
-            }
-            v
-        }
-
-        fn zenoh(&self) -> ZenohConfig {
-            ZenohConfig {
-                mode: if self.zenoh_mode == "client" {
-                    ZenohMode::Client
-                } else {
-                    ZenohMode::Peer
-                },
-                listen: self.zenoh_listen.clone(),
-                connect: self.zenoh_connect.clone(),
-                config_file: self.zenoh_config.as_ref().map(|p| p.display().to_string()),
-                ..ZenohConfig::default()
-            }
-        }
-
-        fn open<Out, In>(
-            &self,
-            iox_open: impl FnOnce(&Iceoryx2Options) -> Result<Box<dyn Link<Out, In>>, String>,
-        ) -> Result<Box<dyn Link<Out, In>>, String>
-        where
-            Out: WireMessage,
-            In: WireMessage,
-        {
-            match self.transport {
-                TransportKind::Iceoryx2 => {
-                    match iox::remove_stale_nodes() {
-                        Ok(0) => {}
-                        Ok(n) => {
-                            eprintln!("iceoryx2: removed the resources of {n} dead process(es)")
-                        }
-                        Err(e) => eprintln!("warning: {e}"),
-                    }
-                    let opts = Iceoryx2Options {
-                        prefix: self.iceoryx2_prefix.clone(),
-                        ..Iceoryx2Options::new(self.arm_id)
-                    };
-                    iox_open(&opts)
-                }
-                TransportKind::Zenoh => ZenohLink::<Out, In>::open(self.arm_id, &self.zenoh())
-                    .map(|l| Box::new(l) as Box<dyn Link<Out, In>>)
-                    .map_err(|e| e.to_string()),
-            }
-        }
-
-        /// Opens the slave's end.
-        pub fn open_slave(&self) -> Result<Box<dyn Link<Feedback, Command>>, String> {
-            self.open(|o| {
-                iox::slave(o)
-                    .map(|l| Box::new(l) as Box<dyn Link<Feedback, Command>>)
-                    .map_err(|e| e.to_string())
-            })
-        }
-
-        /// Opens the master's end.
-        pub fn open_master(&self) -> Result<Box<dyn Link<Command, Feedback>>, String> {
-            self.open(|o| {
-                iox::master(o)
-                    .map(|l| Box::new(l) as Box<dyn Link<Command, Feedback>>)
-                    .map_err(|e| e.to_string())
-            })
-        }
-    }
-
-    /// What both `run` commands take about their loop: how long, where the summary and the
-    /// recording go, real-time settings.
-    #[derive(Clone, Debug, Default, Args)]
-    pub struct LoopArgs {
-        /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
-        #[arg(long)]
-        pub duration_s: Option<f64>,
-        /// Write the summary as JSON here (it is also printed on stdout).
-        #[arg(long)]
-        pub summary: Option<PathBuf>,
-        /// Write an MCAP recording of every cycle here.
-        #[arg(long)]
-        pub record: Option<PathBuf>,
-        /// Run the loop under SCHED_FIFO at this priority (1–99; needs root or
-        /// CAP_SYS_NICE, otherwise a warning and normal scheduling).
-        #[arg(long)]
-        pub fifo_priority: Option<i32>,
-        /// Lock all memory (mlockall; refused ⇒ a warning).
-        #[arg(long)]
-        pub lock_memory: bool,
-    }
+    use clap::Args;
+    use h4_shared::process::LoopArgs;
+    use h4_transport::open::TransportArgs;
 
     /// `h4-slave run`.
     #[derive(Clone, Debug, Args)]
@@ -538,7 +376,7 @@ pub mod cli {
                 }
                 None => h4_shared::passivity::PassivityParams::default(),
             };
-            let mut link = self.transport.open_slave()?;
+            let mut link = self.transport.open_slave().map_err(|e| e.to_string())?;
             let opts = super::RunOptions {
                 passivity,
                 arm_id: self.transport.arm_id,

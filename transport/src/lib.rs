@@ -4,7 +4,8 @@
 //! process, for tests and the lockstep simulation), `iceoryx2` (shared memory on one host)
 //! and `zenoh` (between hosts). [`impair::Impaired`] wraps any link and injects delay,
 //! jitter, loss, duplication, reordering and blackouts; [`gate::Gate`] is the check every
-//! receiver puts in front of its control loop.
+//! receiver puts in front of its control loop. `open` (with both middleware features) opens
+//! a process's end from its command-line options.
 //!
 //! Publishing and receiving never block and allocate nothing per message.
 
@@ -13,6 +14,8 @@ pub mod gate;
 pub mod iceoryx2;
 pub mod impair;
 pub mod inproc;
+#[cfg(all(feature = "iceoryx2", feature = "zenoh"))]
+pub mod open;
 #[cfg(feature = "zenoh")]
 pub mod zenoh;
 

@@ -16,7 +16,8 @@ use h4_slave::experiment::{
     TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
-use h4_slave::server::cli::{LoopArgs, TransportArgs, TransportKind};
+use h4_shared::process::LoopArgs;
+use h4_transport::open::TransportArgs;
 use serde::Serialize;
 
 /// Run the slave and the master as two processes over iceoryx2 for a fixed time and print a
@@ -123,15 +124,7 @@ impl LoopbackArgs {
         let slave_log = work.join("slave.log");
 
         // A prefix of our own: runs side by side never share services.
-        let transport = TransportArgs {
-            transport: TransportKind::Iceoryx2,
-            arm_id: self.arm_id,
-            iceoryx2_prefix: format!("h4-loopback-{pid}"),
-            zenoh_mode: "peer".into(),
-            zenoh_listen: vec![],
-            zenoh_connect: vec![],
-            zenoh_config: None,
-        };
+        let transport = TransportArgs::iceoryx2(self.arm_id, format!("h4-loopback-{pid}"));
         let mut cmd = std::process::Command::new(&slave_bin);
         cmd.arg("run")
             .arg("--config")
