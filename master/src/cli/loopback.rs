@@ -16,7 +16,7 @@ use h4_slave::experiment::{
     TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
-use h4_shared::process::LoopArgs;
+use h4_shared::process::{ExitStatus, LoopArgs};
 use h4_transport::open::TransportArgs;
 use serde::Serialize;
 
@@ -108,7 +108,8 @@ pub struct LoopbackSummary {
 }
 
 impl LoopbackArgs {
-    /// Runs the two processes; exit code 0 if stable, 1 if not.
+    /// Runs the two processes; exit code 0 if stable and in real time, 1 if not, 130 if a
+    /// signal stopped it early.
     pub fn run(self) -> Result<ExitCode, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.config, &self.set)
@@ -219,10 +220,12 @@ impl LoopbackArgs {
 
         let summary = combine(&cfg, duration_s, master, slave);
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
-        Ok(if summary.stable && summary.realtime_ok {
+        Ok(if h4_shared::process::signal_received() {
+            ExitStatus::Interrupted.into()
+        } else if summary.stable && summary.realtime_ok {
             ExitCode::SUCCESS
         } else {
-            ExitCode::from(1)
+            ExitStatus::VerdictFailed.into()
         })
     }
 }

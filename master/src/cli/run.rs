@@ -58,6 +58,8 @@ impl RunArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         let summary = self.run_summary()?;
         h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
-        Ok(ExitCode::SUCCESS)
+        Ok(h4_shared::process::exit_after_run(
+            self.run.duration_s.is_some(),
+        ))
     }
 }
