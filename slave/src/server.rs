@@ -9,13 +9,10 @@
 //! recording is handed to a writer thread through a bounded queue (full queue = counted drop).
 
 use std::path::PathBuf;
-use std::time::Duration;
 
-use h4_shared::clock::{Clock, MonotonicClock};
 use h4_shared::passivity::PassivityParams;
-use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{LoopReport, Pacer};
+use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
@@ -210,16 +207,8 @@ pub fn run<L: Link<Feedback, Command>>(
     )
     .map_err(|e| ServerError::Recording(e.to_string()))?;
 
-    apply_realtime(opts.fifo_priority, opts.lock_memory);
-    let clock = MonotonicClock::new();
-    let mut pacer = Pacer::new(
-        Duration::from_nanos(period_ns),
-        Duration::from_nanos(opts.spin_ns),
-    );
-    let mut status_line = StatusLine::new(4.0);
-    let mut text = String::with_capacity(256);
-    let end_ns = opts.duration_s.map(|s| (s * 1e9) as u64);
-
+    h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
+    let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
     let mut s = SlaveRunSummary {
         force_limit_n: cfg.controller.force_limit_n,
         ..SlaveRunSummary::default()
@@ -227,19 +216,15 @@ pub fn run<L: Link<Feedback, Command>>(
     let mut error_sum = 0.0;
     let mut worst_excess_ms = f64::NEG_INFINITY;
     let mut state = SlaveState::Idle;
-    loop {
-        let tick = pacer.wait();
-        let now = clock.now_ns();
-        if stop_requested() || end_ns.is_some_and(|e| now >= e) {
-            break;
-        }
+    let Ok(()) = rt.run(|cx| {
+        let now = cx.now_ns;
         let c = teleop.step(link, now, dt_s);
         s.energy_min_j = s.energy_min_j.min(c.port.observed_j);
         state = c.state;
         if c.tripped {
             // The trip whose silence most exceeds the loop's own lateness is the one reported.
             let silence_ms = teleop.silence_ns(now).unwrap_or(0) as f64 / 1e6;
-            let lateness_ms = tick.lateness_ns as f64 / 1e6;
+            let lateness_ms = cx.tick.lateness_ns as f64 / 1e6;
             if silence_ms - lateness_ms > worst_excess_ms {
                 worst_excess_ms = silence_ms - lateness_ms;
                 s.safe_stop_entry_silence_ms = silence_ms;
@@ -247,7 +232,7 @@ pub fn run<L: Link<Feedback, Command>>(
             }
         }
         // The simulated arm keeps real time, skipped deadlines included.
-        teleop.arm_mut().advance(period_ns * (1 + tick.missed));
+        teleop.arm_mut().advance(period_ns * (1 + cx.tick.missed));
 
         let out = &c.out;
         let true_force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
@@ -259,12 +244,12 @@ pub fn run<L: Link<Feedback, Command>>(
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
         recorder.push(
-            clock.unix_ns(now),
+            cx.unix_ns,
             CycleRecord {
                 time_ns: now,
                 state: c.state as u8,
                 status: out.status.code(),
-                lateness_us: us(tick.lateness_ns),
+                lateness_us: us(cx.tick.lateness_ns),
                 force_measured_n: out.normal_force_n,
                 force_desired_n: out.setpoint_n,
                 force_true_n: true_force_n,
@@ -274,25 +259,23 @@ pub fn run<L: Link<Feedback, Command>>(
                 command_seq: c.command_seq,
             },
         );
-        if status_line.due(now) {
+        if let Some(line) = &mut cx.status {
             use std::fmt::Write;
-            text.clear();
             let _ = write!(
-                text,
+                line.text,
                 "slave arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | {:?} {:?} | F {:>6.2} N | rejected {}",
                 opts.arm_id,
                 teleop.counters().cycles,
-                us(pacer.lateness.quantile(0.99)),
-                pacer.misses,
+                line.lateness_p99_us,
+                line.misses,
                 c.state,
                 out.status,
                 measured_n,
                 teleop.gate_counters().rejected(),
             );
-            status_line.show(&text);
         }
-    }
-    status_line.finish();
+        Ok::<(), std::convert::Infallible>(())
+    });
     let k = *teleop.counters();
     s.commands_rejected_by_controller = k.commands_rejected_by_controller;
     s.link_errors = k.link_errors;
@@ -305,7 +288,7 @@ pub fn run<L: Link<Feedback, Command>>(
         0.0
     };
     s.final_state = format!("{state:?}");
-    s.run = LoopReport::new(k.cycles, &pacer, clock.now_ns() as f64 / 1e9);
+    s.run = rt.report();
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
