@@ -285,6 +285,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 }
             }
         }
+        self.gate.note_undecodable(link.undecodable());
         let mut repaired = false;
         if fresh {
             self.watchdog.feed(now_ns);

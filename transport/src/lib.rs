@@ -19,7 +19,7 @@ pub mod open;
 #[cfg(feature = "zenoh")]
 pub mod zenoh;
 
-use h4_shared::wire::{Command, Feedback, WireMessage};
+use h4_shared::wire::WireMessage;
 
 /// Why a link operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
@@ -39,7 +39,8 @@ pub enum LinkError {
         /// Which transport.
         transport: &'static str,
     },
-    /// Received bytes could not be decoded (counted and dropped; never delivered).
+    /// Never built (links count undecodable payloads, see [`Link::undecodable`]); goes when
+    /// the master's loop stops matching it.
     #[error("undecodable message: {0}")]
     Decode(h4_shared::wire::WireError),
 }
@@ -60,15 +61,15 @@ pub trait Link<Out: WireMessage, In: WireMessage> {
         }
         Ok(latest)
     }
+
+    /// Received payloads this end dropped because they did not decode (wrong size, version
+    /// or content), in total since it was opened: they are never delivered, so a receiver
+    /// hands this count to its gate ([`gate::Gate::note_undecodable`]). 0 for links that
+    /// carry typed messages and decode nothing (in-process, iceoryx2).
+    fn undecodable(&self) -> u64 {
+        0
+    }
 }
-
-/// The master's end: publishes commands, receives feedback.
-pub trait MasterLink: Link<Command, Feedback> {}
-impl<T: Link<Command, Feedback>> MasterLink for T {}
-
-/// The slave's end: publishes feedback, receives commands.
-pub trait SlaveLink: Link<Feedback, Command> {}
-impl<T: Link<Feedback, Command>> SlaveLink for T {}
 
 impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In> for Box<L> {
     fn publish(&mut self, msg: &Out) -> Result<(), LinkError> {
@@ -76,5 +77,8 @@ impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In>
     }
     fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
         (**self).try_recv()
+    }
+    fn undecodable(&self) -> u64 {
+        (**self).undecodable()
     }
 }
