@@ -127,30 +127,34 @@ pub enum ServerError {
     Teleop(#[from] TeleopError),
 }
 
-/// One cycle as recorded.
-#[derive(Clone, Copy, Debug, Serialize)]
+/// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
+/// `h4.SlaveProcessCycle`; the session simulation records another shape on the same topic,
+/// `h4.SlaveCycle`).
+#[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
 struct CycleRecord {
+    /// The loop's clock, ns since the process's loop started.
     time_ns: u64,
+    /// The endpoint's state (`SlaveState` code: 0 idle, 1 active, 2 safe stop).
     state: u8,
+    /// The controller's status code.
     status: u8,
+    /// How late the loop woke for this cycle, µs.
     lateness_us: f64,
+    /// Measured force along the contact normal, N.
     force_measured_n: f64,
+    /// Force set-point along the contact normal, N.
     force_desired_n: f64,
+    /// True contact force magnitude of the simulated arm, N.
     force_true_n: f64,
+    /// Measured pose of the tool [x, y, z, theta], mm, rad.
     measured_pose: [f64; 4],
+    /// Commanded pose of the tool [x, y, z, theta], mm, rad.
     commanded_pose: [f64; 4],
+    /// Estimated contact normal (unit vector).
     contact_normal: [f64; 3],
+    /// Sequence number of the command acted on.
     command_seq: u64,
 }
-
-const CYCLE_SCHEMA: &str = r#"{"type":"object","properties":{
-"time_ns":{"type":"integer"},"state":{"type":"integer"},"status":{"type":"integer"},
-"lateness_us":{"type":"number"},"force_measured_n":{"type":"number"},
-"force_desired_n":{"type":"number"},"force_true_n":{"type":"number"},
-"measured_pose":{"type":"array","items":{"type":"number"}},
-"commanded_pose":{"type":"array","items":{"type":"number"}},
-"contact_normal":{"type":"array","items":{"type":"number"}},
-"command_seq":{"type":"integer"}}}"#;
 
 /// Moved to h4-shared; kept here until `h4-master`'s loop uses [`h4_shared::rt`] directly.
 pub use h4_shared::rt::apply_realtime;
@@ -199,11 +203,10 @@ pub fn run<L: Link<Feedback, Command>>(
         arm,
         period_ns,
     )?;
-    let mut recorder = BackgroundRecorder::<CycleRecord>::start(
+    let mut recorder = BackgroundRecorder::<CycleRecord>::start_for(
         opts.record.as_deref(),
         "/slave/cycle",
-        "h4.SlaveCycle",
-        CYCLE_SCHEMA,
+        "h4.SlaveProcessCycle",
     )
     .map_err(|e| ServerError::Recording(e.to_string()))?;
 
