@@ -737,8 +737,17 @@ fn a_bad_file_exits_2_in_both_binaries() {
         let out = Proc::new(bin).arg("--help").output().expect("--help");
         let help = String::from_utf8_lossy(&out.stdout);
         assert!(out.status.success(), "{help}");
-        for code in ["0 ok", "1 the run's verdict failed", "2 usage", "130 interrupted"] {
-            assert!(help.contains(code), "{}: {code:?} not in\n{help}", bin.display());
+        for code in [
+            "0 ok",
+            "1 the run's verdict failed",
+            "2 usage",
+            "130 interrupted",
+        ] {
+            assert!(
+                help.contains(code),
+                "{}: {code:?} not in\n{help}",
+                bin.display()
+            );
         }
     }
 }

@@ -19,6 +19,7 @@
 //!   (passive), and faded to zero when feedback stops arriving.
 
 use h4_shared::kinematics::{Pose, Workspace};
+use h4_shared::vec3::{dot3, norm3};
 use h4_shared::wire::{CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION};
 use serde::{Deserialize, Serialize};
 
@@ -147,10 +148,6 @@ pub struct ContactModel {
     last_fb_ns: Option<u64>,
     /// Model force along the normal rendered last cycle, N (slave).
     pub force_n: f64,
-}
-
-fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 impl ContactModel {
@@ -432,10 +429,6 @@ const NORMAL_TIME_CONSTANT_S: f64 = 2.0;
 
 /// Commands remembered for the contact model (≥ the longest round trip in cycles).
 const SENT_HISTORY: usize = 8192;
-
-fn norm3(v: &[f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-}
 
 impl MasterCoupling {
     /// A coupling; the master's first reading becomes its anchor.

@@ -9,6 +9,7 @@
 //! few times a second on a terminal only, and the recording goes through a bounded queue to
 //! a writer thread.
 
+use h4_shared::vec3::norm3;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -224,10 +225,6 @@ const CYCLE_SCHEMA: &str = r#"{"type":"object","title":"h4.MasterProcessCycle","
 
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
-}
-
-fn norm3(v: &[f64]) -> f64 {
-    v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
 }
 
 /// The master side of a session, for `arm_id`.

@@ -6,6 +6,7 @@
 //!
 //! Every field of a session file is documented in `docs/sessions.md`.
 
+use h4_shared::vec3::norm3;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -906,10 +907,6 @@ pub struct Session {
     pub slave: SlaveTeleop<SimArm>,
     master_end: MasterEnd,
     slave_end: SlaveEnd,
-}
-
-fn norm3(v: &[f64]) -> f64 {
-    v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
 }
 
 impl Session {

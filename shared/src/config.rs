@@ -58,6 +58,15 @@ pub trait Validate {
     fn validate(&self) -> Result<(), ConfigError>;
 }
 
+/// One section of a configuration file (`[slave.controller]`, `[coupling]`, …): its own type,
+/// defaults and ranges. A file is only the sections it holds, so one value gets one verdict
+/// wherever it appears.
+pub trait Section {
+    /// Checks every field of the section; `prefix` is the section's dotted path in the file
+    /// with a trailing dot (`"slave.controller."`), so errors name the field as the user wrote it.
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError>;
+}
+
 /// Checks `min ≤ value ≤ max` (and finiteness) for the field at `field`.
 pub fn check_range(
     field: &str,

@@ -12,6 +12,7 @@ pub mod process;
 pub mod recording;
 pub mod rng;
 pub mod rt;
+pub mod vec3;
 pub mod wire;
 
 pub use kinematics::{

@@ -23,6 +23,7 @@
 //!
 //! Units: N, mm/s, s; energies in J (N·mm × 1e-3).
 
+use crate::vec3::dot3;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, check_range};
@@ -180,10 +181,6 @@ impl PortEnergy {
             self.in_j -= e;
         }
     }
-}
-
-fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// The master's port: observer and (force-side) passivity controller.

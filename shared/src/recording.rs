@@ -185,9 +185,9 @@ impl Recorder {
         Ok(ChannelId(id))
     }
 
-    /// Adds a channel on `topic` for messages of type `T`, with the JSON Schema generated from
-    /// `T` ([`json_schema_for`]) under the name `schema_name`: the recorded shape and its
-    /// schema cannot drift apart.
+    /// Adds a channel on `topic` whose messages are `T` serialised as JSON, with the JSON
+    /// Schema generated from `T` itself (so the schema always declares the fields, their types
+    /// and which are required) under the name `schema_name`. Distinct shapes get distinct names.
     pub fn add_channel_for<T: schemars::JsonSchema>(
         &mut self,
         topic: &str,
@@ -350,13 +350,13 @@ pub fn merge(inputs: &[&Path], out: &Path) -> Result<MergeStats, RecordingError>
     Ok(stats)
 }
 
-/// The JSON Schema of `T` as text, generated from the type (fields, their types, their doc
-/// comments as descriptions), titled `schema_name`. The same type gives the same text.
+/// The JSON Schema of `T` as text, generated from the type (fields, their types, which are
+/// required, their doc comments as descriptions); `schema_name` names it in errors. The same
+/// type gives the same text.
 pub fn json_schema_for<T: schemars::JsonSchema>(
     schema_name: &str,
 ) -> Result<String, RecordingError> {
-    let mut schema = schemars::schema_for!(T);
-    schema.insert("title".to_string(), schema_name.into());
+    let schema = schemars::schema_for!(T);
     serde_json::to_string(&schema).map_err(|e| RecordingError::BadSchema {
         schema: schema_name.to_string(),
         message: e.to_string(),
@@ -451,6 +451,45 @@ mod tests {
     #[derive(Serialize)]
     struct Sample {
         t: f64,
+    }
+
+    #[derive(Serialize, schemars::JsonSchema)]
+    struct Typed {
+        /// Force, N.
+        force_n: f64,
+        count: u64,
+    }
+
+    #[test]
+    fn typed_channel_schema_declares_the_fields_as_required() {
+        let mut rec = Recorder::in_memory().unwrap();
+        let ch = rec.add_channel_for::<Typed>("/t", "h4.Typed").unwrap();
+        rec.write(
+            ch,
+            1,
+            &Typed {
+                force_n: 1.5,
+                count: 2,
+            },
+        )
+        .unwrap();
+        let bytes = rec.finish_into_bytes().unwrap();
+        let msg = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap();
+        let schema = msg.channel.schema.as_ref().unwrap();
+        assert_eq!(schema.name, "h4.Typed");
+        let v: serde_json::Value = serde_json::from_slice(&schema.data).unwrap();
+        assert_eq!(v["properties"]["force_n"]["type"], "number");
+        let required: Vec<&str> = v["required"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.as_str().unwrap())
+            .collect();
+        assert_eq!(required, ["force_n", "count"]);
     }
 
     fn record() -> Vec<u8> {

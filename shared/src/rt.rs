@@ -371,11 +371,7 @@ impl RtLoop {
     /// The loop's report now: cycles, misses, lateness, CPU and run time.
     pub fn report(&self) -> LoopReport {
         use crate::clock::Clock;
-        LoopReport::new(
-            self.cycles,
-            &self.pacer,
-            self.clock.now_ns() as f64 / 1e9,
-        )
+        LoopReport::new(self.cycles, &self.pacer, self.clock.now_ns() as f64 / 1e9)
     }
 }
 

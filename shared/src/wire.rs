@@ -4,8 +4,10 @@
 //! shared-memory path sends them as they are. The network path uses the checked
 //! little-endian encoding of [`Command::encode`] / [`Command::decode`]: an 8-byte header
 //! (magic `b"H4"`, protocol version, message kind, body length) and the fields in order.
-//! Decoding rejects a wrong size, magic, kind or version, an unknown mode, unknown flag
-//! bits and every non-finite number, each with its own [`WireError`].
+//! Decoding rejects a wrong size, magic, kind or version, a header body length that does not
+//! match the kind, a non-zero reserved byte, an unknown mode or state, unknown flag bits and
+//! every non-finite number, each with its own [`WireError`]. The byte layout, for clients in
+//! other languages, is in docs/wire.md with test vectors in tests/data/wire_vectors.json.
 
 /// Version of the message layout and encoding. Bump on any change to either.
 pub const PROTOCOL_VERSION: u16 = 1;
@@ -60,6 +62,22 @@ pub enum WireError {
     /// Flag bits that this version does not define are set.
     #[error("unknown flag bits {0:#x}")]
     BadFlags(u16),
+    /// A reserved byte is not zero.
+    #[error("reserved byte {field} is {value}, must be 0")]
+    ReservedSet {
+        /// Which reserved byte (`header.reserved` or `reserved`).
+        field: &'static str,
+        /// Its value.
+        value: u8,
+    },
+    /// The header's body-length field disagrees with the message kind's body size.
+    #[error("header body length {declared} does not match the {expected}-byte body of this kind")]
+    LengthMismatch {
+        /// The body length the header declares.
+        declared: u16,
+        /// The body size of the kind.
+        expected: u16,
+    },
 }
 
 /// What the master asks the slave to do.
@@ -345,8 +363,20 @@ fn read_header<'a>(bytes: &'a [u8], kind: u8, body_len: usize) -> Result<Reader<
             got,
         });
     }
-    let _reserved = r.u8();
-    let _len = r.u16();
+    let reserved = r.u8();
+    if reserved != 0 {
+        return Err(WireError::ReservedSet {
+            field: "header.reserved",
+            value: reserved,
+        });
+    }
+    let declared = r.u16();
+    if usize::from(declared) != body_len {
+        return Err(WireError::LengthMismatch {
+            declared,
+            expected: body_len as u16,
+        });
+    }
     Ok(r)
 }
 
@@ -354,7 +384,8 @@ impl Command {
     /// Size of the encoded command, bytes.
     pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 2 + 8 * 4 * 2 + 8 * 3 + 2 + 2 + 1 + 1 + 2;
 
-    /// Checks a command received over any transport: version, mode, flags and finiteness.
+    /// Checks a command received over any transport: version, mode, reserved byte, flags and
+    /// finiteness.
     pub fn validate(&self) -> Result<(), WireError> {
         if self.protocol_version != PROTOCOL_VERSION {
             return Err(WireError::WrongVersion {
@@ -363,6 +394,12 @@ impl Command {
             });
         }
         Mode::from_u8(self.mode)?;
+        if self.reserved != 0 {
+            return Err(WireError::ReservedSet {
+                field: "reserved",
+                value: self.reserved,
+            });
+        }
         if self.flags & !CMD_FLAGS_KNOWN != 0 {
             return Err(WireError::BadFlags(self.flags & !CMD_FLAGS_KNOWN));
         }
@@ -433,7 +470,8 @@ impl Feedback {
     /// Size of the encoded feedback, bytes.
     pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 4 + 8 * 4 * 3 + 8 * 2 + 2 + 2 + 1 + 1 + 2;
 
-    /// Checks feedback received over any transport: version, state, flags and finiteness.
+    /// Checks feedback received over any transport: version, state, reserved byte, flags and
+    /// finiteness.
     pub fn validate(&self) -> Result<(), WireError> {
         if self.protocol_version != PROTOCOL_VERSION {
             return Err(WireError::WrongVersion {
@@ -442,6 +480,12 @@ impl Feedback {
             });
         }
         SlaveState::from_u8(self.state)?;
+        if self.reserved != 0 {
+            return Err(WireError::ReservedSet {
+                field: "reserved",
+                value: self.reserved,
+            });
+        }
         if self.fault_flags & !FAULT_FLAGS_KNOWN != 0 {
             return Err(WireError::BadFlags(self.fault_flags & !FAULT_FLAGS_KNOWN));
         }

@@ -21,6 +21,7 @@
 
 use h4_shared::kinematics::{Actuators, H4Params, Pose};
 use h4_shared::rng::Rng;
+use h4_shared::vec3::dot3;
 use nalgebra::{Matrix4, Vector3, Vector4};
 use serde::{Deserialize, Serialize};
 
@@ -947,9 +948,6 @@ fn clamp_sel(x: f64, lo: f64, hi: f64) -> f64 {
 
 /// `a · b` for 3-vectors.
 #[inline]
-fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
 
 /// Two unit vectors that complete the unit vector `n` to a right-handed orthonormal frame
 /// `(n, t1, t2)`: `t1` from the axis least aligned with `n`.

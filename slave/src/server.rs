@@ -8,6 +8,7 @@
 //! fixed-size, the status line is formatted only a few times a second on a terminal, and the
 //! recording is handed to a writer thread through a bounded queue (full queue = counted drop).
 
+use h4_shared::vec3::norm3;
 use std::path::PathBuf;
 
 use h4_shared::passivity::PassivityParams;
@@ -295,8 +296,4 @@ pub fn run<L: Link<Feedback, Command>>(
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
-}
-
-fn norm3(v: &[f64]) -> f64 {
-    v.iter().take(3).map(|x| x * x).sum::<f64>().sqrt()
 }

@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use clap::{Args, ValueEnum};
 use h4_shared::wire::{Command, Feedback, WireMessage};
 
+use crate::Link;
 use crate::iceoryx2::{self as iox, Iceoryx2Error, Iceoryx2Options};
 use crate::zenoh::{ZenohConfig, ZenohError, ZenohLink, ZenohMode};
-use crate::Link;
 
 /// Why a link end could not be opened.
 #[derive(Debug, thiserror::Error)]

@@ -11,12 +11,12 @@ use std::time::{Duration, Instant};
 
 use h4_master::server::MasterRunSummary;
 use h4_master::session::{self, SessionConfig};
+use h4_shared::process::{ExitStatus, LoopArgs};
 use h4_slave::experiment::{
     ApproachConfig, Axis, ExperimentConfig, ForceConfig, ShapeKind, SummaryConfig, SurfaceConfig,
     TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
-use h4_shared::process::{ExitStatus, LoopArgs};
 use h4_transport::open::TransportArgs;
 use serde::Serialize;
 

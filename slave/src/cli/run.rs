@@ -50,8 +50,7 @@ impl h4_shared::config::Validate for PassivityFile {
 impl RunArgs {
     /// Runs the slave process until stopped; prints and writes the summary.
     pub fn run(self) -> Result<ExitCode, String> {
-        h4_shared::process::install_stop_handlers()
-            .map_err(|e| format!("signal handlers: {e}"))?;
+        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg: ExperimentConfig =
             h4_shared::config::load(&self.config, &self.set).map_err(|e| e.to_string())?;
         let passivity = match &self.passivity_config {
