@@ -946,9 +946,6 @@ fn clamp_sel(x: f64, lo: f64, hi: f64) -> f64 {
     if y < hi { y } else { hi }
 }
 
-/// `a · b` for 3-vectors.
-#[inline]
-
 /// Two unit vectors that complete the unit vector `n` to a right-handed orthonormal frame
 /// `(n, t1, t2)`: `t1` from the axis least aligned with `n`.
 fn tangent_basis(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
