@@ -13,10 +13,9 @@ use h4_shared::vec3::norm3;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use h4_shared::clock::{Clock, MonotonicClock};
-use h4_shared::process::{StatusLine, stop_requested};
+use h4_shared::process::stop_requested;
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{Histogram, LoopReport, Pacer};
+use h4_shared::rt::{Histogram, LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::{Link, LinkError};
 use serde::{Deserialize, Serialize};
@@ -161,7 +160,7 @@ impl<L: Link<Command, Feedback>> Link<Command, Feedback> for Watched<L> {
     }
 
     fn try_recv(&mut self) -> Result<Option<Feedback>, LinkError> {
-        // Bounded: undecodable messages are skipped (counted), at most a queue's worth.
+        // Bounded: at most a queue's worth per call.
         for _ in 0..256 {
             match self.inner.try_recv() {
                 Ok(Some(fb)) => {
@@ -183,10 +182,6 @@ impl<L: Link<Command, Feedback>> Link<Command, Feedback> for Watched<L> {
                     return Ok(Some(fb));
                 }
                 Ok(None) => return Ok(None),
-                Err(LinkError::Decode(_)) => {
-                    self.received += 1;
-                    self.invalid += 1;
-                }
                 Err(_) => {
                     self.link_errors += 1;
                     return Ok(None);
@@ -195,33 +190,36 @@ impl<L: Link<Command, Feedback>> Link<Command, Feedback> for Watched<L> {
         }
         Ok(None)
     }
+
+    fn undecodable(&self) -> u64 {
+        self.inner.undecodable()
+    }
 }
 
-/// One master cycle as recorded.
-#[derive(Clone, Copy, Debug, Serialize)]
+/// One master cycle as recorded (topic `/master/cycle`, schema `h4.MasterProcessCycle`).
+#[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
 struct CycleRecord {
+    /// The loop's clock, ns since the loop started.
     time_ns: u64,
+    /// How late the loop woke for this cycle, µs.
     lateness_us: f64,
+    /// Handle pose [x, y, z, theta], mm, rad.
     pose: [f64; 4],
+    /// The operator's hand on the handle [Fx, Fy, Fz, My], N, N·mm.
     hand_wrench: [f64; 4],
+    /// Wrench applied by the device [Fx, Fy, Fz, My], N, N·mm.
     rendered_wrench: [f64; 4],
+    /// Fade factor of the rendered force (1 full, 0 faded out).
     fade: f64,
+    /// The slave's target sent this cycle [x, y, z, theta], mm, rad.
     slave_target: [f64; 4],
+    /// The slave's measured force in the newest valid feedback, N.
     slave_force_n: [f64; 3],
+    /// The slave's state in the newest valid feedback (`SlaveState` code).
     slave_state: u8,
+    /// The newest round trip, µs.
     round_trip_us: f64,
 }
-
-const CYCLE_SCHEMA: &str = r#"{"type":"object","title":"h4.MasterProcessCycle","properties":{
-"time_ns":{"type":"integer"},"lateness_us":{"type":"number"},
-"pose":{"type":"array","items":{"type":"number"},"description":"handle [x,y,z,theta] mm, rad"},
-"hand_wrench":{"type":"array","items":{"type":"number"}},
-"rendered_wrench":{"type":"array","items":{"type":"number"},"description":"applied by the device, N, N·mm"},
-"fade":{"type":"number"},
-"slave_target":{"type":"array","items":{"type":"number"}},
-"slave_force_n":{"type":"array","items":{"type":"number"},"description":"newest valid feedback"},
-"slave_state":{"type":"integer"},
-"round_trip_us":{"type":"number","description":"newest round trip"}}}"#;
 
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
@@ -263,26 +261,97 @@ pub fn run_then<L: Link<Command, Feedback>>(
         link_errors: 0,
         latest_valid: None,
     };
-    let mut recorder = BackgroundRecorder::<CycleRecord>::start(
+    let mut recorder = BackgroundRecorder::<CycleRecord>::start_for(
         opts.record.as_deref(),
         "/master/cycle",
         "h4.MasterProcessCycle",
-        CYCLE_SCHEMA,
     )
     .map_err(|e| MasterRunError::Recording(e.to_string()))?;
 
-    h4_slave::server::apply_realtime(opts.fifo_priority, opts.lock_memory);
-    let mut s = MasterRunSummary::default();
-    let mut cycles = 0u64;
+    h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
+    let mut s = MasterRunSummary {
+        waited_for_slave_s: wait_for_slave(&mut link.inner, opts)?,
+        ..MasterRunSummary::default()
+    };
+    let period_ns = opts.period_ns.max(1);
+    let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
+    let mut stats = RenderStats::new(cfg.scale.force);
+    rt.run(|cx| {
+        let now = cx.now_ns;
+        link.now_ns = now;
+        let m = side.step(&mut link, now)?;
+        side.device.advance(period_ns * (1 + cx.tick.missed));
+        s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
+        let fade = m.step.fade;
+        let force = stats.rendered(&mut s, &m.rendered, fade);
+        let (slave_force, slave_state) = stats.slave(&mut s, link.latest_valid.as_ref());
+        stats.transparency(&m.rendered, &slave_force, fade, &mut s);
+        recorder.push(
+            cx.unix_ns,
+            CycleRecord {
+                time_ns: now,
+                lateness_us: us(cx.tick.lateness_ns),
+                pose: m.device.pose,
+                hand_wrench: m.hand.wrench,
+                rendered_wrench: m.rendered,
+                fade,
+                slave_target: m.step.slave_target,
+                slave_force_n: slave_force,
+                slave_state,
+                round_trip_us: us(link.last_round_trip_ns),
+            },
+        );
+        if let Some(line) = &mut cx.status {
+            use std::fmt::Write;
+            let _ = write!(
+                line.text,
+                "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | rtt p99 {:>7.1} us | F {:>6.2} N | fade {:.2} | slave {}",
+                opts.arm_id,
+                cx.cycles,
+                line.lateness_p99_us,
+                line.misses,
+                us(link.round_trip.quantile(0.99)),
+                force,
+                fade,
+                state_name(slave_state),
+            );
+        }
+        s.final_rendered_force_n = force;
+        s.final_fade = fade;
+        Ok::<(), MasterRunError>(())
+    })?;
+    at_loop_end();
+    let r = &link.round_trip;
+    s.round_trip_samples = r.count();
+    s.round_trip_p50_us = us(r.quantile(0.5));
+    s.round_trip_p99_us = us(r.quantile(0.99));
+    s.round_trip_p999_us = us(r.quantile(0.999));
+    s.round_trip_max_us = us(r.max());
+    // Payloads the link dropped undecoded were received and are invalid.
+    let undecodable = link.inner.undecodable();
+    s.feedback_received = link.received + undecodable;
+    s.feedback_invalid = link.invalid + undecodable;
+    s.link_errors = link.link_errors;
+    s.force_transparency_err_pct = stats.transparency_err_pct();
+    s.run = rt.report();
+    s.recording_dropped = recorder.dropped();
+    recorder.finish().map_err(MasterRunError::Recording)?;
+    Ok(s)
+}
 
-    // Wait for the slave (its feedback) before the operator's script starts.
+/// Waits for the slave's first valid feedback (at most `opts.wait_for_slave_s`; 0: not at
+/// all, or until a stop request); returns how long it waited, s.
+fn wait_for_slave<L: Link<Command, Feedback>>(
+    link: &mut L,
+    opts: &MasterRunOptions,
+) -> Result<f64, MasterRunError> {
     let wait = std::time::Instant::now();
     if opts.wait_for_slave_s > 0.0 {
         loop {
             if stop_requested() {
                 break;
             }
-            if let Ok(Some(fb)) = link.inner.try_recv()
+            if let Ok(Some(fb)) = link.try_recv()
                 && fb.validate().is_ok()
                 && fb.arm_id == opts.arm_id
             {
@@ -294,58 +363,64 @@ pub fn run_then<L: Link<Command, Feedback>>(
             std::thread::sleep(Duration::from_millis(1));
         }
     }
-    s.waited_for_slave_s = wait.elapsed().as_secs_f64();
+    Ok(wait.elapsed().as_secs_f64())
+}
 
-    let clock = MonotonicClock::new();
-    let period_ns = opts.period_ns.max(1);
-    let mut pacer = Pacer::new(
-        Duration::from_nanos(period_ns),
-        Duration::from_nanos(opts.spin_ns),
-    );
-    let mut status_line = StatusLine::new(4.0);
-    let mut text = String::with_capacity(256);
-    let end_ns = opts.duration_s.map(|d| (d * 1e9) as u64);
-    let force_scale = cfg.scale.force;
-    let mut prev_fade = 0.0;
-    let mut fading_out = false;
-    let mut prev_force = 0.0;
-    let mut trans_abs = 0.0;
-    let mut trans_ref = 0.0;
-    loop {
-        let tick = pacer.wait();
-        let now = clock.now_ns();
-        if stop_requested() || end_ns.is_some_and(|e| now >= e) {
-            break;
+/// The master loop's running statistics of the rendered force, the feedback-loss fade and
+/// the force transparency (booked into the summary cycle by cycle).
+struct RenderStats {
+    force_scale: f64,
+    prev_fade: f64,
+    fading_out: bool,
+    prev_force_n: f64,
+    transparency_abs_n: f64,
+    transparency_ref_n: f64,
+}
+
+impl RenderStats {
+    fn new(force_scale: f64) -> Self {
+        RenderStats {
+            force_scale,
+            prev_fade: 0.0,
+            fading_out: false,
+            prev_force_n: 0.0,
+            transparency_abs_n: 0.0,
+            transparency_ref_n: 0.0,
         }
-        link.now_ns = now;
-        let m = side.step(&mut link, now)?;
-        side.device.advance(period_ns * (1 + tick.missed));
-        s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
+    }
 
-        let force = norm3(&m.rendered);
+    /// Books the rendered wrench and the fade of one cycle; returns the rendered force, N.
+    fn rendered(&mut self, s: &mut MasterRunSummary, rendered: &[f64; 4], fade: f64) -> f64 {
+        let force = norm3(rendered);
         s.max_rendered_force_n = s.max_rendered_force_n.max(force);
-        s.max_rendered_force_step_n = s.max_rendered_force_step_n.max((force - prev_force).abs());
-        prev_force = force;
-        let fade = m.step.fade;
-        if fade < prev_fade && !fading_out {
-            fading_out = true;
+        s.max_rendered_force_step_n = s
+            .max_rendered_force_step_n
+            .max((force - self.prev_force_n).abs());
+        self.prev_force_n = force;
+        if fade < self.prev_fade && !self.fading_out {
+            self.fading_out = true;
             s.feedback_losses += 1;
-        } else if fade > prev_fade && fading_out {
-            fading_out = false;
+        } else if fade > self.prev_fade && self.fading_out {
+            self.fading_out = false;
             s.feedback_restored += 1;
         } else if fade >= 1.0 {
-            fading_out = false;
+            self.fading_out = false;
         }
         if fade <= 0.0 && s.feedback_losses > 0 {
-            if prev_fade > 0.0 {
+            if self.prev_fade > 0.0 {
                 s.faded_out += 1;
             }
             s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(force);
         }
-        prev_fade = fade;
+        self.prev_fade = fade;
+        force
+    }
+
+    /// Books the newest valid feedback; returns the slave's measured force, N, and state code.
+    fn slave(&mut self, s: &mut MasterRunSummary, latest: Option<&Feedback>) -> ([f64; 3], u8) {
         let mut slave_force = [0.0; 3];
         let mut slave_state = SlaveState::Idle as u8;
-        if let Some(fb) = &link.latest_valid {
+        if let Some(fb) = latest {
             slave_force = [
                 fb.wrench_measured[0],
                 fb.wrench_measured[1],
@@ -356,73 +431,39 @@ pub fn run_then<L: Link<Command, Feedback>>(
                 s.slave_safe_state_cycles += 1;
             }
         }
-        let fs = norm3(&slave_force);
-        s.max_slave_force_n = s.max_slave_force_n.max(fs);
+        s.max_slave_force_n = s.max_slave_force_n.max(norm3(&slave_force));
+        (slave_force, slave_state)
+    }
+
+    /// Books one cycle's force transparency: in contact (slave force above 1 N) with full
+    /// fade, |F_rendered / scale.force − F_slave| against |F_slave|.
+    fn transparency(
+        &mut self,
+        rendered: &[f64; 4],
+        slave_force: &[f64; 3],
+        fade: f64,
+        s: &mut MasterRunSummary,
+    ) {
+        let fs = norm3(slave_force);
         if fs > 1.0 && fade >= 1.0 {
             s.contact_cycles += 1;
             let mut d = [0.0; 3];
             for (i, di) in d.iter_mut().enumerate() {
-                *di = m.rendered[i] / force_scale - slave_force[i];
+                *di = rendered[i] / self.force_scale - slave_force[i];
             }
-            trans_abs += norm3(&d);
-            trans_ref += fs;
+            self.transparency_abs_n += norm3(&d);
+            self.transparency_ref_n += fs;
         }
-        recorder.push(
-            clock.unix_ns(now),
-            CycleRecord {
-                time_ns: now,
-                lateness_us: us(tick.lateness_ns),
-                pose: m.device.pose,
-                hand_wrench: m.hand.wrench,
-                rendered_wrench: m.rendered,
-                fade,
-                slave_target: m.step.slave_target,
-                slave_force_n: slave_force,
-                slave_state,
-                round_trip_us: us(link.last_round_trip_ns),
-            },
-        );
-        cycles += 1;
-        if status_line.due(now) {
-            use std::fmt::Write;
-            text.clear();
-            let _ = write!(
-                text,
-                "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | rtt p99 {:>7.1} us | F {:>6.2} N | fade {:.2} | slave {}",
-                opts.arm_id,
-                cycles,
-                us(pacer.lateness.quantile(0.99)),
-                pacer.misses,
-                us(link.round_trip.quantile(0.99)),
-                force,
-                fade,
-                state_name(slave_state),
-            );
-            status_line.show(&text);
-        }
-        s.final_rendered_force_n = force;
-        s.final_fade = fade;
     }
-    at_loop_end();
-    status_line.finish();
-    let r = &link.round_trip;
-    s.round_trip_samples = r.count();
-    s.round_trip_p50_us = us(r.quantile(0.5));
-    s.round_trip_p99_us = us(r.quantile(0.99));
-    s.round_trip_p999_us = us(r.quantile(0.999));
-    s.round_trip_max_us = us(r.max());
-    s.feedback_received = link.received;
-    s.feedback_invalid = link.invalid;
-    s.link_errors = link.link_errors;
-    s.force_transparency_err_pct = if trans_ref > 0.0 {
-        100.0 * trans_abs / trans_ref
-    } else {
-        0.0
-    };
-    s.run = LoopReport::new(cycles, &pacer, clock.now_ns() as f64 / 1e9);
-    s.recording_dropped = recorder.dropped();
-    recorder.finish().map_err(MasterRunError::Recording)?;
-    Ok(s)
+
+    /// Σ|F_rendered / scale.force − F_slave| over Σ|F_slave|, %, or 0 without contact.
+    fn transparency_err_pct(&self) -> f64 {
+        if self.transparency_ref_n > 0.0 {
+            100.0 * self.transparency_abs_n / self.transparency_ref_n
+        } else {
+            0.0
+        }
+    }
 }
 
 /// A slave state code as a word.

@@ -157,9 +157,6 @@ struct CycleRecord {
     command_seq: u64,
 }
 
-/// Moved to h4-shared; kept here until `h4-master`'s loop uses [`h4_shared::rt`] directly.
-pub use h4_shared::rt::apply_realtime;
-
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
 }

@@ -39,10 +39,6 @@ pub enum LinkError {
         /// Which transport.
         transport: &'static str,
     },
-    /// Never built (links count undecodable payloads, see [`Link::undecodable`]); goes when
-    /// the master's loop stops matching it.
-    #[error("undecodable message: {0}")]
-    Decode(h4_shared::wire::WireError),
 }
 
 /// One end of a master ↔ slave link: it publishes `Out` and receives `In`.
