@@ -160,35 +160,31 @@ impl<L: Link<Command, Feedback>> Link<Command, Feedback> for Watched<L> {
     }
 
     fn try_recv(&mut self) -> Result<Option<Feedback>, LinkError> {
-        // Bounded: at most a queue's worth per call.
-        for _ in 0..256 {
-            match self.inner.try_recv() {
-                Ok(Some(fb)) => {
-                    self.received += 1;
-                    if fb.validate().is_err() || fb.arm_id != self.arm_id {
-                        self.invalid += 1;
-                    } else {
-                        self.latest_valid = Some(fb);
-                        let now = self.now_ns;
-                        if fb.echo_seq > self.last_echo_seq
-                            && fb.echo_send_time_ns > 0
-                            && fb.echo_send_time_ns <= now
-                        {
-                            self.last_echo_seq = fb.echo_seq;
-                            self.last_round_trip_ns = now - fb.echo_send_time_ns;
-                            self.round_trip.record(self.last_round_trip_ns);
-                        }
+        match self.inner.try_recv() {
+            Ok(Some(fb)) => {
+                self.received += 1;
+                if fb.validate().is_err() || fb.arm_id != self.arm_id {
+                    self.invalid += 1;
+                } else {
+                    self.latest_valid = Some(fb);
+                    let now = self.now_ns;
+                    if fb.echo_seq > self.last_echo_seq
+                        && fb.echo_send_time_ns > 0
+                        && fb.echo_send_time_ns <= now
+                    {
+                        self.last_echo_seq = fb.echo_seq;
+                        self.last_round_trip_ns = now - fb.echo_send_time_ns;
+                        self.round_trip.record(self.last_round_trip_ns);
                     }
-                    return Ok(Some(fb));
                 }
-                Ok(None) => return Ok(None),
-                Err(_) => {
-                    self.link_errors += 1;
-                    return Ok(None);
-                }
+                Ok(Some(fb))
+            }
+            Ok(None) => Ok(None),
+            Err(_) => {
+                self.link_errors += 1;
+                Ok(None)
             }
         }
-        Ok(None)
     }
 
     fn undecodable(&self) -> u64 {
