@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use h4_shared::clock::{Clock, SimClock};
-use h4_shared::config::{ArmConfig, ConfigError, Validate, check_range};
+use h4_shared::config::{ArmConfig, ConfigError, Section, Validate, check_range};
 use h4_shared::kinematics::Pose;
 use h4_shared::passivity::PassivityParams;
 use h4_shared::recording::{ChannelId, Recorder, RecordingError};

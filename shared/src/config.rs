@@ -242,9 +242,10 @@ impl Validate for ArmConfig {
     }
 }
 
-impl ArmConfig {
-    /// Validates, naming fields under `prefix` (e.g. `"arm."`).
-    pub fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+impl Section for ArmConfig {
+    /// Checks the geometry, the actuator stiffness and the workspace limits, naming fields
+    /// under `prefix` (e.g. `"arm."`).
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         self.geometry.params().validate().map_err(|e| match e {
             KinError::InvalidParameter {
                 name,

@@ -22,6 +22,7 @@
 
 use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::process::Watchdog;
+use h4_shared::vec3::norm3;
 use h4_shared::wire::{
     Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, Feedback, Mode,
     PROTOCOL_VERSION, SlaveState,
@@ -30,8 +31,8 @@ use h4_transport::Link;
 use h4_transport::gate::{Gate, GateCounters};
 use serde::Serialize;
 
+use crate::arm::ArmDriver;
 use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
-use crate::plant::ArmDriver;
 
 /// Settings of the endpoint.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -260,7 +261,9 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         self.watchdog.silence_ns(now_ns)
     }
 
-    /// One cycle at `now_ns` of `dt_s` seconds on `link`.
+    /// One cycle at `now_ns` of `dt_s` seconds on `link`: receive, watchdog, the command
+    /// to follow, the passivity port, the controller and the arm, the port's booking, the
+    /// feedback.
     pub fn step<L: Link<Feedback, Command>>(
         &mut self,
         link: &mut L,
@@ -268,6 +271,44 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
+        let fresh = self.receive(link, now_ns);
+        let (repaired, tripped) = self.watch(fresh, now_ns);
+        let intent = self.follow(dt_s);
+        let port = self.shape_command(&intent, dt_s);
+        let input = ControllerInput {
+            actuators_mm: reading.actuators_mm,
+            wrench: reading.wrench,
+            command: port.command,
+        };
+        let out = self.ctrl.step(&input, dt_s);
+        self.flag_faults(&out);
+        self.arm.command(&out.actuators_cmd_mm);
+        self.book(&out, &intent, &port, dt_s);
+        self.last_out = Some(out);
+        let command_seq = self.publish(link, &out, now_ns);
+        self.counters.cycles += 1;
+        let energy = self.port.energy;
+        TeleopCycle {
+            out,
+            port: port.step,
+            desired_mm: self.desired,
+            commanded_pose: port.command.pose,
+            drift_mm: port.drift_mm,
+            mode: intent.mode,
+            state: self.state,
+            fault_flags: self.faults,
+            fresh,
+            tripped,
+            repaired,
+            energy_in_j: energy.in_j,
+            energy_out_j: energy.out_j,
+            dissipated_j: energy.dissipated_j,
+            command_seq,
+        }
+    }
+
+    /// Drains the link through the receive gate; returns whether a valid command arrived.
+    fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> bool {
         let mut fresh = false;
         loop {
             match link.try_recv() {
@@ -286,6 +327,12 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             }
         }
         self.gate.note_undecodable(link.undecodable());
+        fresh
+    }
+
+    /// The watchdog: a fresh command feeds it (and re-pairs after a safe stop); silence
+    /// while active trips it into the safe stop. Returns (re-paired, tripped) this cycle.
+    fn watch(&mut self, fresh: bool, now_ns: u64) -> (bool, bool) {
         let mut repaired = false;
         if fresh {
             self.watchdog.feed(now_ns);
@@ -310,8 +357,14 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 self.counters.safe_stop_entry_silence_ms.max(silence_ms);
             tripped = true;
         }
+        (repaired, tripped)
+    }
+
+    /// What the master asks for this cycle (Hold when not active), and the desired
+    /// position it moves (anchored on the first command of a motion, so there is no jump).
+    fn follow(&mut self, dt_s: f64) -> Intent {
         let active = self.state == SlaveState::Active;
-        let (mode, clutch, setpoint, cmd_vel) = match (&self.latest, active) {
+        let (mode, clutch, setpoint_n, velocity) = match (&self.latest, active) {
             (Some(c), true) => (
                 c.mode().unwrap_or(Mode::Hold),
                 c.clutch(),
@@ -320,7 +373,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             ),
             _ => (Mode::Hold, false, 0.0, [0.0; 4]),
         };
-        let mut v_d = [0.0; 3];
+        let mut desired_velocity = [0.0; 3];
         if let Some(c) = &self.latest
             && active
             && !clutch
@@ -333,7 +386,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 self.desired = [c.pose[0], c.pose[1], c.pose[2]];
                 self.anchored = true;
             }
-            for (i, v) in v_d.iter_mut().enumerate() {
+            for (i, v) in desired_velocity.iter_mut().enumerate() {
                 *v = (c.pose[i] - self.desired[i]) / dt_s;
                 self.desired[i] = c.pose[i];
             }
@@ -342,6 +395,19 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             // While holding the arm stays where it is; re-anchor on the next motion.
             self.anchored = false;
         }
+        Intent {
+            mode,
+            clutch,
+            setpoint_n,
+            velocity,
+            desired_velocity,
+        }
+    }
+
+    /// The passivity port's step (position mode: observer, and controller when enabled)
+    /// and the controller command it gives, its speed limited.
+    fn shape_command(&mut self, intent: &Intent, dt_s: f64) -> PortCommand {
+        let mode = intent.mode;
         let force = self.last_out.map_or([0.0; 3], |o| {
             [
                 o.wrench_measured[0],
@@ -349,7 +415,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 o.wrench_measured[2],
             ]
         });
-        let control = self.p.passivity.enabled && mode == Mode::Position && !clutch;
+        let control = self.p.passivity.enabled && mode == Mode::Position && !intent.clutch;
         let max_v = self.ctrl.params().max_speed_mm_per_s * self.p.speed_margin;
         let held = self.last_out.map_or(self.desired, |o| {
             [
@@ -358,19 +424,20 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 o.commanded_pose[2],
             ]
         });
+        let v_d = intent.desired_velocity;
         let ps = if mode == Mode::Position {
             self.port
                 .step_position(held, self.desired, v_d, force, max_v, dt_s, control)
         } else {
             self.port.clear_drift();
             AdmittanceStep {
-                velocity_mm_per_s: [cmd_vel[0], cmd_vel[1], cmd_vel[2]],
+                velocity_mm_per_s: [intent.velocity[0], intent.velocity[1], intent.velocity[2]],
                 target_mm: self.desired,
                 admittance_mm_per_n_s: 0.0,
                 observed_j: self.port.observed_j(),
             }
         };
-        let drift = self.port.drift_mm;
+        let drift_mm = self.port.drift_mm;
         let pose = [
             ps.target_mm[0],
             ps.target_mm[1],
@@ -378,24 +445,31 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             self.desired_theta,
         ];
         let mut vel = ps.velocity_mm_per_s;
-        let speed = (vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]).sqrt();
+        let speed = norm3(&vel);
         if speed > max_v {
             for v in vel.iter_mut() {
                 *v *= max_v / speed;
             }
         }
-        let input = ControllerInput {
-            actuators_mm: reading.actuators_mm,
-            wrench: reading.wrench,
+        PortCommand {
+            step: ps,
+            control,
+            force_n: force,
+            drift_mm,
             command: SlaveCommand {
                 mode,
                 pose,
                 velocity: [vel[0], vel[1], vel[2], 0.0],
-                force_setpoint_n: setpoint.clamp(0.0, self.ctrl.params().force_limit_n),
-                clutch,
+                force_setpoint_n: intent
+                    .setpoint_n
+                    .clamp(0.0, self.ctrl.params().force_limit_n),
+                clutch: intent.clutch,
             },
-        };
-        let out = self.ctrl.step(&input, dt_s);
+        }
+    }
+
+    /// The fault flags of the controller's output: a rejected command, the force limit.
+    fn flag_faults(&mut self, out: &ControllerOutput) {
         if out.rejection.is_some() {
             self.counters.commands_rejected_by_controller += 1;
             self.faults |= FAULT_COMMAND_REJECTED;
@@ -407,9 +481,13 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         } else {
             self.faults &= !FAULT_FORCE_LIMIT;
         }
-        self.arm.command(&out.actuators_cmd_mm);
-        // The port books the motion actually commanded (the controller's rate limits and
-        // holds included) against the force the arm measured.
+    }
+
+    /// The port books the motion actually commanded (the controller's rate limits and
+    /// holds included) against the force the arm measured. Only position mode closes a
+    /// loop through the link: in force-guided mode the contact force is the slave's own
+    /// force loop's, and nothing measured is rendered.
+    fn book(&mut self, out: &ControllerOutput, intent: &Intent, port: &PortCommand, dt_s: f64) {
         let moved = self.last_out.map_or([0.0; 3], |o| {
             [
                 (out.commanded_pose[0] - o.commanded_pose[0]) / dt_s,
@@ -417,18 +495,24 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 (out.commanded_pose[2] - o.commanded_pose[2]) / dt_s,
             ]
         });
-        // Only position mode closes a loop through the link: in force-guided mode the
-        // contact force is the slave's own force loop's, and nothing measured is rendered.
-        if mode == Mode::Position {
-            self.port.commit(force, moved, dt_s);
-            if control {
+        if intent.mode == Mode::Position {
+            self.port.commit(port.force_n, moved, dt_s);
+            if port.control {
                 self.port.hand_back(dt_s);
             }
         }
-        self.last_out = Some(out);
+    }
+
+    /// Publishes this cycle's feedback (with the port's energies); returns the sequence
+    /// number of the newest accepted command it echoes (0: none).
+    fn publish<L: Link<Feedback, Command>>(
+        &mut self,
+        link: &mut L,
+        out: &ControllerOutput,
+        now_ns: u64,
+    ) -> u64 {
         self.seq += 1;
         let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));
-        let energy = self.port.energy;
         let fb = Feedback {
             seq: self.seq,
             send_time_ns: now_ns,
@@ -438,7 +522,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             wrench_measured: out.wrench_measured,
             wrench_desired: out.wrench_desired,
             energy_in_j: self.port.available_to_remote_j(),
-            energy_out_j: energy.out_j,
+            energy_out_j: self.port.energy.out_j,
             protocol_version: PROTOCOL_VERSION,
             arm_id: self.p.arm_id,
             state: self.state as u8,
@@ -451,32 +535,46 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 Err(_) => self.counters.link_errors += 1,
             }
         }
-        self.counters.cycles += 1;
-        TeleopCycle {
-            out,
-            port: ps,
-            desired_mm: self.desired,
-            commanded_pose: pose,
-            drift_mm: drift,
-            mode,
-            state: self.state,
-            fault_flags: self.faults,
-            fresh,
-            tripped,
-            repaired,
-            energy_in_j: energy.in_j,
-            energy_out_j: energy.out_j,
-            dissipated_j: energy.dissipated_j,
-            command_seq: echo_seq,
-        }
+        echo_seq
     }
+}
+
+/// What the master asks for this cycle.
+struct Intent {
+    /// The mode acted on (Hold when not active).
+    mode: Mode,
+    /// The operator's clutch.
+    clutch: bool,
+    /// The force set-point, N.
+    setpoint_n: f64,
+    /// The commanded velocity `[vx, vy, vz, ω]`, mm/s and rad/s.
+    velocity: [f64; 4],
+    /// The velocity of the desired position this cycle, mm/s.
+    desired_velocity: [f64; 3],
+}
+
+/// The passivity port's step and the controller command it gives.
+struct PortCommand {
+    /// The port's step.
+    step: AdmittanceStep,
+    /// The port's controller acts (passivity on, position mode, no clutch).
+    control: bool,
+    /// The force the port books against, N (last cycle's measurement).
+    force_n: [f64; 3],
+    /// The port's drift (commanded − desired), mm.
+    drift_mm: [f64; 3],
+    /// The controller's command.
+    command: SlaveCommand,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::controller::ControllerParams;
-    use crate::plant::{MaterialPreset, PlantConfig, SensorConfig, SimArm, Surface, SurfaceShape};
+    use crate::plant::{
+        MaterialPreset, PlantConfig, SensorConfig, ShapeKind, SimArm, SurfaceConfig,
+    };
+    use crate::world::SlaveWorld;
     use h4_shared::config::ArmConfig;
     use h4_shared::kinematics::Pose;
     use h4_transport::inproc::{self, InprocEnd};
@@ -484,27 +582,18 @@ mod tests {
     const PERIOD_NS: u64 = 1_000_000;
 
     fn endpoint(passivity: bool) -> SlaveTeleop<SimArm> {
-        let arm_cfg = ArmConfig::default();
-        let ws = arm_cfg.workspace();
-        let assumed = arm_cfg.stiffness().unwrap();
-        let surface = Surface {
-            shape: SurfaceShape::Plane {
-                point_mm: [0.0, 0.0, -260.0],
-                normal: [0.0, 0.0, 1.0],
-            },
-            material: MaterialPreset::Resin.material(),
+        let world = SlaveWorld {
+            arm: ArmConfig::default(),
+            surface: SurfaceConfig::new(
+                ShapeKind::Plane,
+                MaterialPreset::Resin,
+                [0.0, 0.0, -260.0],
+            ),
+            sensor: SensorConfig::default(),
+            plant: PlantConfig::default(),
+            controller: ControllerParams::default(),
         };
-        let arm = SimArm::new(
-            ws.params,
-            arm_cfg.actuator_stiffness_n_per_mm,
-            PlantConfig::default(),
-            SensorConfig::default(),
-            surface,
-            Pose::new(0.0, 0.0, -250.0, 0.0),
-            1,
-        )
-        .unwrap();
-        let ctrl = SlaveController::new(ws, assumed, ControllerParams::default());
+        let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
         let mut p = TeleopParams::default();
         p.passivity.enabled = passivity;
         SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap()

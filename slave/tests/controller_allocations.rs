@@ -6,9 +6,9 @@
 use h4_shared::alloc_count::{CountingAllocator, count_allocations};
 use h4_shared::config;
 use h4_shared::wire::Mode;
-use h4_slave::controller::{ControllerInput, SlaveCommand, SlaveController, Status};
+use h4_slave::arm::ArmDriver;
+use h4_slave::controller::{ControllerInput, SlaveCommand, Status};
 use h4_slave::experiment::ExperimentConfig;
-use h4_slave::plant::{ArmDriver, SimArm};
 
 #[global_allocator]
 static GLOBAL: CountingAllocator = CountingAllocator;
@@ -20,20 +20,9 @@ fn ten_thousand_controller_steps_allocate_nothing() {
         "/../config/experiments/fig6b.toml"
     );
     let cfg: ExperimentConfig = config::load(std::path::Path::new(path), &[]).unwrap();
-    let ws = cfg.arm.workspace();
     let p = cfg.surface.contact_point_mm;
     let start = h4_shared::Pose::new(p[0], p[1], p[2] + 2.0, 0.0);
-    let mut arm = SimArm::new(
-        ws.params,
-        cfg.arm.actuator_stiffness_n_per_mm,
-        cfg.plant,
-        cfg.sensor,
-        cfg.surface(),
-        start,
-        1,
-    )
-    .unwrap();
-    let mut ctrl = SlaveController::new(ws, cfg.arm.stiffness().unwrap(), cfg.controller);
+    let (mut arm, mut ctrl) = cfg.world().build(start, 1).unwrap();
     let mut statuses = std::collections::BTreeSet::new();
     let mut steps = 0u64;
     let mut allocations = 0u64;

@@ -27,19 +27,11 @@ impl Rig {
         );
         let overrides: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
         let cfg: ExperimentConfig = config::load(std::path::Path::new(path), &overrides).unwrap();
-        let ws = cfg.arm.workspace();
         let p = cfg.surface.contact_point_mm;
-        let arm = SimArm::new(
-            ws.params,
-            cfg.arm.actuator_stiffness_n_per_mm,
-            cfg.plant,
-            cfg.sensor,
-            cfg.surface(),
-            Pose::new(p[0], p[1], p[2] + 2.0, 0.0),
-            3,
-        )
-        .unwrap();
-        let ctrl = SlaveController::new(ws, cfg.arm.stiffness().unwrap(), cfg.controller);
+        let (arm, ctrl) = cfg
+            .world()
+            .build(Pose::new(p[0], p[1], p[2] + 2.0, 0.0), 3)
+            .unwrap();
         Rig { arm, ctrl, cfg }
     }
 

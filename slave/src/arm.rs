@@ -1,0 +1,28 @@
+//! The driver boundary: what the slave controller needs of an arm. A real robot's driver
+//! implements [`ArmDriver`] (read the four actuator encoders and the force/torque sensor,
+//! write four actuator position set-points); so does the simulation,
+//! [`crate::plant::SimArm`].
+
+use serde::Serialize;
+
+/// One reading of the arm's sensors.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ArmReading {
+    /// Time of the reading, ns (the simulated clock for [`SimArm`]).
+    pub time_ns: u64,
+    /// Actuator positions from the encoders, mm (carriage positions: they do not see the
+    /// structure's deflection).
+    pub actuators_mm: [f64; 4],
+    /// Wrench on the tool `[Fx_n, Fy_n, Fz_n, My_n_mm]` in the base frame, as the sensor
+    /// reports it after its digital low-pass filter (bias not removed).
+    pub wrench: [f64; 4],
+}
+
+/// What the slave controller needs of an arm: a real robot's driver implements this.
+pub trait ArmDriver {
+    /// The latest encoder positions and (filtered) force/torque reading.
+    fn read(&mut self) -> ArmReading;
+    /// New position set-points for the four actuator servos, mm. The driver may refuse
+    /// non-finite values (the simulation keeps the previous set-point).
+    fn command(&mut self, actuators_mm: &[f64; 4]);
+}

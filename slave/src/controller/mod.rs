@@ -1,0 +1,561 @@
+//! The slave's 1 kHz controller: a pure step, no clock reads, no I/O, no allocation, no
+//! panic.
+//!
+//! * **Position** mode follows the commanded pose with velocity and acceleration limits
+//!   (per axis), through the checked inverse kinematics of the [`Workspace`].
+//! * **ForceGuided** mode is the paper's implicit force control (§3, figures 2 and 3): the
+//!   contact normal comes from the measured force (with the friction component along the
+//!   tracking direction removed), the tracking direction is the commanded direction of
+//!   motion projected onto the tangent plane (figure 2), and the position command moves
+//!   into the surface by the compliance times the force error,
+//!   `Δd = c · (ΔF_r + k_p Δe + k_i e dt)`, with `c = nᵀ Λ(x) n + ĉ_env`: the arm's
+//!   compliance along the normal from the kinematics (with the *assumed* actuator
+//!   stiffness) plus the environment's compliance, estimated online by recursive least
+//!   squares on force and position increments (as in Chiaverini–Siciliano–Villani's
+//!   stiffness adaptation). `F_r` is the set-point after a critically damped second-order
+//!   prefilter, fed forward. Before contact the arm approaches the commanded pose at the
+//!   approach speed; on contact loss it re-approaches along the last normal, without a jump.
+//! * **Hold** (or the clutch) holds the commanded pose.
+//! * [`SlaveController::safe_stop`] ramps the force to zero, retracts along the contact
+//!   normal and holds.
+//!
+//! Limits always hold: commanded set-points above the force limit, speeds above the speed
+//! limit, non-finite inputs and poses outside the workspace are rejected with a
+//! [`Rejection`] (the actuators then hold their last valid command); a measured force above
+//! the limit makes the arm back off; the command moves no faster than the speed limit.
+//!
+//! One [`SlaveController::step`] is the sequence of the controller's concerns, each a module
+//! with its own state:
+//! 1. the inputs are checked, the encoders' forward kinematics taken; the first cycles tare
+//!    the force sensor ([`tare`]);
+//! 2. this cycle's measurements: the arm's compliance at the measured pose ([`arm_model`]),
+//!    the filtered position and force pushed into the motion window ([`window`]);
+//! 3. a safe stop overrides the command ([`safe_stop`]); the command is checked against
+//!    the limits ([`guards`]);
+//! 4. Hold holds, Position follows the trajectory ([`position`]), ForceGuided approaches
+//!    and touches ([`contact`]), then in contact: the contact normal ([`normal`]), the
+//!    tracking direction ([`tracking`]), the gain schedule ([`gain_schedule`]), the
+//!    set-point prefilter and the environment-stiffness estimate ([`estimator`]), the
+//!    deflection compensation ([`deflection`]), the force law ([`force_law`]) with the
+//!    oscillation guard, the input shaping of the motion into the surface ([`shaping`]),
+//!    the motion along the surface, the force guards, the contact loss;
+//! 5. the next commanded pose is checked against the workspace and committed.
+
+mod arm_model;
+mod contact;
+mod deflection;
+mod estimator;
+mod force_law;
+mod gain_schedule;
+mod guards;
+mod interface;
+mod normal;
+mod params;
+mod position;
+mod safe_stop;
+mod shaping;
+mod tare;
+mod tracking;
+mod window;
+
+pub use interface::{ControllerInput, ControllerOutput, Rejection, SlaveCommand, Status};
+pub use params::ControllerParams;
+
+use h4_shared::kinematics::{ActuatorStiffness, Pose, Workspace};
+use h4_shared::wire::Mode;
+use nalgebra::{Vector3, Vector4};
+
+use arm_model::{ArmModel, CycleCompliance, along_normal};
+use contact::ContactState;
+use deflection::DeflectionComp;
+use estimator::StiffnessEstimator;
+use force_law::{ForceLaw, ForceLawInputs, SetpointPrefilter};
+use gain_schedule::GainSchedule;
+use guards::OscillationGuard;
+use normal::{NormalEstimate, NormalInputs};
+use position::PositionTrajectory;
+use safe_stop::{SafeStop, SafeStopStep};
+use shaping::InputShaper;
+use tare::SensorTare;
+use tracking::Tracking;
+use window::MotionWindow;
+
+/// This cycle's measurements, derived once at the start of the step.
+#[derive(Clone, Copy, Debug)]
+struct Cycle {
+    /// The step's period (at most 0.1 s), s.
+    dt_s: f64,
+    /// Forward kinematics of the encoders.
+    pose_fk: Pose,
+    /// `pose_fk` plus the deflection under the wrench (with the compliance model).
+    measured_pose: Pose,
+    /// The wrench with the sensor bias removed, N and N·mm.
+    wrench: Vector4<f64>,
+    /// Its force, N.
+    f3: Vector3<f64>,
+    /// The force's magnitude, N.
+    f_mag: f64,
+    /// The position filtered like the force, mm.
+    xf: [f64; 3],
+    /// The arm's compliance at `pose_fk`.
+    compliance: CycleCompliance,
+}
+
+/// The slave controller. Build it once; call [`SlaveController::step`] every cycle.
+#[derive(Clone, Debug)]
+pub struct SlaveController {
+    arm: ArmModel,
+    p: ControllerParams,
+    /// Steps taken with valid inputs.
+    cycles: u64,
+    /// The command starts from the measured pose at the first step.
+    initialised: bool,
+    /// The commanded pose, without the deflection compensation.
+    x_cmd: Pose,
+    /// The actuator commands of the commanded pose with the compensation, mm.
+    l_cmd: [f64; 4],
+    tare: SensorTare,
+    window: MotionWindow,
+    safe: SafeStop,
+    position: PositionTrajectory,
+    contact: ContactState,
+    normal: NormalEstimate,
+    tracking: Tracking,
+    setpoint: SetpointPrefilter,
+    estimator: StiffnessEstimator,
+    deflection: DeflectionComp,
+    force_law: ForceLaw,
+    oscillation: OscillationGuard,
+    shaper: InputShaper,
+    last: ControllerOutput,
+}
+
+impl SlaveController {
+    /// A controller for the arm `ws` whose actuators it assumes to have stiffness
+    /// `assumed_stiffness`.
+    pub fn new(
+        ws: Workspace,
+        assumed_stiffness: ActuatorStiffness,
+        params: ControllerParams,
+    ) -> Self {
+        let estimator = StiffnessEstimator::new(&params);
+        let c_env = estimator.c_env;
+        SlaveController {
+            arm: ArmModel::new(ws, assumed_stiffness),
+            p: params,
+            cycles: 0,
+            initialised: false,
+            x_cmd: Pose::zeros(),
+            l_cmd: [0.0; 4],
+            tare: SensorTare::new(),
+            window: MotionWindow::new(params.sensor_filter_cutoff_hz),
+            safe: SafeStop::new(),
+            position: PositionTrajectory::new(),
+            contact: ContactState::new(),
+            normal: NormalEstimate::new(),
+            tracking: Tracking::new(),
+            setpoint: SetpointPrefilter::new(),
+            estimator,
+            deflection: DeflectionComp::new(),
+            force_law: ForceLaw::new(),
+            oscillation: OscillationGuard::new(),
+            shaper: InputShaper::new(),
+            last: ControllerOutput {
+                actuators_cmd_mm: [0.0; 4],
+                commanded_pose: [0.0; 4],
+                measured_pose: [0.0; 4],
+                contact_normal: [0.0; 3],
+                tracking_direction: [0.0; 3],
+                wrench_measured: [0.0; 4],
+                wrench_desired: [0.0; 4],
+                normal_force_n: 0.0,
+                setpoint_n: 0.0,
+                env_stiffness_n_per_mm: 1.0 / c_env,
+                compliance_mm_per_n: c_env,
+                status: Status::Taring,
+                rejection: None,
+            },
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ControllerParams {
+        &self.p
+    }
+
+    /// Starts a safe stop (for a watchdog): the force set-point ramps to zero, the arm
+    /// retracts along the contact normal by `safe_stop_retract_mm`, then holds. Commands
+    /// are ignored until [`SlaveController::clear_safe_stop`].
+    pub fn safe_stop(&mut self) {
+        if !self.safe.active() {
+            self.safe.start(
+                self.contact.in_contact,
+                self.setpoint.value_n,
+                self.p.safe_stop_ramp_s,
+            );
+            self.position.stop();
+        }
+    }
+
+    /// True while a safe stop is in progress or holding.
+    pub fn is_safe_stopped(&self) -> bool {
+        self.safe.active()
+    }
+
+    /// Leaves the safe stop; the next command is followed from the current pose.
+    pub fn clear_safe_stop(&mut self) {
+        self.safe.clear();
+        self.position.stop();
+        self.contact.leave();
+    }
+
+    /// One control cycle of `dt_s` seconds (normally 0.001).
+    pub fn step(&mut self, input: &ControllerInput, dt_s: f64) -> ControllerOutput {
+        if !inputs_finite(input, dt_s) {
+            return self.reject(Rejection::NonFiniteInput);
+        }
+        let dt = dt_s.min(0.1);
+        self.cycles += 1;
+        let pose_fk = match self.arm.ws.params.fk(&Vector4::from(input.actuators_mm)) {
+            Ok(p) => p,
+            Err(e) => return self.reject(Rejection::MeasuredPose(e)),
+        };
+        if !self.initialised {
+            self.initialise(pose_fk, input.actuators_mm);
+        }
+        let raw = Vector4::from(input.wrench);
+        if self.tare.taring(self.p.tare_cycles) {
+            return self.tare_step(pose_fk, raw);
+        }
+        // Out of force control the deflection compensation fades out (no jump).
+        if !(self.contact.in_contact && input.command.mode == Mode::ForceGuided) {
+            self.deflection.fade();
+        }
+        self.window.follow_period(dt_s);
+        let cx = self.measure(pose_fk, raw - self.tare.bias, dt);
+        let mut cmd = input.command;
+        let safe_stopping = match self.safe.step(
+            &input.command,
+            &self.x_cmd,
+            &mut self.normal.normal,
+            cx.f3,
+            &self.p,
+            dt,
+        ) {
+            SafeStopStep::Inactive => false,
+            SafeStopStep::RampDown(ramped) => {
+                cmd = ramped;
+                true
+            }
+            SafeStopStep::Move { next, status } => {
+                self.contact.in_contact = false;
+                return self.commit(next, &cx, 0.0, status);
+            }
+        };
+        let speed = match guards::check_command(&cmd, &self.p, &self.arm.ws) {
+            Ok(speed) => speed,
+            Err(r) => return self.reject(r),
+        };
+        if cmd.mode != Mode::ForceGuided {
+            self.contact.leave();
+        }
+        if cmd.mode == Mode::Hold || cmd.clutch {
+            self.hold(&cx, safe_stopping)
+        } else if cmd.mode == Mode::Position {
+            let (next, status) =
+                self.position
+                    .step(&self.x_cmd, &cmd.pose, &cx, self.estimator.c_env, &self.p);
+            self.commit(next, &cx, 0.0, status)
+        } else {
+            self.force_guided(&cmd, speed, &cx, safe_stopping)
+        }
+    }
+
+    fn reject(&mut self, r: Rejection) -> ControllerOutput {
+        let mut out = self.last;
+        out.status = Status::Rejected;
+        out.rejection = Some(r);
+        out
+    }
+
+    /// The first valid cycle: the command starts where the arm is.
+    fn initialise(&mut self, pose_fk: Pose, actuators_mm: [f64; 4]) {
+        self.x_cmd = pose_fk;
+        self.l_cmd = actuators_mm;
+        self.initialised = true;
+        self.window.reset([pose_fk[0], pose_fk[1], pose_fk[2]]);
+    }
+
+    /// A cycle of the sensor's tare: the arm holds still.
+    fn tare_step(&mut self, pose_fk: Pose, raw: Vector4<f64>) -> ControllerOutput {
+        self.tare.add(raw);
+        let mut out = self.output(pose_fk, raw - self.tare.bias, 0.0, Status::Taring);
+        out.actuators_cmd_mm = self.l_cmd;
+        self.last = out;
+        out
+    }
+
+    /// This cycle's measurements from the encoders' pose and the bias-corrected wrench.
+    fn measure(&mut self, pose_fk: Pose, wrench: Vector4<f64>, dt: f64) -> Cycle {
+        let f3 = Vector3::new(wrench[0], wrench[1], wrench[2]);
+        let compliance = self.arm.at(&pose_fk, self.p.compliance_model);
+        let measured_pose = compliance.deflected(pose_fk, &wrench);
+        let xf = self.window.push(&pose_fk, f3);
+        Cycle {
+            dt_s: dt,
+            pose_fk,
+            measured_pose,
+            wrench,
+            f3,
+            f_mag: f3.norm(),
+            xf,
+            compliance,
+        }
+    }
+
+    /// Hold mode or the clutch: the command holds (backing off above the force limit).
+    fn hold(&mut self, cx: &Cycle, safe_stopping: bool) -> ControllerOutput {
+        self.position.stop();
+        let status = if safe_stopping {
+            Status::SafeStop
+        } else {
+            Status::Holding
+        };
+        let mut next = self.x_cmd;
+        if cx.f_mag > self.p.force_limit_n {
+            guards::back_off(&mut next, cx, self.estimator.c_env, &self.p);
+        }
+        self.commit(next, cx, 0.0, status)
+    }
+
+    /// ForceGuided mode: theta follows the command, rate limited; the approach until the
+    /// touch, then the force loop.
+    fn force_guided(
+        &mut self,
+        cmd: &SlaveCommand,
+        speed: f64,
+        cx: &Cycle,
+        safe_stopping: bool,
+    ) -> ControllerOutput {
+        self.position.stop();
+        let dt = cx.dt_s;
+        let mut next = self.x_cmd;
+        let dth = (cmd.pose[3] - next[3]).clamp(
+            -self.p.max_theta_rate_rad_per_s * dt,
+            self.p.max_theta_rate_rad_per_s * dt,
+        );
+        next[3] += dth;
+        if !self.contact.in_contact {
+            if self.contact.touches(cx.f_mag, self.p.contact_threshold_n) {
+                self.touch(cx);
+            } else {
+                let status =
+                    self.contact
+                        .approach(&mut next, &cmd.pose, &self.normal.normal, &self.p, dt);
+                self.tracking.tangent = Vector3::zeros();
+                let status = if safe_stopping {
+                    Status::SafeStop
+                } else {
+                    status
+                };
+                return self.commit(next, cx, 0.0, status);
+            }
+        }
+        self.contact.count_cycle();
+        let (c, status) = self.control_force(&mut next, cmd, speed, cx);
+        let status = if safe_stopping {
+            Status::SafeStop
+        } else {
+            status
+        };
+        self.commit(next, cx, c, status)
+    }
+
+    /// First touch (or touch again): bumpless start of the force loop along the force's
+    /// direction, at the force measured.
+    fn touch(&mut self, cx: &Cycle) {
+        self.normal.normal = cx.f3 / cx.f_mag;
+        self.setpoint.reset(cx.f_mag);
+        self.deflection.touch();
+        self.force_law.touch();
+        self.oscillation.touch();
+        self.shaper.clear();
+        self.tracking.reset_speed();
+        let c_arm = along_normal(cx.compliance.lambda.as_ref(), &self.normal.normal);
+        self.estimator.touch(
+            &self.window,
+            &self.normal.normal,
+            c_arm,
+            self.cycles,
+            &self.p,
+        );
+    }
+
+    /// One cycle of force control in contact, moving `next`; returns the compliance along
+    /// the normal the loop used and the state.
+    fn control_force(
+        &mut self,
+        next: &mut Pose,
+        cmd: &SlaveCommand,
+        speed: f64,
+        cx: &Cycle,
+    ) -> (f64, Status) {
+        let dt = cx.dt_s;
+        let lambda = cx.compliance.lambda.as_ref();
+        // The normal, corrected for the depth change along the last one.
+        let c_prev = along_normal(lambda, &self.normal.normal) + self.estimator.c_env;
+        let inputs = NormalInputs {
+            xf: cx.xf,
+            f3: cx.f3,
+            c_prev_mm_per_n: c_prev,
+            c_env_mm_per_n: self.estimator.c_env,
+            speed_mm_per_s: speed,
+            contact_cycles: self.contact.contact_cycles,
+        };
+        self.normal.update(&self.window, &inputs, &self.p, dt);
+        let n = self.normal.normal;
+        let f_n = cx.f3.dot(&n);
+        let vt_n = self.tracking.direct(&n, &cmd.velocity, speed);
+        // The compliance along the normal: the arm's (model) plus the environment's
+        // (estimate); the gains scheduled on it.
+        let c_arm = along_normal(lambda, &n);
+        let gains = GainSchedule::at(c_arm, self.estimator.c_env, &self.p);
+        let d_sp = self
+            .setpoint
+            .step(cmd.force_setpoint_n, self.p.setpoint_time_constant_s, dt);
+        let contact_cycles = self.contact.contact_cycles;
+        self.estimator
+            .update(&self.window, &n, cx.xf, c_arm, contact_cycles, &self.p);
+        let c = c_arm + self.estimator.c_env;
+        let sp = self.setpoint.value_n;
+        let tau_comp = self.p.deflection_comp_time_constant_s;
+        let full = cx.compliance.full.as_ref();
+        self.deflection.update(full, &n, f_n, sp, tau_comp, dt);
+        // The force law, its motion into the surface shaped (a force-limit back-off goes
+        // out unshaped), plus the motion along the surface.
+        let law_inputs = ForceLawInputs { f_n, sp, d_sp, c };
+        let law = self
+            .force_law
+            .step(&law_inputs, &gains, &mut self.oscillation, &self.p, dt);
+        let env_share = (1.0 / self.estimator.c_env.max(1e-9)) / gains.k_par_n_per_mm;
+        let d_shaped = self
+            .shaper
+            .shape(law.d_depth_mm, gains.omega_m_rad_per_s, env_share, dt);
+        let d_depth = if law.limited {
+            law.d_depth_mm
+        } else {
+            d_shaped
+        };
+        let mut status = if law.limited {
+            Status::ForceLimited
+        } else {
+            Status::Contact
+        };
+        let target_speed = if self.contact.lost {
+            0.0
+        } else {
+            vt_n.min(self.p.max_speed_mm_per_s)
+        };
+        let mut mv = -n * d_depth;
+        mv += self.tracking.advance(target_speed, &self.p, dt);
+        let dmax = self.p.max_speed_mm_per_s * dt;
+        let mvn = mv.norm();
+        if mvn > dmax {
+            mv *= dmax / mvn;
+        }
+        for i in 0..3 {
+            next[i] += mv[i];
+        }
+        // The limits.
+        let c_measured = guards::measured_compliance(c_arm, cx, &n, &self.estimator, &self.p);
+        let comp = self.deflection.comp;
+        if guards::force_guard(next, cx, law.f_peak_n, &n, &comp, c_measured, &self.p) {
+            status = Status::ForceLimited;
+        }
+        if guards::magnitude_limit(next, cx, self.estimator.c_env, &self.p) {
+            status = Status::ForceLimited;
+        }
+        if self.contact.loses(f_n, cmd.force_setpoint_n, &self.p) {
+            self.force_law.e_prev_n = 0.0;
+            self.tracking.tangent = Vector3::zeros();
+            status = Status::ContactLost;
+        }
+        (c, status)
+    }
+
+    fn output(
+        &self,
+        pose_fk: Pose,
+        wrench: Vector4<f64>,
+        c: f64,
+        status: Status,
+    ) -> ControllerOutput {
+        let n = self.normal.normal;
+        let t = self.tracking.tangent;
+        let comp = self.deflection.comp;
+        let in_contact = self.contact.in_contact;
+        let sp = self.setpoint.value_n;
+        ControllerOutput {
+            actuators_cmd_mm: self.l_cmd,
+            commanded_pose: [
+                self.x_cmd[0] + comp[0],
+                self.x_cmd[1] + comp[1],
+                self.x_cmd[2] + comp[2],
+                self.x_cmd[3] + comp[3],
+            ],
+            measured_pose: [pose_fk[0], pose_fk[1], pose_fk[2], pose_fk[3]],
+            contact_normal: [n[0], n[1], n[2]],
+            tracking_direction: [t[0], t[1], t[2]],
+            wrench_measured: [wrench[0], wrench[1], wrench[2], wrench[3]],
+            wrench_desired: if in_contact {
+                [n[0] * sp, n[1] * sp, n[2] * sp, 0.0]
+            } else {
+                [0.0; 4]
+            },
+            normal_force_n: if in_contact {
+                wrench[0] * n[0] + wrench[1] * n[1] + wrench[2] * n[2]
+            } else {
+                0.0
+            },
+            setpoint_n: if in_contact { sp } else { 0.0 },
+            env_stiffness_n_per_mm: 1.0 / self.estimator.c_env,
+            compliance_mm_per_n: c,
+            status,
+            rejection: None,
+        }
+    }
+
+    /// Checks `next` against the workspace; on success it becomes the command.
+    fn commit(&mut self, next: Pose, cx: &Cycle, c: f64, status: Status) -> ControllerOutput {
+        let target = next + self.deflection.comp;
+        let mp = cx.measured_pose;
+        let mut out = match self.arm.ws.ik(&target) {
+            Ok(l) => {
+                self.x_cmd = next;
+                self.l_cmd = [l[0], l[1], l[2], l[3]];
+                self.output(cx.pose_fk, cx.wrench, c, status)
+            }
+            Err(e) => {
+                self.position.stop();
+                let mut out = self.output(cx.pose_fk, cx.wrench, c, Status::Rejected);
+                out.rejection = Some(Rejection::Workspace(e));
+                out
+            }
+        };
+        out.measured_pose = [mp[0], mp[1], mp[2], mp[3]];
+        self.last = out;
+        out
+    }
+}
+
+/// Whether every input is finite and the period positive.
+fn inputs_finite(input: &ControllerInput, dt_s: f64) -> bool {
+    let cmd = &input.command;
+    input.actuators_mm.iter().all(|v| v.is_finite())
+        && input.wrench.iter().all(|v| v.is_finite())
+        && cmd.pose.iter().all(|v| v.is_finite())
+        && cmd.velocity.iter().all(|v| v.is_finite())
+        && cmd.force_setpoint_n.is_finite()
+        && dt_s.is_finite()
+        && dt_s > 0.0
+}

@@ -1,0 +1,251 @@
+//! An experiment file: its sections and their checks. The slave-side sections (arm,
+//! surface, sensor, plant, controller) are a [`SlaveWorld`]; the experiment adds the
+//! force set-point, the tracking motion, the approach and the summary.
+
+use h4_shared::config::{ArmConfig, ConfigError, Section, Validate, check_range};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::controller::ControllerParams;
+use crate::plant::{PlantConfig, SensorConfig, Surface, SurfaceConfig};
+use crate::world::SlaveWorld;
+
+/// One set-point change.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForceStep {
+    /// When, s after the first contact.
+    pub time_s: f64,
+    /// The new set-point, N.
+    pub setpoint_n: f64,
+}
+
+/// The force set-point and its steps.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForceConfig {
+    /// Contact force set-point, N.
+    pub setpoint_n: f64,
+    /// Set-point steps, in time order.
+    #[serde(default)]
+    pub steps: Vec<ForceStep>,
+}
+
+/// Motion along the surface.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackConfig {
+    /// Tracking speed along the surface, mm/s (21 cm/min = 3.5 mm/s).
+    pub speed_mm_per_s: f64,
+    /// Desired direction of motion (any length > 0); the controller projects it on the
+    /// surface's tangent plane.
+    #[serde(default = "default_direction")]
+    pub direction: [f64; 3],
+    /// Delay between the first contact and the start of tracking, s.
+    #[serde(default = "default_start_delay")]
+    pub start_delay_s: f64,
+}
+
+fn default_direction() -> [f64; 3] {
+    [1.0, 0.0, 0.0]
+}
+fn default_start_delay() -> f64 {
+    0.5
+}
+
+/// The approach from free space.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ApproachConfig {
+    /// Start this far above the contact point (along +z), mm.
+    pub gap_mm: f64,
+    /// The approach target lies this far below the contact point, mm.
+    pub target_depth_mm: f64,
+}
+
+impl Default for ApproachConfig {
+    fn default() -> Self {
+        ApproachConfig {
+            gap_mm: 2.0,
+            target_depth_mm: 20.0,
+        }
+    }
+}
+
+/// How the summary judges the run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SummaryConfig {
+    /// The steady phase starts this long after the first contact or a step, s.
+    pub transient_s: f64,
+    /// Settling band, fraction of the step size.
+    pub settle_band_fraction: f64,
+    /// Smallest settling band, N.
+    pub settle_band_min_n: f64,
+}
+
+impl Default for SummaryConfig {
+    fn default() -> Self {
+        SummaryConfig {
+            transient_s: 0.3,
+            settle_band_fraction: 0.05,
+            settle_band_min_n: 0.5,
+        }
+    }
+}
+
+/// One experiment, as read from a TOML file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentConfig {
+    /// Free-text name.
+    #[serde(default)]
+    pub name: String,
+    /// Seed of every random draw (sensor noise).
+    pub seed: u64,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// The arm: geometry, the actuator stiffness the controller assumes, workspace.
+    #[serde(default)]
+    pub arm: ArmConfig,
+    /// The surface.
+    pub surface: SurfaceConfig,
+    /// The force set-point.
+    pub force: ForceConfig,
+    /// Motion along the surface.
+    pub track: TrackConfig,
+    /// The approach.
+    #[serde(default)]
+    pub approach: ApproachConfig,
+    /// The force sensor.
+    #[serde(default)]
+    pub sensor: SensorConfig,
+    /// The simulated arm.
+    #[serde(default)]
+    pub plant: PlantConfig,
+    /// The controller.
+    #[serde(default)]
+    pub controller: ControllerParams,
+    /// The summary.
+    #[serde(default)]
+    pub summary: SummaryConfig,
+}
+
+impl Validate for ExperimentConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        check_range("duration_s", self.duration_s, 0.01, 3600.0, "s")?;
+        self.world().validate_at("")?;
+        self.track.validate_at("track.")?;
+        self.approach.validate_at("approach.")?;
+        self.summary.validate_at("summary.")?;
+        self.validate_across()
+    }
+}
+
+impl ExperimentConfig {
+    /// The checks across sections: the set-points up to the controller's force limit, the
+    /// steps in time order within the run, the tracking speed up to the controller's speed
+    /// limit.
+    fn validate_across(&self) -> Result<(), ConfigError> {
+        let c = &self.controller;
+        check_range(
+            "force.setpoint_n",
+            self.force.setpoint_n,
+            0.5,
+            c.force_limit_n,
+            "N (up to controller.force_limit_n)",
+        )?;
+        let mut t_prev = 0.0;
+        for (i, st) in self.force.steps.iter().enumerate() {
+            check_range(
+                &format!("force.steps[{i}].time_s"),
+                st.time_s,
+                t_prev,
+                self.duration_s,
+                "s (after the previous step, within duration_s)",
+            )?;
+            check_range(
+                &format!("force.steps[{i}].setpoint_n"),
+                st.setpoint_n,
+                0.5,
+                c.force_limit_n,
+                "N",
+            )?;
+            t_prev = st.time_s;
+        }
+        check_range(
+            "track.speed_mm_per_s",
+            self.track.speed_mm_per_s,
+            0.0,
+            c.max_speed_mm_per_s,
+            "mm/s (up to controller.max_speed_mm_per_s)",
+        )
+    }
+}
+
+impl Section for TrackConfig {
+    /// Checks the fields of the section alone (the speed's limit is the controller's:
+    /// [`ExperimentConfig`] checks it).
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let d = Vector3::from(self.direction).norm();
+        check_range(&format!("{prefix}direction (length)"), d, 1e-6, 1e6, "")?;
+        check_range(
+            &format!("{prefix}start_delay_s"),
+            self.start_delay_s,
+            0.0,
+            3600.0,
+            "s",
+        )
+    }
+}
+
+impl Section for ApproachConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        check_range(&format!("{prefix}gap_mm"), self.gap_mm, 0.0, 100.0, "mm")?;
+        check_range(
+            &format!("{prefix}target_depth_mm"),
+            self.target_depth_mm,
+            0.1,
+            100.0,
+            "mm",
+        )
+    }
+}
+
+impl Section for SummaryConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("{prefix}{name}");
+        check_range(&field("transient_s"), self.transient_s, 0.0, 3600.0, "s")?;
+        check_range(
+            &field("settle_band_fraction"),
+            self.settle_band_fraction,
+            0.0,
+            1.0,
+            "",
+        )?;
+        check_range(
+            &field("settle_band_min_n"),
+            self.settle_band_min_n,
+            0.0,
+            100.0,
+            "N",
+        )
+    }
+}
+impl ExperimentConfig {
+    /// The slave-side sections: arm, surface, sensor, plant, controller.
+    pub fn world(&self) -> SlaveWorld {
+        SlaveWorld {
+            arm: self.arm,
+            surface: self.surface,
+            sensor: self.sensor,
+            plant: self.plant,
+            controller: self.controller,
+        }
+    }
+
+    /// The surface the simulation owns (see [`SurfaceConfig::surface`]).
+    pub fn surface(&self) -> Surface {
+        self.surface.surface()
+    }
+}

@@ -1,0 +1,480 @@
+//! An honest simulation of the H-4 prototype behind the driver boundary
+//! ([`crate::arm::ArmDriver`]): [`SimArm`].
+//!
+//! A real driver reads the four actuator encoders and the force/torque sensor and writes
+//! four actuator position commands; so does the simulation. What the simulation models
+//! (every number and its reasoning is in `docs/slave-simulation.md`):
+//!
+//! * four prismatic carriages ([`servo`]), each with mass, Coulomb and viscous friction and a saturated
+//!   motor force, under a 20 kHz PID position servo whose set-point is the 1 ms command;
+//! * a finite structural stiffness (and a little damping) between each carriage and the
+//!   platform, so the platform sits at `FK(q + f/k)`, deflecting under load as `Λ(x) F`
+//!   predicts; the platform with its tool has mass and rotational inertia ([`kernel`]);
+//! * penetration-based contact with an unknown [`Surface`] ([`surface`]) (plane, cylinder or sphere;
+//!   Kelvin–Voigt spring–damper with regularised Coulomb friction);
+//! * a six-axis force/torque sensor reporting `[Fx, Fy, Fz, My]` with Gaussian noise,
+//!   bias, quantisation and a second-order Butterworth low-pass filter ([`sensor`]).
+//!
+//! Units: mm, rad, N, N·mm, seconds; masses are given in kg and converted to N·s²/mm.
+//! Everything is deterministic from the seed; time advances only through
+//! [`SimArm::advance`].
+
+mod config;
+mod kernel;
+mod sensor;
+mod servo;
+mod surface;
+
+pub use crate::arm::{ArmDriver, ArmReading};
+pub use config::PlantConfig;
+pub use sensor::SensorConfig;
+pub use surface::{
+    Axis, Material, MaterialPreset, ShapeKind, Surface, SurfaceConfig, SurfaceShape,
+};
+
+use h4_shared::kinematics::{Actuators, H4Params, Pose};
+use nalgebra::{Matrix4, Vector4};
+
+use sensor::{ForceSensor, quantize};
+
+/// Why a [`SimArm`] could not be built.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum SimError {
+    /// The initial pose has no inverse kinematics or Jacobian.
+    #[error("initial pose: {0}")]
+    Kinematics(#[from] h4_shared::KinError),
+    /// A parameter is not usable.
+    #[error("plant parameter {0} is not usable")]
+    BadParameter(&'static str),
+}
+
+/// The simulated H-4 arm.
+#[derive(Clone, Debug)]
+pub struct SimArm {
+    params: H4Params,
+    cfg: PlantConfig,
+    surface: Surface,
+    time_ns: u64,
+    substep_ns: u64,
+    substep_s: f64,
+    remainder_ns: u64,
+    substeps_per_linearisation: u32,
+    substep_counter: u32,
+    // Carriages.
+    q: [f64; 4],
+    qd: [f64; 4],
+    integral: [f64; 4],
+    command: [f64; 4],
+    // Structure.
+    k: [f64; 4],
+    c_struct: [f64; 4],
+    // Platform.
+    pose: Pose,
+    vel: Pose,
+    inv_mass: Vector4<f64>,
+    l0: Actuators,
+    pose0: Pose,
+    jac: Matrix4<f64>,
+    // Contact.
+    contact_wrench: Vector4<f64>,
+    contact_damping: f64,
+    penetration_mm: f64,
+    sensor: ForceSensor,
+    kinematics_faults: u64,
+    /// Tests only: run planes through the generic kernel (to compare the two).
+    #[cfg(test)]
+    generic_kernel: bool,
+}
+
+impl SimArm {
+    /// An arm at rest at `initial_pose` (springs unloaded), whose controller assumes the
+    /// per-actuator stiffness `assumed_stiffness_n_per_mm`; the plant's stiffness is that
+    /// × `cfg.stiffness_scale` × (1 + spread).
+    pub fn new(
+        params: H4Params,
+        assumed_stiffness_n_per_mm: [f64; 4],
+        cfg: PlantConfig,
+        sensor_cfg: SensorConfig,
+        surface: Surface,
+        initial_pose: Pose,
+        seed: u64,
+    ) -> Result<Self, SimError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(cfg.servo_rate_hz) || cfg.servo_rate_hz < 1000.0 {
+            return Err(SimError::BadParameter("servo_rate_hz"));
+        }
+        if !positive(cfg.carriage_mass_kg) {
+            return Err(SimError::BadParameter("carriage_mass_kg"));
+        }
+        if !positive(cfg.tool_mass_kg) || !positive(cfg.tool_inertia_kg_mm2) {
+            return Err(SimError::BadParameter("tool_mass_kg"));
+        }
+        if !positive(sensor_cfg.sample_rate_hz) {
+            return Err(SimError::BadParameter("sample_rate_hz"));
+        }
+        let substep_ns = (1e9 / cfg.servo_rate_hz).round() as u64;
+        let substep_s = substep_ns as f64 * 1e-9;
+        let l = params.ik_checked(&initial_pose)?;
+        let jac = params.jacobian(&initial_pose)?;
+        let tool_mass = cfg.tool_mass_kg * 1e-3; // N·s²/mm
+        let tool_inertia = cfg.tool_inertia_kg_mm2 * 1e-3; // N·mm·s²
+        let mut k = [0.0; 4];
+        let mut c_struct = [0.0; 4];
+        for i in 0..4 {
+            k[i] = assumed_stiffness_n_per_mm[i]
+                * cfg.stiffness_scale
+                * (1.0 + cfg.stiffness_spread[i]);
+            if !positive(k[i]) {
+                return Err(SimError::BadParameter("stiffness"));
+            }
+            // Each actuator carries roughly a quarter of the platform.
+            c_struct[i] = 2.0 * cfg.structural_damping_ratio * (k[i] * 0.25 * tool_mass).sqrt();
+        }
+        let mut arm = SimArm {
+            params,
+            cfg,
+            surface,
+            time_ns: 0,
+            substep_ns,
+            substep_s,
+            remainder_ns: 0,
+            substeps_per_linearisation: ((1_000_000 / substep_ns).max(1)) as u32,
+            substep_counter: 0,
+            q: [l[0], l[1], l[2], l[3]],
+            qd: [0.0; 4],
+            integral: [0.0; 4],
+            command: [l[0], l[1], l[2], l[3]],
+            k,
+            c_struct,
+            pose: initial_pose,
+            vel: Pose::zeros(),
+            inv_mass: Vector4::new(
+                1.0 / tool_mass,
+                1.0 / tool_mass,
+                1.0 / tool_mass,
+                1.0 / tool_inertia,
+            ),
+            l0: l,
+            pose0: initial_pose,
+            jac,
+            contact_wrench: Vector4::zeros(),
+            contact_damping: 0.0,
+            penetration_mm: 0.0,
+            sensor: ForceSensor::new(sensor_cfg, seed),
+            kinematics_faults: 0,
+            #[cfg(test)]
+            generic_kernel: false,
+        };
+        arm.update_contact_damping();
+        Ok(arm)
+    }
+
+    fn update_contact_damping(&mut self) {
+        let m = self.cfg.tool_mass_kg * 1e-3;
+        let mat = self.surface.material;
+        self.contact_damping =
+            2.0 * mat.damping_ratio * (mat.stiffness_n_per_mm.max(0.0) * m).sqrt();
+    }
+
+    /// Replaces the surface (shape and material) at run time.
+    pub fn set_surface(&mut self, surface: Surface) {
+        self.surface = surface;
+        self.update_contact_damping();
+    }
+
+    /// The current surface.
+    pub fn surface(&self) -> &Surface {
+        &self.surface
+    }
+
+    /// Simulated time, ns.
+    pub fn time_ns(&self) -> u64 {
+        self.time_ns
+    }
+
+    /// The platform's true pose (with the structure's deflection), for evaluation only.
+    pub fn true_pose(&self) -> Pose {
+        self.pose
+    }
+
+    /// The true contact wrench on the tool `[Fx, Fy, Fz, My]`, for evaluation only.
+    pub fn true_contact_wrench(&self) -> Vector4<f64> {
+        self.contact_wrench
+    }
+
+    /// The true penetration into the surface, mm (negative: distance above it).
+    pub fn penetration_mm(&self) -> f64 {
+        self.penetration_mm
+    }
+
+    /// The plant's actuator stiffness, N/mm.
+    pub fn plant_stiffness_n_per_mm(&self) -> [f64; 4] {
+        self.k
+    }
+
+    /// Count of re-linearisations that failed because the pose left the kinematics'
+    /// domain (the previous linearisation is kept).
+    pub fn kinematics_faults(&self) -> u64 {
+        self.kinematics_faults
+    }
+
+    /// Steps the servo, structure, contact and sensor physics by `dt_ns` of simulated time.
+    pub fn advance(&mut self, dt_ns: u64) {
+        let total = self.remainder_ns + dt_ns;
+        let mut steps = total / self.substep_ns;
+        self.remainder_ns = total % self.substep_ns;
+        while steps > 0 {
+            if self.substep_counter == 0 {
+                self.relinearise();
+            }
+            // Run substeps up to the next re-linearisation or sensor sample, whichever
+            // comes first, in a kernel that keeps the state in registers.
+            let to_lin = u64::from(self.substeps_per_linearisation - self.substep_counter);
+            let to_sensor = self
+                .sensor
+                .next_sample_ns
+                .saturating_sub(self.time_ns)
+                .div_ceil(self.substep_ns)
+                .max(1);
+            let n = steps.min(to_lin).min(to_sensor);
+            self.substeps(n as u32);
+            steps -= n;
+            self.time_ns += n * self.substep_ns;
+            self.substep_counter += n as u32;
+            if self.substep_counter >= self.substeps_per_linearisation {
+                self.substep_counter = 0;
+            }
+            if self.time_ns >= self.sensor.next_sample_ns {
+                self.sensor.sample(&self.contact_wrench);
+                self.sensor.next_sample_ns += self.sensor.period_ns;
+            }
+        }
+    }
+
+    fn relinearise(&mut self) {
+        match (
+            self.params.ik_raw(&self.pose),
+            self.params.jacobian(&self.pose),
+        ) {
+            (Ok(l), Ok(j)) => {
+                self.l0 = l;
+                self.jac = j;
+                self.pose0 = self.pose;
+            }
+            _ => self.kinematics_faults += 1,
+        }
+    }
+}
+
+impl ArmDriver for SimArm {
+    fn read(&mut self) -> ArmReading {
+        let res = self.cfg.encoder_resolution_mm;
+        let mut act = self.q;
+        if res > 0.0 {
+            for a in act.iter_mut() {
+                *a = quantize(*a, res);
+            }
+        }
+        ArmReading {
+            time_ns: self.time_ns,
+            actuators_mm: act,
+            wrench: self.sensor.filtered,
+        }
+    }
+
+    fn command(&mut self, actuators_mm: &[f64; 4]) {
+        if actuators_mm.iter().all(|a| a.is_finite()) {
+            self.command = *actuators_mm;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn plane(z: f64, k: f64) -> Surface {
+        Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: [0.0, 0.0, z],
+                normal: [0.0, 0.0, 1.0],
+            },
+            material: Material {
+                stiffness_n_per_mm: k,
+                damping_ratio: 0.3,
+                friction_coefficient: 0.0,
+            },
+        }
+    }
+
+    fn quiet_sensor() -> SensorConfig {
+        SensorConfig {
+            noise_std_n: 0.0,
+            noise_std_n_mm: 0.0,
+            quantization_n: 0.0,
+            quantization_n_mm: 0.0,
+            bias_n: [0.0; 3],
+            bias_n_mm: 0.0,
+            ..SensorConfig::default()
+        }
+    }
+
+    /// Pressing into a plane: the static force equals (Λ + 1/k_env)⁻¹ × the commanded
+    /// depth, i.e. the platform deflects as the compliance matrix predicts.
+    #[test]
+    fn static_deflection_matches_compliance_matrix() {
+        let params = H4Params::PROTOTYPE;
+        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let k_env = 200.0;
+        let mut arm = SimArm::new(
+            params,
+            [100.0; 4],
+            PlantConfig::default(),
+            quiet_sensor(),
+            plane(-250.0, k_env),
+            pose0,
+            1,
+        )
+        .unwrap();
+        let target = Pose::new(0.0, 0.0, -250.5, 0.0);
+        let l = params.ik_checked(&target).unwrap();
+        arm.command(&[l[0], l[1], l[2], l[3]]);
+        arm.advance(2_000_000_000);
+        let k = h4_shared::ActuatorStiffness::uniform(100.0).unwrap();
+        let lam = params.compliance(&arm.true_pose(), &k).unwrap();
+        let fz = arm.true_contact_wrench()[2];
+        let expected = 0.5 / (lam[(2, 2)] + 1.0 / k_env);
+        assert!(
+            (fz - expected).abs() < 0.02 * expected,
+            "fz {fz} expected {expected}"
+        );
+        let reading = arm.read();
+        assert!((reading.wrench[2] - fz).abs() < 0.05, "{reading:?}");
+        // Encoders read the commanded carriage positions, not the deflected legs.
+        assert!((reading.actuators_mm[0] - l[0]).abs() < 2e-3);
+    }
+
+    /// Friction never exceeds the Coulomb bound μ F_n, however abruptly the tool starts to
+    /// slide (an explicit step of the regularised law's stiff damper did: tangential forces
+    /// of several times μ F_n, aliased by the sensor into a steady offset).
+    #[test]
+    fn friction_never_exceeds_the_coulomb_bound() {
+        let params = H4Params::PROTOTYPE;
+        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let mu = 0.3;
+        let mut surface = plane(-250.0, 1000.0);
+        surface.material.friction_coefficient = mu;
+        let mut arm = SimArm::new(
+            params,
+            [100.0; 4],
+            PlantConfig::default(),
+            quiet_sensor(),
+            surface,
+            pose0,
+            1,
+        )
+        .unwrap();
+        let mut worst: f64 = 0.0;
+        let mut slid = false;
+        // Press in, then jerk sideways along x and y, back and forth.
+        for k in 0..600u32 {
+            let t = f64::from(k) * 1e-3;
+            let side = if k < 100 { 0.0 } else { 0.4 * (t * 40.0).sin() };
+            let target = Pose::new(side, 0.5 * side, -250.3, 0.0);
+            let l = params.ik_checked(&target).unwrap();
+            arm.command(&[l[0], l[1], l[2], l[3]]);
+            for _ in 0..20 {
+                arm.advance(50_000);
+                let w = arm.true_contact_wrench();
+                let f_n = w[2];
+                let f_t = (w[0] * w[0] + w[1] * w[1]).sqrt();
+                if f_n > 1.0 {
+                    worst = worst.max(f_t / (mu * f_n));
+                    slid |= f_t > 0.9 * mu * f_n;
+                }
+            }
+        }
+        assert!(slid, "the tool never slid: the test proves nothing");
+        assert!(worst <= 1.0 + 1e-9, "|F_t| reached {worst} × μ F_n");
+    }
+
+    /// The plane kernel is the generic kernel's physics rearranged: pressing into a tilted
+    /// plane with friction and jerking sideways (sliding and sticking), both give the same
+    /// motion and forces to rounding.
+    #[test]
+    fn plane_kernel_matches_the_generic_kernel() {
+        let params = H4Params::PROTOTYPE;
+        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let t = 10f64.to_radians();
+        let surface = Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: [0.0, 0.0, -250.0],
+                normal: [t.sin(), 0.0, t.cos()],
+            },
+            material: Material {
+                stiffness_n_per_mm: 500.0,
+                damping_ratio: 0.2,
+                friction_coefficient: 0.3,
+            },
+        };
+        let make = |generic: bool| {
+            let mut arm = SimArm::new(
+                params,
+                [100.0; 4],
+                PlantConfig::default(),
+                quiet_sensor(),
+                surface,
+                pose0,
+                1,
+            )
+            .unwrap();
+            arm.generic_kernel = generic;
+            arm
+        };
+        let (mut fast, mut generic) = (make(false), make(true));
+        let (mut worst_f, mut worst_x): (f64, f64) = (0.0, 0.0);
+        let mut peak_f: f64 = 0.0;
+        for k in 0..800u32 {
+            let s = f64::from(k) * 1e-3;
+            let side = if k < 150 { 0.0 } else { 0.5 * (s * 30.0).sin() };
+            let target = Pose::new(side, 0.4 * side, -250.4, 0.02 * side);
+            let l = params.ik_checked(&target).unwrap();
+            for arm in [&mut fast, &mut generic] {
+                arm.command(&[l[0], l[1], l[2], l[3]]);
+                arm.advance(1_000_000);
+            }
+            let (wa, wb) = (fast.true_contact_wrench(), generic.true_contact_wrench());
+            let (pa, pb) = (fast.true_pose(), generic.true_pose());
+            peak_f = peak_f.max(wb.norm());
+            worst_f = worst_f.max((wa - wb).norm());
+            worst_x = worst_x.max((pa - pb).norm());
+        }
+        assert!(peak_f > 50.0, "the contact was not loaded: {peak_f} N");
+        assert!(worst_f < 1e-6 * peak_f, "forces differ by {worst_f} N");
+        assert!(worst_x < 1e-9, "poses differ by {worst_x} mm");
+    }
+
+    #[test]
+    fn surfaces_report_penetration_and_normal() {
+        let s = Surface {
+            shape: SurfaceShape::Sphere {
+                centre_mm: [0.0, 0.0, -400.0],
+                radius_mm: 100.0,
+            },
+            material: MaterialPreset::Steel.material(),
+        };
+        let (pen, n) = s.penetration(&Vector3::new(0.0, 0.0, -301.0));
+        assert!((pen - 1.0).abs() < 1e-12 && (n.z - 1.0).abs() < 1e-12);
+        let c = Surface {
+            shape: SurfaceShape::Cylinder {
+                axis_point_mm: [0.0, 0.0, -400.0],
+                axis_dir: [0.0, 1.0, 0.0],
+                radius_mm: 100.0,
+            },
+            material: MaterialPreset::Resin.material(),
+        };
+        let (pen, n) = c.penetration(&Vector3::new(0.0, 55.0, -295.0));
+        assert!((pen + 5.0).abs() < 1e-12 && (n.z - 1.0).abs() < 1e-12);
+    }
+}
