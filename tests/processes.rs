@@ -703,3 +703,51 @@ fn bad_messages_are_rejected_counted_and_never_acted_on() {
     // Never acted on: the arm stayed home (the bad commands all pointed 38 mm away).
     assert!(max_dev_mm < 0.5, "the arm moved {max_dev_mm} mm");
 }
+
+/// Both binaries follow one exit-code convention: a bad file (or a bad flag) is a usage or
+/// input error, exit code 2, and `--help` states the codes.
+#[test]
+fn a_bad_file_exits_2_in_both_binaries() {
+    let (master, slave) = binaries();
+    let missing = "/nonexistent/h4-no-such-file.toml";
+    let cases: [(&Path, &[&str]); 6] = [
+        (slave, &["run", "--config", missing]),
+        (slave, &["experiment", missing]),
+        (slave, &["run", "--no-such-flag"]),
+        (master, &["run", "--config", missing]),
+        (master, &["sim", missing]),
+        (master, &["loopback", "--config", missing]),
+    ];
+    for (bin, args) in cases {
+        let out = Proc::new(bin)
+            .args(args)
+            .current_dir(workspace())
+            .stdin(Stdio::null())
+            .output()
+            .expect("run the binary");
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{} {args:?}: {}",
+            bin.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    for bin in [master, slave] {
+        let out = Proc::new(bin).arg("--help").output().expect("--help");
+        let help = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{help}");
+        for code in [
+            "0 ok",
+            "1 the run's verdict failed",
+            "2 usage",
+            "130 interrupted",
+        ] {
+            assert!(
+                help.contains(code),
+                "{}: {code:?} not in\n{help}",
+                bin.display()
+            );
+        }
+    }
+}

@@ -7,7 +7,7 @@ mod cli;
 
 /// The h4-teleop master.
 #[derive(Parser)]
-#[command(name = "h4-master", version, about)]
+#[command(name = "h4-master", version, about, after_help = h4_shared::process::EXIT_CODES_HELP)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -48,7 +48,7 @@ fn main() -> std::process::ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("h4-master: {e}");
-            std::process::ExitCode::from(2)
+            h4_shared::process::ExitStatus::Error.into()
         }
     }
 }

@@ -13,10 +13,9 @@ use h4_shared::vec3::norm3;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use h4_shared::clock::{Clock, MonotonicClock};
-use h4_shared::process::{StatusLine, stop_requested};
+use h4_shared::process::stop_requested;
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{LoopReport, Pacer};
+use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
 use serde::{Deserialize, Serialize};
@@ -143,31 +142,30 @@ pub enum MasterRunError {
     Recording(String),
 }
 
-/// One master cycle as recorded.
-#[derive(Clone, Copy, Debug, Serialize)]
+/// One master cycle as recorded (topic `/master/cycle`, schema `h4.MasterProcessCycle`).
+#[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
 struct CycleRecord {
+    /// The loop's clock, ns since the loop started.
     time_ns: u64,
+    /// How late the loop woke for this cycle, µs.
     lateness_us: f64,
+    /// Handle pose [x, y, z, theta], mm, rad.
     pose: [f64; 4],
+    /// The operator's hand on the handle [Fx, Fy, Fz, My], N, N·mm.
     hand_wrench: [f64; 4],
+    /// Wrench applied by the device [Fx, Fy, Fz, My], N, N·mm.
     rendered_wrench: [f64; 4],
+    /// Fade factor of the rendered force (1 full, 0 faded out).
     fade: f64,
+    /// The slave's target sent this cycle [x, y, z, theta], mm, rad.
     slave_target: [f64; 4],
+    /// The slave's measured force in the newest valid feedback, N.
     slave_force_n: [f64; 3],
+    /// The slave's state in the newest valid feedback (`SlaveState` code).
     slave_state: u8,
+    /// The newest round trip, µs.
     round_trip_us: f64,
 }
-
-const CYCLE_SCHEMA: &str = r#"{"type":"object","title":"h4.MasterProcessCycle","properties":{
-"time_ns":{"type":"integer"},"lateness_us":{"type":"number"},
-"pose":{"type":"array","items":{"type":"number"},"description":"handle [x,y,z,theta] mm, rad"},
-"hand_wrench":{"type":"array","items":{"type":"number"}},
-"rendered_wrench":{"type":"array","items":{"type":"number"},"description":"applied by the device, N, N·mm"},
-"fade":{"type":"number"},
-"slave_target":{"type":"array","items":{"type":"number"}},
-"slave_force_n":{"type":"array","items":{"type":"number"},"description":"newest valid feedback"},
-"slave_state":{"type":"integer"},
-"round_trip_us":{"type":"number","description":"newest round trip"}}}"#;
 
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
@@ -199,113 +197,36 @@ pub fn run_then<L: Link<Command, Feedback>>(
     at_loop_end: impl FnOnce(),
 ) -> Result<MasterRunSummary, MasterRunError> {
     let mut side = master_teleop(cfg, opts.arm_id)?;
-    let mut recorder = BackgroundRecorder::<CycleRecord>::start(
+    let mut recorder = BackgroundRecorder::<CycleRecord>::start_for(
         opts.record.as_deref(),
         "/master/cycle",
         "h4.MasterProcessCycle",
-        CYCLE_SCHEMA,
     )
     .map_err(|e| MasterRunError::Recording(e.to_string()))?;
 
-    h4_slave::server::apply_realtime(opts.fifo_priority, opts.lock_memory);
-    let mut s = MasterRunSummary::default();
-    let mut cycles = 0u64;
-
-    // Wait for the slave (its feedback) before the operator's script starts.
-    let wait = std::time::Instant::now();
-    if opts.wait_for_slave_s > 0.0 {
-        loop {
-            if stop_requested() {
-                break;
-            }
-            // Before the loop's clock starts: the gate sees this message at time 0.
-            if side.poll_peer(&mut link, 0) {
-                break;
-            }
-            if wait.elapsed().as_secs_f64() > opts.wait_for_slave_s {
-                return Err(MasterRunError::NoSlave(opts.wait_for_slave_s));
-            }
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    }
-    s.waited_for_slave_s = wait.elapsed().as_secs_f64();
-
-    let clock = MonotonicClock::new();
+    h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
+    let mut s = MasterRunSummary {
+        waited_for_slave_s: wait_for_slave(&mut side, &mut link, opts)?,
+        ..MasterRunSummary::default()
+    };
     let period_ns = opts.period_ns.max(1);
     let dt_s = period_ns as f64 * 1e-9;
-    let mut pacer = Pacer::new(
-        Duration::from_nanos(period_ns),
-        Duration::from_nanos(opts.spin_ns),
-    );
-    let mut status_line = StatusLine::new(4.0);
-    let mut text = String::with_capacity(256);
-    let end_ns = opts.duration_s.map(|d| (d * 1e9) as u64);
-    let force_scale = cfg.scale.force;
-    let mut prev_fade = 0.0;
-    let mut fading_out = false;
-    let mut prev_force = 0.0;
-    let mut trans_abs = 0.0;
-    let mut trans_ref = 0.0;
-    loop {
-        let tick = pacer.wait();
-        let now = clock.now_ns();
-        if stop_requested() || end_ns.is_some_and(|e| now >= e) {
-            break;
-        }
+    let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
+    let mut stats = RenderStats::new(cfg.scale.force);
+    rt.run(|cx| {
+        let now = cx.now_ns;
         let m = side.step(&mut link, now, dt_s);
-        side.device_mut().advance(period_ns * (1 + tick.missed));
+        side.device_mut().advance(period_ns * (1 + cx.tick.missed));
         s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
-
-        let force = norm3(&m.rendered_wrench);
-        s.max_rendered_force_n = s.max_rendered_force_n.max(force);
-        s.max_rendered_force_step_n = s.max_rendered_force_step_n.max((force - prev_force).abs());
-        prev_force = force;
         let fade = m.step.fade;
-        if fade < prev_fade && !fading_out {
-            fading_out = true;
-            s.feedback_losses += 1;
-        } else if fade > prev_fade && fading_out {
-            fading_out = false;
-            s.feedback_restored += 1;
-        } else if fade >= 1.0 {
-            fading_out = false;
-        }
-        if fade <= 0.0 && s.feedback_losses > 0 {
-            if prev_fade > 0.0 {
-                s.faded_out += 1;
-            }
-            s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(force);
-        }
-        prev_fade = fade;
-        let mut slave_force = [0.0; 3];
-        let mut slave_state = SlaveState::Idle as u8;
-        if let Some(fb) = side.latest_feedback() {
-            slave_force = [
-                fb.wrench_measured[0],
-                fb.wrench_measured[1],
-                fb.wrench_measured[2],
-            ];
-            slave_state = fb.state;
-            if fb.state == SlaveState::SafeStop as u8 {
-                s.slave_safe_state_cycles += 1;
-            }
-        }
-        let fs = norm3(&slave_force);
-        s.max_slave_force_n = s.max_slave_force_n.max(fs);
-        if fs > 1.0 && fade >= 1.0 {
-            s.contact_cycles += 1;
-            let mut d = [0.0; 3];
-            for (i, di) in d.iter_mut().enumerate() {
-                *di = m.rendered_wrench[i] / force_scale - slave_force[i];
-            }
-            trans_abs += norm3(&d);
-            trans_ref += fs;
-        }
+        let force = stats.rendered(&mut s, &m.rendered_wrench, fade);
+        let (slave_force, slave_state) = stats.slave(&mut s, side.latest_feedback());
+        stats.transparency(&m.rendered_wrench, &slave_force, fade, &mut s);
         recorder.push(
-            clock.unix_ns(now),
+            cx.unix_ns,
             CycleRecord {
                 time_ns: now,
-                lateness_us: us(tick.lateness_ns),
+                lateness_us: us(cx.tick.lateness_ns),
                 pose: m.handle.pose,
                 hand_wrench: m.hand.wrench,
                 rendered_wrench: m.rendered_wrench,
@@ -316,29 +237,26 @@ pub fn run_then<L: Link<Command, Feedback>>(
                 round_trip_us: us(side.round_trip().last_ns()),
             },
         );
-        cycles += 1;
-        if status_line.due(now) {
+        if let Some(line) = &mut cx.status {
             use std::fmt::Write;
-            text.clear();
             let _ = write!(
-                text,
+                line.text,
                 "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | rtt p99 {:>7.1} us | F {:>6.2} N | fade {:.2} | slave {}",
                 opts.arm_id,
-                cycles,
-                us(pacer.lateness.quantile(0.99)),
-                pacer.misses,
+                cx.cycles,
+                line.lateness_p99_us,
+                line.misses,
                 us(side.round_trip().histogram().quantile(0.99)),
                 force,
                 fade,
                 state_name(slave_state),
             );
-            status_line.show(&text);
         }
         s.final_rendered_force_n = force;
         s.final_fade = fade;
-    }
+        Ok::<(), MasterRunError>(())
+    })?;
     at_loop_end();
-    status_line.finish();
     let r = side.round_trip().histogram();
     s.round_trip_samples = r.count();
     s.round_trip_p50_us = us(r.quantile(0.5));
@@ -346,18 +264,137 @@ pub fn run_then<L: Link<Command, Feedback>>(
     s.round_trip_p999_us = us(r.quantile(0.999));
     s.round_trip_max_us = us(r.max());
     let gate = side.gate_counters();
-    s.feedback_received = side.counters().feedback_received;
-    s.feedback_invalid = gate.wrong_version + gate.malformed + gate.wrong_arm;
+    s.feedback_received = side.counters().feedback_received + gate.undecodable;
+    s.feedback_invalid = gate.wrong_version + gate.malformed + gate.wrong_arm + gate.undecodable;
     s.link_errors = side.counters().link_errors;
-    s.force_transparency_err_pct = if trans_ref > 0.0 {
-        100.0 * trans_abs / trans_ref
-    } else {
-        0.0
-    };
-    s.run = LoopReport::new(cycles, &pacer, clock.now_ns() as f64 / 1e9);
+    s.force_transparency_err_pct = stats.transparency_err_pct();
+    s.run = rt.report();
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(MasterRunError::Recording)?;
     Ok(s)
+}
+
+/// Waits for the slave's first valid feedback (at most `opts.wait_for_slave_s`; 0: not at
+/// all, or until a stop request); returns how long it waited, s. The feedback goes through
+/// the endpoint's gate (at time 0, before the loop's clock starts).
+fn wait_for_slave<L: Link<Command, Feedback>>(
+    side: &mut MasterTeleop,
+    link: &mut L,
+    opts: &MasterRunOptions,
+) -> Result<f64, MasterRunError> {
+    let wait = std::time::Instant::now();
+    if opts.wait_for_slave_s > 0.0 {
+        loop {
+            if stop_requested() || side.poll_peer(link, 0) {
+                break;
+            }
+            if wait.elapsed().as_secs_f64() > opts.wait_for_slave_s {
+                return Err(MasterRunError::NoSlave(opts.wait_for_slave_s));
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    Ok(wait.elapsed().as_secs_f64())
+}
+
+/// The master loop's running statistics of the rendered force, the feedback-loss fade and
+/// the force transparency (booked into the summary cycle by cycle).
+struct RenderStats {
+    force_scale: f64,
+    prev_fade: f64,
+    fading_out: bool,
+    prev_force_n: f64,
+    transparency_abs_n: f64,
+    transparency_ref_n: f64,
+}
+
+impl RenderStats {
+    fn new(force_scale: f64) -> Self {
+        RenderStats {
+            force_scale,
+            prev_fade: 0.0,
+            fading_out: false,
+            prev_force_n: 0.0,
+            transparency_abs_n: 0.0,
+            transparency_ref_n: 0.0,
+        }
+    }
+
+    /// Books the rendered wrench and the fade of one cycle; returns the rendered force, N.
+    fn rendered(&mut self, s: &mut MasterRunSummary, rendered: &[f64; 4], fade: f64) -> f64 {
+        let force = norm3(rendered);
+        s.max_rendered_force_n = s.max_rendered_force_n.max(force);
+        s.max_rendered_force_step_n = s
+            .max_rendered_force_step_n
+            .max((force - self.prev_force_n).abs());
+        self.prev_force_n = force;
+        if fade < self.prev_fade && !self.fading_out {
+            self.fading_out = true;
+            s.feedback_losses += 1;
+        } else if fade > self.prev_fade && self.fading_out {
+            self.fading_out = false;
+            s.feedback_restored += 1;
+        } else if fade >= 1.0 {
+            self.fading_out = false;
+        }
+        if fade <= 0.0 && s.feedback_losses > 0 {
+            if self.prev_fade > 0.0 {
+                s.faded_out += 1;
+            }
+            s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(force);
+        }
+        self.prev_fade = fade;
+        force
+    }
+
+    /// Books the newest valid feedback; returns the slave's measured force, N, and state code.
+    fn slave(&mut self, s: &mut MasterRunSummary, latest: Option<&Feedback>) -> ([f64; 3], u8) {
+        let mut slave_force = [0.0; 3];
+        let mut slave_state = SlaveState::Idle as u8;
+        if let Some(fb) = latest {
+            slave_force = [
+                fb.wrench_measured[0],
+                fb.wrench_measured[1],
+                fb.wrench_measured[2],
+            ];
+            slave_state = fb.state;
+            if fb.state == SlaveState::SafeStop as u8 {
+                s.slave_safe_state_cycles += 1;
+            }
+        }
+        s.max_slave_force_n = s.max_slave_force_n.max(norm3(&slave_force));
+        (slave_force, slave_state)
+    }
+
+    /// Books one cycle's force transparency: in contact (slave force above 1 N) with full
+    /// fade, |F_rendered / scale.force − F_slave| against |F_slave|.
+    fn transparency(
+        &mut self,
+        rendered: &[f64; 4],
+        slave_force: &[f64; 3],
+        fade: f64,
+        s: &mut MasterRunSummary,
+    ) {
+        let fs = norm3(slave_force);
+        if fs > 1.0 && fade >= 1.0 {
+            s.contact_cycles += 1;
+            let mut d = [0.0; 3];
+            for (i, di) in d.iter_mut().enumerate() {
+                *di = rendered[i] / self.force_scale - slave_force[i];
+            }
+            self.transparency_abs_n += norm3(&d);
+            self.transparency_ref_n += fs;
+        }
+    }
+
+    /// Σ|F_rendered / scale.force − F_slave| over Σ|F_slave|, %, or 0 without contact.
+    fn transparency_err_pct(&self) -> f64 {
+        if self.transparency_ref_n > 0.0 {
+            100.0 * self.transparency_abs_n / self.transparency_ref_n
+        } else {
+            0.0
+        }
+    }
 }
 
 /// A slave state code as a word.

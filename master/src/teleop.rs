@@ -23,8 +23,8 @@ use h4_shared::kinematics::{KinError, Workspace};
 use h4_shared::passivity::PassivityParams;
 use h4_shared::rt::Histogram;
 use h4_shared::wire::{Command, Feedback};
+use h4_transport::Link;
 use h4_transport::gate::{Gate, GateCounters};
-use h4_transport::{Link, LinkError};
 use serde::Serialize;
 
 use crate::coupling::{CouplingConfig, CouplingParams, MasterCoupling, MasterStep, ScaleConfig};
@@ -156,8 +156,8 @@ impl RoundTrip {
 pub struct MasterTeleopCounters {
     /// Cycles stepped.
     pub cycles: u64,
-    /// Feedback messages received from the link, before the gate (undecodable ones
-    /// included).
+    /// Feedback messages the link delivered, before the gate (payloads the link dropped
+    /// undecoded are in the gate's `undecodable`).
     pub feedback_received: u64,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
@@ -255,28 +255,21 @@ impl MasterTeleop {
                 self.counters.feedback_received += 1;
                 self.gate.accept(&fb, now_ns).is_ok()
             }
-            Ok(None) => false,
-            Err(e) => {
-                self.count_link_error(e);
+            Ok(None) => {
+                self.gate.note_undecodable(link.undecodable());
                 false
             }
-        }
-    }
-
-    fn count_link_error(&mut self, e: LinkError) {
-        match e {
-            LinkError::Decode(w) => {
-                self.counters.feedback_received += 1;
-                self.gate.count_undecodable(w);
+            Err(_) => {
+                self.counters.link_errors += 1;
+                false
             }
-            _ => self.counters.link_errors += 1,
         }
     }
 
     /// Drains the link through the gate; true if a message was accepted.
     fn receive<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
         let mut fresh = false;
-        // Bounded: undecodable messages are skipped (counted), at most a queue's worth.
+        // Bounded: at most a queue's worth per cycle.
         for _ in 0..MAX_RECEIVED_PER_CYCLE {
             match link.try_recv() {
                 Ok(Some(fb)) => {
@@ -288,13 +281,14 @@ impl MasterTeleop {
                     }
                 }
                 Ok(None) => break,
-                Err(e @ LinkError::Decode(_)) => self.count_link_error(e),
-                Err(e) => {
-                    self.count_link_error(e);
+                Err(_) => {
+                    self.counters.link_errors += 1;
                     break;
                 }
             }
         }
+        // Payloads the link dropped undecoded (counted by the link) reach the gate's counters.
+        self.gate.note_undecodable(link.undecodable());
         fresh
     }
 

@@ -1,14 +1,16 @@
 //! Process plumbing for the 1 kHz programs: an orderly-stop flag set by SIGINT/SIGTERM, a
-//! watchdog on the last valid message, and a terminal status line that stays quiet when
-//! the output is not a terminal.
+//! watchdog on the last valid message, a terminal status line that stays quiet when the
+//! output is not a terminal, and the loop options both `run` commands share ([`LoopArgs`]).
 #![allow(unsafe_code)]
 
 use std::io::{IsTerminal, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 static STOP: AtomicBool = AtomicBool::new(false);
+static SIGNALLED: AtomicBool = AtomicBool::new(false);
 
 extern "C" fn on_signal(_sig: libc::c_int) {
+    SIGNALLED.store(true, Ordering::SeqCst);
     STOP.store(true, Ordering::SeqCst);
 }
 
@@ -28,6 +30,12 @@ pub fn install_stop_handlers() -> std::io::Result<()> {
 /// Whether SIGINT or SIGTERM has arrived.
 pub fn stop_requested() -> bool {
     STOP.load(Ordering::SeqCst)
+}
+
+/// Whether SIGINT or SIGTERM has arrived (a stop asked for by [`request_stop`] is not a
+/// signal).
+pub fn signal_received() -> bool {
+    SIGNALLED.load(Ordering::SeqCst)
 }
 
 /// Requests an orderly stop from inside the process (e.g. at the end of a fixed duration).
@@ -173,6 +181,65 @@ pub fn without_cargo_run_env(cmd: &mut std::process::Command) {
             cmd.env_remove(k);
         }
     }
+}
+
+/// The exit codes of both binaries, `h4-slave` and `h4-master`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExitStatus {
+    /// 0: the command did its work (and its verdict, if it has one, passed).
+    Ok = 0,
+    /// 1: the run's verdict failed (an unstable session, a loopback that missed real time).
+    VerdictFailed = 1,
+    /// 2: a usage or input error (bad flag, unreadable or invalid file, transport refused).
+    Error = 2,
+    /// 130: SIGINT or SIGTERM stopped a run that had a fixed end before that end (the summary
+    /// is still printed and written).
+    Interrupted = 130,
+}
+
+impl From<ExitStatus> for std::process::ExitCode {
+    fn from(status: ExitStatus) -> Self {
+        std::process::ExitCode::from(status as u8)
+    }
+}
+
+/// The exit codes as `--help` states them (both binaries' `after_help`).
+pub const EXIT_CODES_HELP: &str = "Exit codes: 0 ok; 1 the run's verdict failed (unstable, or \
+real time missed); 2 usage or input error; 130 interrupted (SIGINT/SIGTERM before the end of a \
+run with a fixed duration).";
+
+/// The exit code of a process loop that stopped in order: [`ExitStatus::Interrupted`] if it
+/// had a fixed end (`--duration-s`) and a signal cut it short, else [`ExitStatus::Ok`] (a run
+/// without a fixed end is meant to be stopped by a signal).
+pub fn exit_after_run(fixed_end: bool) -> std::process::ExitCode {
+    if fixed_end && signal_received() {
+        ExitStatus::Interrupted.into()
+    } else {
+        ExitStatus::Ok.into()
+    }
+}
+
+/// What both `run` commands (`h4-slave run`, `h4-master run`) take about their loop: how
+/// long, where the summary and the recording go, real-time settings (flattened into their
+/// clap arguments).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct LoopArgs {
+    /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// Write the summary as JSON here (it is also printed on stdout).
+    #[arg(long)]
+    pub summary: Option<std::path::PathBuf>,
+    /// Write an MCAP recording of every cycle here.
+    #[arg(long)]
+    pub record: Option<std::path::PathBuf>,
+    /// Run the loop under SCHED_FIFO at this priority (1–99; needs root or
+    /// CAP_SYS_NICE, otherwise a warning and normal scheduling).
+    #[arg(long)]
+    pub fifo_priority: Option<i32>,
+    /// Lock all memory (mlockall; refused ⇒ a warning).
+    #[arg(long)]
+    pub lock_memory: bool,
 }
 
 #[cfg(test)]

@@ -201,12 +201,8 @@ impl Recorder {
         topic: &str,
         schema_name: &str,
     ) -> Result<ChannelId, RecordingError> {
-        let schema = schemars::schema_for!(T);
-        let text = serde_json::to_string(&schema).map_err(|e| RecordingError::BadSchema {
-            schema: schema_name.to_string(),
-            message: e.to_string(),
-        })?;
-        self.add_channel(topic, schema_name, &text)
+        let schema = json_schema_for::<T>(schema_name)?;
+        self.add_channel(topic, schema_name, &schema)
     }
 
     /// Writes one message, timestamped `log_time_ns` (log and publish time).
@@ -362,6 +358,19 @@ pub fn merge(inputs: &[&Path], out: &Path) -> Result<MergeStats, RecordingError>
     Ok(stats)
 }
 
+/// The JSON Schema of `T` as text, generated from the type (fields, their types, which are
+/// required, their doc comments as descriptions); `schema_name` names it in errors. The same
+/// type gives the same text.
+pub fn json_schema_for<T: schemars::JsonSchema>(
+    schema_name: &str,
+) -> Result<String, RecordingError> {
+    let schema = schemars::schema_for!(T);
+    serde_json::to_string(&schema).map_err(|e| RecordingError::BadSchema {
+        schema: schema_name.to_string(),
+        message: e.to_string(),
+    })
+}
+
 /// A recording written by its own thread: a control loop hands it one `Copy` record per cycle
 /// through a bounded queue (no allocation, no blocking; a full queue drops the record and
 /// counts it), and the thread does the JSON encoding and the file writes.
@@ -401,6 +410,20 @@ impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
             handle: Some(handle),
             dropped: 0,
         })
+    }
+
+    /// [`BackgroundRecorder::start`] with the schema generated from `T`
+    /// ([`json_schema_for`]).
+    pub fn start_for(
+        path: Option<&Path>,
+        topic: &str,
+        schema_name: &str,
+    ) -> Result<Self, RecordingError>
+    where
+        T: schemars::JsonSchema,
+    {
+        let schema = json_schema_for::<T>(schema_name)?;
+        Self::start(path, topic, schema_name, &schema)
     }
 
     /// Queues one record stamped `time_ns`; never blocks.

@@ -1,6 +1,7 @@
 //! Real-time loop support for the 1 kHz processes: a pacer on absolute deadlines (sleep to
 //! shortly before the deadline, then spin), lateness statistics without allocation, a
-//! deadline-miss counter, and optional `SCHED_FIFO` and memory locking.
+//! deadline-miss counter, optional `SCHED_FIFO` and memory locking, and [`RtLoop`], the
+//! loop shell both processes run their cycle in.
 //!
 //! Measured on the project's 2-vCPU VMs (see `docs/realtime.md`): sleeping to the deadline is
 //! late by ~90 µs at p50 and by milliseconds at p99.9; sleeping to ~200 µs before it and then
@@ -258,6 +259,122 @@ impl LoopReport {
     }
 }
 
+/// A status line due in this cycle: the per-cycle body writes it into `text` (cleared, with
+/// room for a line: no allocation), and [`RtLoop`] shows it after the body returns.
+#[derive(Debug)]
+pub struct StatusDue<'a> {
+    /// Where the body writes the line.
+    pub text: &'a mut String,
+    /// The loop's p99 wake-up lateness so far, µs.
+    pub lateness_p99_us: f64,
+    /// Deadlines missed so far.
+    pub misses: u64,
+}
+
+/// One cycle of an [`RtLoop`], as its body sees it.
+#[derive(Debug)]
+pub struct CycleCtx<'a> {
+    /// The loop's monotonic clock at this cycle, ns since the loop started.
+    pub now_ns: u64,
+    /// The same instant as Unix time, ns (the log time of recordings, so the recordings of
+    /// two processes on one host share a timeline).
+    pub unix_ns: u64,
+    /// What the pacer's wait observed: lateness, skipped deadlines.
+    pub tick: Tick,
+    /// Cycles run, this one included.
+    pub cycles: u64,
+    /// `Some` a few times a second on a terminal: the status line to write.
+    pub status: Option<StatusDue<'a>>,
+}
+
+/// The real-time shell both processes (`h4-slave run`, `h4-master run`) run their 1 kHz
+/// cycle in: a [`Pacer`] on absolute deadlines, the monotonic clock, the stop request
+/// (SIGINT/SIGTERM or [`crate::process::request_stop`]) and the fixed duration, the lateness
+/// histogram and deadline misses, and the rate-limited status line. The per-cycle body is a
+/// closure; the shell allocates nothing per cycle.
+#[derive(Debug)]
+pub struct RtLoop {
+    pacer: Pacer,
+    clock: crate::clock::MonotonicClock,
+    status_line: crate::process::StatusLine,
+    text: String,
+    end_ns: Option<u64>,
+    cycles: u64,
+}
+
+impl RtLoop {
+    /// A loop of period `period_ns` (at least 1 ns) that spins the last `spin_ns` before each
+    /// deadline and stops by itself after `duration_s` (None: only on a stop request). Its
+    /// clock starts now; create it on the loop's thread (see [`Pacer::new`]).
+    pub fn new(period_ns: u64, spin_ns: u64, duration_s: Option<f64>) -> Self {
+        let pacer = Pacer::new(
+            Duration::from_nanos(period_ns.max(1)),
+            Duration::from_nanos(spin_ns),
+        );
+        RtLoop {
+            pacer,
+            clock: crate::clock::MonotonicClock::new(),
+            status_line: crate::process::StatusLine::new(4.0),
+            text: String::with_capacity(256),
+            end_ns: duration_s.map(|s| (s * 1e9) as u64),
+            cycles: 0,
+        }
+    }
+
+    /// Runs `body` once per period until a stop is requested or the duration is over (the
+    /// check comes after each wait, before the body), or until `body` fails (its error is
+    /// returned at once).
+    pub fn run<E>(
+        &mut self,
+        mut body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        use crate::clock::Clock;
+        loop {
+            let tick = self.pacer.wait();
+            let now_ns = self.clock.now_ns();
+            if crate::process::stop_requested() || self.end_ns.is_some_and(|e| now_ns >= e) {
+                break;
+            }
+            self.cycles += 1;
+            let due = self.status_line.due(now_ns);
+            let status = if due {
+                self.text.clear();
+                Some(StatusDue {
+                    text: &mut self.text,
+                    lateness_p99_us: self.pacer.lateness.quantile(0.99) as f64 / 1e3,
+                    misses: self.pacer.misses,
+                })
+            } else {
+                None
+            };
+            let mut ctx = CycleCtx {
+                now_ns,
+                unix_ns: self.clock.unix_ns(now_ns),
+                tick,
+                cycles: self.cycles,
+                status,
+            };
+            body(&mut ctx)?;
+            if due {
+                self.status_line.show(&self.text);
+            }
+        }
+        self.status_line.finish();
+        Ok(())
+    }
+
+    /// Cycles run so far.
+    pub fn cycles(&self) -> u64 {
+        self.cycles
+    }
+
+    /// The loop's report now: cycles, misses, lateness, CPU and run time.
+    pub fn report(&self) -> LoopReport {
+        use crate::clock::Clock;
+        LoopReport::new(self.cycles, &self.pacer, self.clock.now_ns() as f64 / 1e9)
+    }
+}
+
 /// Why a real-time setting could not be applied.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum RtError {
@@ -339,6 +456,20 @@ pub fn lock_memory() -> Result<(), RtError> {
         Ok(())
     } else {
         Err(rt_error("mlockall"))
+    }
+}
+
+/// Applies a process's real-time options: locks memory if `lock`, then puts the calling
+/// thread under `SCHED_FIFO` at `fifo_priority`. A refused setting is not an error: a warning
+/// on stderr says which and why, and the loop runs without it.
+pub fn apply_realtime(fifo_priority: Option<i32>, lock: bool) {
+    if lock && let Err(e) = lock_memory() {
+        eprintln!("warning: {e}");
+    }
+    if let Some(p) = fifo_priority
+        && let Err(e) = set_fifo_priority(p)
+    {
+        eprintln!("warning: {e}");
     }
 }
 

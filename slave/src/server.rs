@@ -10,13 +10,10 @@
 
 use h4_shared::vec3::norm3;
 use std::path::PathBuf;
-use std::time::Duration;
 
-use h4_shared::clock::{Clock, MonotonicClock};
 use h4_shared::passivity::PassivityParams;
-use h4_shared::process::{StatusLine, stop_requested};
 use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{LoopReport, Pacer, lock_memory, set_fifo_priority};
+use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
@@ -131,41 +128,33 @@ pub enum ServerError {
     Teleop(#[from] TeleopError),
 }
 
-/// One cycle as recorded.
-#[derive(Clone, Copy, Debug, Serialize)]
+/// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
+/// `h4.SlaveProcessCycle`; the session simulation records another shape on the same topic,
+/// `h4.SlaveCycle`).
+#[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
 struct CycleRecord {
+    /// The loop's clock, ns since the process's loop started.
     time_ns: u64,
+    /// The endpoint's state (`SlaveState` code: 0 idle, 1 active, 2 safe stop).
     state: u8,
+    /// The controller's status code.
     status: u8,
+    /// How late the loop woke for this cycle, µs.
     lateness_us: f64,
+    /// Measured force along the contact normal, N.
     force_measured_n: f64,
+    /// Force set-point along the contact normal, N.
     force_desired_n: f64,
+    /// True contact force magnitude of the simulated arm, N.
     force_true_n: f64,
+    /// Measured pose of the tool [x, y, z, theta], mm, rad.
     measured_pose: [f64; 4],
+    /// Commanded pose of the tool [x, y, z, theta], mm, rad.
     commanded_pose: [f64; 4],
+    /// Estimated contact normal (unit vector).
     contact_normal: [f64; 3],
+    /// Sequence number of the command acted on.
     command_seq: u64,
-}
-
-const CYCLE_SCHEMA: &str = r#"{"type":"object","properties":{
-"time_ns":{"type":"integer"},"state":{"type":"integer"},"status":{"type":"integer"},
-"lateness_us":{"type":"number"},"force_measured_n":{"type":"number"},
-"force_desired_n":{"type":"number"},"force_true_n":{"type":"number"},
-"measured_pose":{"type":"array","items":{"type":"number"}},
-"commanded_pose":{"type":"array","items":{"type":"number"}},
-"contact_normal":{"type":"array","items":{"type":"number"}},
-"command_seq":{"type":"integer"}}}"#;
-
-/// Applies the real-time options, printing a clear message for each one refused.
-pub fn apply_realtime(fifo_priority: Option<i32>, lock: bool) {
-    if lock && let Err(e) = lock_memory() {
-        eprintln!("warning: {e}");
-    }
-    if let Some(p) = fifo_priority
-        && let Err(e) = set_fifo_priority(p)
-    {
-        eprintln!("warning: {e}");
-    }
 }
 
 fn us(ns: u64) -> f64 {
@@ -212,24 +201,15 @@ pub fn run<L: Link<Feedback, Command>>(
         arm,
         period_ns,
     )?;
-    let mut recorder = BackgroundRecorder::<CycleRecord>::start(
+    let mut recorder = BackgroundRecorder::<CycleRecord>::start_for(
         opts.record.as_deref(),
         "/slave/cycle",
-        "h4.SlaveCycle",
-        CYCLE_SCHEMA,
+        "h4.SlaveProcessCycle",
     )
     .map_err(|e| ServerError::Recording(e.to_string()))?;
 
-    apply_realtime(opts.fifo_priority, opts.lock_memory);
-    let clock = MonotonicClock::new();
-    let mut pacer = Pacer::new(
-        Duration::from_nanos(period_ns),
-        Duration::from_nanos(opts.spin_ns),
-    );
-    let mut status_line = StatusLine::new(4.0);
-    let mut text = String::with_capacity(256);
-    let end_ns = opts.duration_s.map(|s| (s * 1e9) as u64);
-
+    h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
+    let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
     let mut s = SlaveRunSummary {
         force_limit_n: cfg.controller.force_limit_n,
         ..SlaveRunSummary::default()
@@ -237,19 +217,15 @@ pub fn run<L: Link<Feedback, Command>>(
     let mut error_sum = 0.0;
     let mut worst_excess_ms = f64::NEG_INFINITY;
     let mut state = SlaveState::Idle;
-    loop {
-        let tick = pacer.wait();
-        let now = clock.now_ns();
-        if stop_requested() || end_ns.is_some_and(|e| now >= e) {
-            break;
-        }
+    let Ok(()) = rt.run(|cx| {
+        let now = cx.now_ns;
         let c = teleop.step(link, now, dt_s);
         s.energy_min_j = s.energy_min_j.min(c.port.observed_j);
         state = c.state;
         if c.tripped {
             // The trip whose silence most exceeds the loop's own lateness is the one reported.
             let silence_ms = teleop.silence_ns(now).unwrap_or(0) as f64 / 1e6;
-            let lateness_ms = tick.lateness_ns as f64 / 1e6;
+            let lateness_ms = cx.tick.lateness_ns as f64 / 1e6;
             if silence_ms - lateness_ms > worst_excess_ms {
                 worst_excess_ms = silence_ms - lateness_ms;
                 s.safe_stop_entry_silence_ms = silence_ms;
@@ -257,7 +233,7 @@ pub fn run<L: Link<Feedback, Command>>(
             }
         }
         // The simulated arm keeps real time, skipped deadlines included.
-        teleop.arm_mut().advance(period_ns * (1 + tick.missed));
+        teleop.arm_mut().advance(period_ns * (1 + cx.tick.missed));
 
         let out = &c.out;
         let true_force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
@@ -269,12 +245,12 @@ pub fn run<L: Link<Feedback, Command>>(
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
         recorder.push(
-            clock.unix_ns(now),
+            cx.unix_ns,
             CycleRecord {
                 time_ns: now,
                 state: c.state as u8,
                 status: out.status.code(),
-                lateness_us: us(tick.lateness_ns),
+                lateness_us: us(cx.tick.lateness_ns),
                 force_measured_n: out.normal_force_n,
                 force_desired_n: out.setpoint_n,
                 force_true_n: true_force_n,
@@ -284,25 +260,23 @@ pub fn run<L: Link<Feedback, Command>>(
                 command_seq: c.command_seq,
             },
         );
-        if status_line.due(now) {
+        if let Some(line) = &mut cx.status {
             use std::fmt::Write;
-            text.clear();
             let _ = write!(
-                text,
+                line.text,
                 "slave arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | {:?} {:?} | F {:>6.2} N | rejected {}",
                 opts.arm_id,
                 teleop.counters().cycles,
-                us(pacer.lateness.quantile(0.99)),
-                pacer.misses,
+                line.lateness_p99_us,
+                line.misses,
                 c.state,
                 out.status,
                 measured_n,
                 teleop.gate_counters().rejected(),
             );
-            status_line.show(&text);
         }
-    }
-    status_line.finish();
+        Ok::<(), std::convert::Infallible>(())
+    });
     let k = *teleop.counters();
     s.commands_rejected_by_controller = k.commands_rejected_by_controller;
     s.link_errors = k.link_errors;
@@ -315,239 +289,8 @@ pub fn run<L: Link<Feedback, Command>>(
         0.0
     };
     s.final_state = format!("{state:?}");
-    s.run = LoopReport::new(k.cycles, &pacer, clock.now_ns() as f64 / 1e9);
+    s.run = rt.report();
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
-}
-
-/// Command-line options shared by `h4-slave run`, `h4-master run` and `h4-master loopback`:
-/// which transport, which arm, and the Zenoh endpoints.
-#[cfg(feature = "server")]
-pub mod cli {
-    use std::path::PathBuf;
-
-    use clap::{Args, ValueEnum};
-    use h4_shared::wire::{Command, Feedback, WireMessage};
-    use h4_transport::Link;
-    use h4_transport::iceoryx2::{self as iox, Iceoryx2Options};
-    use h4_transport::zenoh::{ZenohConfig, ZenohLink, ZenohMode};
-
-    /// The transport between the two processes.
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-    pub enum TransportKind {
-        /// iceoryx2 shared memory (same host).
-        Iceoryx2,
-        /// Eclipse Zenoh (same host or between hosts).
-        Zenoh,
-    }
-
-    /// Transport options.
-    #[derive(Clone, Debug, Args)]
-    pub struct TransportArgs {
-        /// Transport to the other side.
-        #[arg(long, value_enum, default_value_t = TransportKind::Iceoryx2)]
-        pub transport: TransportKind,
-        /// Arm id: selects the iceoryx2 services / Zenoh key expressions `h4/<arm-id>/…`.
-        #[arg(long, default_value_t = 0)]
-        pub arm_id: u16,
-        /// iceoryx2 service name prefix.
-        #[arg(long, default_value = "h4")]
-        pub iceoryx2_prefix: String,
-        /// Zenoh mode: peer or client.
-        #[arg(long, value_parser = ["peer", "client"], default_value = "peer")]
-        pub zenoh_mode: String,
-        /// Zenoh endpoint to listen on (repeatable), e.g. tcp/127.0.0.1:7447. Loopback only
-        /// unless you name another address.
-        #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
-        pub zenoh_listen: Vec<String>,
-        /// Zenoh endpoint to connect to (repeatable), e.g. tcp/127.0.0.1:7447.
-        #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
-        pub zenoh_connect: Vec<String>,
-        /// Zenoh json5 configuration file (TLS, user/password, access control); the options
-        /// above are applied over it.
-        #[arg(long = "zenoh-config", value_name = "FILE")]
-        pub zenoh_config: Option<PathBuf>,
-    }
-
-    impl TransportArgs {
-        /// The arguments that reproduce these options on another command line.
-        pub fn to_args(&self) -> Vec<String> {
-            let mut v = vec![
-                "--transport".to_string(),
-                match self.transport {
-                    TransportKind::Iceoryx2 => "iceoryx2",
-                    TransportKind::Zenoh => "zenoh",
-                }
-                .to_string(),
-                "--arm-id".to_string(),
-                self.arm_id.to_string(),
-                "--iceoryx2-prefix".to_string(),
-                self.iceoryx2_prefix.clone(),
-                "--zenoh-mode".to_string(),
-                self.zenoh_mode.clone(),
-            ];
-            for e in &self.zenoh_listen {
-                v.extend(["--zenoh-listen".to_string(), e.clone()]);
-            }
-            for e in &self.zenoh_connect {
-                v.extend(["--zenoh-connect".to_string(), e.clone()]);
-            }
-            if let Some(f) = &self.zenoh_config {
-                v.extend(["--zenoh-config".to_string(), f.display().to_string()]);
-            }
-            v
-        }
-
-        fn zenoh(&self) -> ZenohConfig {
-            ZenohConfig {
-                mode: if self.zenoh_mode == "client" {
-                    ZenohMode::Client
-                } else {
-                    ZenohMode::Peer
-                },
-                listen: self.zenoh_listen.clone(),
-                connect: self.zenoh_connect.clone(),
-                config_file: self.zenoh_config.as_ref().map(|p| p.display().to_string()),
-                ..ZenohConfig::default()
-            }
-        }
-
-        fn open<Out, In>(
-            &self,
-            iox_open: impl FnOnce(&Iceoryx2Options) -> Result<Box<dyn Link<Out, In>>, String>,
-        ) -> Result<Box<dyn Link<Out, In>>, String>
-        where
-            Out: WireMessage,
-            In: WireMessage,
-        {
-            match self.transport {
-                TransportKind::Iceoryx2 => {
-                    match iox::remove_stale_nodes() {
-                        Ok(0) => {}
-                        Ok(n) => {
-                            eprintln!("iceoryx2: removed the resources of {n} dead process(es)")
-                        }
-                        Err(e) => eprintln!("warning: {e}"),
-                    }
-                    let opts = Iceoryx2Options {
-                        prefix: self.iceoryx2_prefix.clone(),
-                        ..Iceoryx2Options::new(self.arm_id)
-                    };
-                    iox_open(&opts)
-                }
-                TransportKind::Zenoh => ZenohLink::<Out, In>::open(self.arm_id, &self.zenoh())
-                    .map(|l| Box::new(l) as Box<dyn Link<Out, In>>)
-                    .map_err(|e| e.to_string()),
-            }
-        }
-
-        /// Opens the slave's end.
-        pub fn open_slave(&self) -> Result<Box<dyn Link<Feedback, Command>>, String> {
-            self.open(|o| {
-                iox::slave(o)
-                    .map(|l| Box::new(l) as Box<dyn Link<Feedback, Command>>)
-                    .map_err(|e| e.to_string())
-            })
-        }
-
-        /// Opens the master's end.
-        pub fn open_master(&self) -> Result<Box<dyn Link<Command, Feedback>>, String> {
-            self.open(|o| {
-                iox::master(o)
-                    .map(|l| Box::new(l) as Box<dyn Link<Command, Feedback>>)
-                    .map_err(|e| e.to_string())
-            })
-        }
-    }
-
-    /// What both `run` commands take about their loop: how long, where the summary and the
-    /// recording go, real-time settings.
-    #[derive(Clone, Debug, Default, Args)]
-    pub struct LoopArgs {
-        /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
-        #[arg(long)]
-        pub duration_s: Option<f64>,
-        /// Write the summary as JSON here (it is also printed on stdout).
-        #[arg(long)]
-        pub summary: Option<PathBuf>,
-        /// Write an MCAP recording of every cycle here.
-        #[arg(long)]
-        pub record: Option<PathBuf>,
-        /// Run the loop under SCHED_FIFO at this priority (1–99; needs root or
-        /// CAP_SYS_NICE, otherwise a warning and normal scheduling).
-        #[arg(long)]
-        pub fifo_priority: Option<i32>,
-        /// Lock all memory (mlockall; refused ⇒ a warning).
-        #[arg(long)]
-        pub lock_memory: bool,
-    }
-
-    /// `h4-slave run`.
-    #[derive(Clone, Debug, Args)]
-    pub struct RunArgs {
-        /// The simulated world (arm, surface, sensor, plant, controller): an experiment file,
-        /// e.g. config/experiments/fig6b.toml (its force and track sections are not used: the
-        /// master commands the motion).
-        #[arg(long, default_value = "config/slave/sim-resin.toml")]
-        pub config: PathBuf,
-        /// Override any field of the config file (repeatable).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        pub set: Vec<String>,
-        /// Transport.
-        #[command(flatten)]
-        pub transport: TransportArgs,
-        /// Duration, summary, recording, real-time settings.
-        #[command(flatten)]
-        pub run: LoopArgs,
-        /// No valid command for this long puts the arm in its safe state, ms.
-        #[arg(long, default_value_t = 20.0)]
-        pub watchdog_ms: f64,
-        /// The slave's passivity settings: a TOML file with the keys of a session file's
-        /// `[passivity]` section (docs/sessions.md); default: the defaults there.
-        #[arg(long, value_name = "FILE")]
-        pub passivity_config: Option<PathBuf>,
-    }
-
-    /// A `--passivity-config` file: the keys of a session's `[passivity]` section.
-    #[derive(serde::Deserialize)]
-    #[serde(transparent)]
-    struct PassivityFile(h4_shared::passivity::PassivityParams);
-
-    impl h4_shared::config::Validate for PassivityFile {
-        fn validate(&self) -> Result<(), h4_shared::config::ConfigError> {
-            self.0.validate_at("")
-        }
-    }
-
-    impl RunArgs {
-        /// Runs the slave process.
-        pub fn run(self) -> Result<(), String> {
-            h4_shared::process::install_stop_handlers()
-                .map_err(|e| format!("signal handlers: {e}"))?;
-            let cfg: crate::experiment::ExperimentConfig =
-                h4_shared::config::load(&self.config, &self.set).map_err(|e| e.to_string())?;
-            let passivity = match &self.passivity_config {
-                Some(p) => {
-                    h4_shared::config::load::<PassivityFile>(p, &[])
-                        .map_err(|e| e.to_string())?
-                        .0
-                }
-                None => h4_shared::passivity::PassivityParams::default(),
-            };
-            let mut link = self.transport.open_slave()?;
-            let opts = super::RunOptions {
-                passivity,
-                arm_id: self.transport.arm_id,
-                watchdog_ms: self.watchdog_ms,
-                fifo_priority: self.run.fifo_priority,
-                lock_memory: self.run.lock_memory,
-                duration_s: self.run.duration_s,
-                record: self.run.record.clone(),
-                ..super::RunOptions::default()
-            };
-            let summary = super::run(&cfg, &opts, &mut link).map_err(|e| e.to_string())?;
-            h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())
-        }
-    }
 }

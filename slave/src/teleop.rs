@@ -326,6 +326,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                 }
             }
         }
+        self.gate.note_undecodable(link.undecodable());
         fresh
     }
 

@@ -40,12 +40,13 @@ pub enum Rejection {
 
 /// What the gate has seen.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct GateCounters {
     /// Messages accepted.
     pub accepted: u64,
     /// Messages with another protocol version.
     pub wrong_version: u64,
-    /// Malformed messages (non-finite, bad enums or flags, undecodable bytes).
+    /// Malformed messages (non-finite, bad enums or flags).
     pub malformed: u64,
     /// Messages for another arm.
     pub wrong_arm: u64,
@@ -53,12 +54,16 @@ pub struct GateCounters {
     pub stale: u64,
     /// Times the peer restarted and the gate paired with its new session.
     pub repaired: u64,
+    /// Payloads the link dropped before the gate because they did not decode (wrong size,
+    /// version or content): the link's own count ([`crate::Link::undecodable`]), handed over by
+    /// [`Gate::note_undecodable`].
+    pub undecodable: u64,
 }
 
 impl GateCounters {
     /// All rejections.
     pub fn rejected(&self) -> u64 {
-        self.wrong_version + self.malformed + self.wrong_arm + self.stale
+        self.wrong_version + self.malformed + self.wrong_arm + self.stale + self.undecodable
     }
 }
 
@@ -134,12 +139,12 @@ impl<M: WireMessage> Gate<M> {
         Ok(*msg)
     }
 
-    /// Counts bytes that could not even be decoded.
-    pub fn count_undecodable(&mut self, e: WireError) {
-        match e {
-            WireError::WrongVersion { .. } => self.counters.wrong_version += 1,
-            _ => self.counters.malformed += 1,
-        }
+    /// Takes the link's count of payloads it dropped undecoded ([`crate::Link::undecodable`],
+    /// a total since the link was opened) into [`GateCounters::undecodable`]: a receiver calls
+    /// it after draining the link, so every message that arrived, decodable or not, is counted
+    /// by the gate.
+    pub fn note_undecodable(&mut self, link_total: u64) {
+        self.counters.undecodable = link_total;
     }
 
     /// The newest accepted message.

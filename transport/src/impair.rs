@@ -379,4 +379,8 @@ where
         self.pump()?;
         self.inner.try_recv()
     }
+
+    fn undecodable(&self) -> u64 {
+        self.inner.undecodable()
+    }
 }

@@ -4,7 +4,8 @@
 //! process, for tests and the lockstep simulation), `iceoryx2` (shared memory on one host)
 //! and `zenoh` (between hosts). [`impair::Impaired`] wraps any link and injects delay,
 //! jitter, loss, duplication, reordering and blackouts; [`gate::Gate`] is the check every
-//! receiver puts in front of its control loop.
+//! receiver puts in front of its control loop. `open` (with both middleware features) opens
+//! a process's end from its command-line options.
 //!
 //! Publishing and receiving never block and allocate nothing per message.
 
@@ -13,10 +14,12 @@ pub mod gate;
 pub mod iceoryx2;
 pub mod impair;
 pub mod inproc;
+#[cfg(all(feature = "iceoryx2", feature = "zenoh"))]
+pub mod open;
 #[cfg(feature = "zenoh")]
 pub mod zenoh;
 
-use h4_shared::wire::{Command, Feedback, WireMessage};
+use h4_shared::wire::WireMessage;
 
 /// Why a link operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
@@ -36,9 +39,6 @@ pub enum LinkError {
         /// Which transport.
         transport: &'static str,
     },
-    /// Received bytes could not be decoded (counted and dropped; never delivered).
-    #[error("undecodable message: {0}")]
-    Decode(h4_shared::wire::WireError),
 }
 
 /// One end of a master ↔ slave link: it publishes `Out` and receives `In`.
@@ -57,15 +57,15 @@ pub trait Link<Out: WireMessage, In: WireMessage> {
         }
         Ok(latest)
     }
+
+    /// Received payloads this end dropped because they did not decode (wrong size, version
+    /// or content), in total since it was opened: they are never delivered, so a receiver
+    /// hands this count to its gate ([`gate::Gate::note_undecodable`]). 0 for links that
+    /// carry typed messages and decode nothing (in-process, iceoryx2).
+    fn undecodable(&self) -> u64 {
+        0
+    }
 }
-
-/// The master's end: publishes commands, receives feedback.
-pub trait MasterLink: Link<Command, Feedback> {}
-impl<T: Link<Command, Feedback>> MasterLink for T {}
-
-/// The slave's end: publishes feedback, receives commands.
-pub trait SlaveLink: Link<Feedback, Command> {}
-impl<T: Link<Feedback, Command>> SlaveLink for T {}
 
 impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In> for Box<L> {
     fn publish(&mut self, msg: &Out) -> Result<(), LinkError> {
@@ -73,5 +73,8 @@ impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In>
     }
     fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
         (**self).try_recv()
+    }
+    fn undecodable(&self) -> u64 {
+        (**self).undecodable()
     }
 }

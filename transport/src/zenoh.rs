@@ -8,7 +8,7 @@
 //! thread) decodes each payload and pushes it into a bounded queue preallocated at
 //! construction (drop-oldest when full), which [`Link::try_recv`] drains without blocking.
 //! Payloads that do not decode (wrong size, magic, kind or version, a non-finite number, an
-//! unknown enum or flag) are counted in [`ZenohLink::undecodable`] and never delivered.
+//! unknown enum or flag) are counted in [`Link::undecodable`] and never delivered.
 //!
 //! Publications are `express` (not batched), [`Priority::RealTime`] and
 //! [`CongestionControl::Drop`]: a late message is worth less than the next one.
@@ -362,11 +362,6 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
         self.arm_id
     }
 
-    /// Received payloads that did not decode (never delivered).
-    pub fn undecodable(&self) -> u64 {
-        self.inbox.undecodable.load(Ordering::Relaxed)
-    }
-
     /// Why the last undecodable payload was refused.
     pub fn last_decode_error(&self) -> Option<WireError> {
         self.inbox.last_decode_error.lock().ok().and_then(|e| *e)
@@ -415,6 +410,10 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for ZenohLink<Out, In> {
                 transport: TRANSPORT,
             })?;
         Ok(q.pop())
+    }
+
+    fn undecodable(&self) -> u64 {
+        self.inbox.undecodable.load(Ordering::Relaxed)
     }
 }
 

@@ -39,10 +39,6 @@ impl Transport for ZenohPeers {
         }
         pairs
     }
-
-    fn refused_by_slave_end(slave: &SlaveZenohLink) -> u64 {
-        slave.undecodable()
-    }
 }
 
 conformance_suite!(ZenohPeers);
@@ -91,10 +87,6 @@ mod via_router {
                     (master, slave)
                 })
                 .collect()
-        }
-
-        fn refused_by_slave_end(slave: &SlaveZenohLink) -> u64 {
-            slave.undecodable()
         }
     }
 

@@ -11,11 +11,12 @@ use std::time::{Duration, Instant};
 
 use h4_master::server::MasterRunSummary;
 use h4_master::session::{self, SessionConfig};
+use h4_shared::process::{ExitStatus, LoopArgs};
 use h4_slave::experiment::{
     ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
-use h4_slave::server::cli::{LoopArgs, TransportArgs, TransportKind};
+use h4_transport::open::TransportArgs;
 use serde::Serialize;
 
 /// Run the slave and the master as two processes over iceoryx2 for a fixed time and print a
@@ -106,7 +107,8 @@ pub struct LoopbackSummary {
 }
 
 impl LoopbackArgs {
-    /// Runs the two processes; exit code 0 if stable, 1 if not.
+    /// Runs the two processes; exit code 0 if stable and in real time, 1 if not, 130 if a
+    /// signal stopped it early.
     pub fn run(self) -> Result<ExitCode, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.config, &self.set)
@@ -122,15 +124,7 @@ impl LoopbackArgs {
         let slave_log = work.join("slave.log");
 
         // A prefix of our own: runs side by side never share services.
-        let transport = TransportArgs {
-            transport: TransportKind::Iceoryx2,
-            arm_id: self.arm_id,
-            iceoryx2_prefix: format!("h4-loopback-{pid}"),
-            zenoh_mode: "peer".into(),
-            zenoh_listen: vec![],
-            zenoh_connect: vec![],
-            zenoh_config: None,
-        };
+        let transport = TransportArgs::iceoryx2(self.arm_id, format!("h4-loopback-{pid}"));
         let mut cmd = std::process::Command::new(&slave_bin);
         cmd.arg("run")
             .arg("--config")
@@ -225,10 +219,12 @@ impl LoopbackArgs {
 
         let summary = combine(&cfg, duration_s, master, slave);
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
-        Ok(if summary.stable && summary.realtime_ok {
+        Ok(if h4_shared::process::signal_received() {
+            ExitStatus::Interrupted.into()
+        } else if summary.stable && summary.realtime_ok {
             ExitCode::SUCCESS
         } else {
-            ExitCode::from(1)
+            ExitStatus::VerdictFailed.into()
         })
     }
 }

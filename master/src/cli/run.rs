@@ -5,7 +5,8 @@ use std::process::ExitCode;
 
 use h4_master::server::{self, MasterRunOptions, MasterRunSummary};
 use h4_master::session;
-use h4_slave::server::cli::{LoopArgs, TransportArgs};
+use h4_shared::process::LoopArgs;
+use h4_transport::open::TransportArgs;
 
 /// Run the master process: the simulated master arm and the scripted operator of a session
 /// file, at 1 kHz, against a slave process (`h4-slave run`) over iceoryx2 or Zenoh.
@@ -40,7 +41,7 @@ impl RunArgs {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.config, &self.set)
             .map_err(|e| format!("{}: {e}", self.config.display()))?;
-        let link = self.transport.open_master()?;
+        let link = self.transport.open_master().map_err(|e| e.to_string())?;
         let opts = MasterRunOptions {
             arm_id: self.transport.arm_id,
             fifo_priority: self.run.fifo_priority,
@@ -57,6 +58,8 @@ impl RunArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         let summary = self.run_summary()?;
         h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
-        Ok(ExitCode::SUCCESS)
+        Ok(h4_shared::process::exit_after_run(
+            self.run.duration_s.is_some(),
+        ))
     }
 }

@@ -38,7 +38,7 @@ impl SimArgs {
         Ok(if summary.stable {
             ExitCode::SUCCESS
         } else {
-            ExitCode::from(1)
+            h4_shared::process::ExitStatus::VerdictFailed.into()
         })
     }
 }

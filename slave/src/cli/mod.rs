@@ -1,0 +1,5 @@
+//! The subcommands of `h4-slave`, one module each.
+
+pub mod experiment;
+pub mod kin;
+pub mod run;
