@@ -268,28 +268,19 @@ impl MasterTeleop {
 
     /// Drains the link through the gate; true if a message was accepted.
     fn receive<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
-        let mut fresh = false;
-        // Bounded: at most a queue's worth per cycle.
-        for _ in 0..MAX_RECEIVED_PER_CYCLE {
-            match link.try_recv() {
-                Ok(Some(fb)) => {
-                    self.counters.feedback_received += 1;
-                    if let Ok(f) = self.gate.accept(&fb, now_ns) {
-                        self.coupling.receive(&f, now_ns);
-                        self.round_trip.record(&f, now_ns);
-                        fresh = true;
-                    }
-                }
-                Ok(None) => break,
-                Err(_) => {
-                    self.counters.link_errors += 1;
-                    break;
-                }
-            }
+        let coupling = &mut self.coupling;
+        let round_trip = &mut self.round_trip;
+        let d = self
+            .gate
+            .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |f: &Feedback| {
+                coupling.receive(f, now_ns);
+                round_trip.record(f, now_ns);
+            });
+        self.counters.feedback_received += d.received;
+        if d.link_error {
+            self.counters.link_errors += 1;
         }
-        // Payloads the link dropped undecoded (counted by the link) reach the gate's counters.
-        self.gate.note_undecodable(link.undecodable());
-        fresh
+        d.accepted > 0
     }
 
     /// One cycle at `now_ns` of `dt_s` seconds on `link`.

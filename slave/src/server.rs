@@ -173,20 +173,9 @@ pub fn run<L: Link<Feedback, Command>>(
     use h4_shared::config::Validate;
     cfg.validate()?;
     opts.passivity.validate_at("passivity.")?;
-    let ws = cfg.arm.workspace();
-    let assumed = cfg.arm.stiffness().map_err(SimError::from)?;
     let p = cfg.surface.contact_point_mm;
     let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let arm = SimArm::new(
-        ws.params,
-        cfg.arm.actuator_stiffness_n_per_mm,
-        cfg.plant,
-        cfg.sensor,
-        cfg.surface(),
-        start,
-        cfg.seed,
-    )?;
-    let ctrl = SlaveController::new(ws, assumed, cfg.controller);
+    let (arm, ctrl) = cfg.world().build(start, cfg.seed)?;
     let period_ns = opts.period_ns.max(1);
     let dt_s = period_ns as f64 * 1e-9;
     let mut teleop = SlaveTeleop::new(

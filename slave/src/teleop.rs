@@ -309,25 +309,18 @@ impl<A: ArmDriver> SlaveTeleop<A> {
 
     /// Drains the link through the receive gate; returns whether a valid command arrived.
     fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> bool {
-        let mut fresh = false;
-        loop {
-            match link.try_recv() {
-                Ok(Some(msg)) => {
-                    if let Ok(c) = self.gate.accept(&msg, now_ns) {
-                        self.port.receive_remote_in(c.energy_in_j);
-                        self.latest = Some(c);
-                        fresh = true;
-                    }
-                }
-                Ok(None) => break,
-                Err(_) => {
-                    self.counters.link_errors += 1;
-                    break;
-                }
-            }
+        let port = &mut self.port;
+        let latest = &mut self.latest;
+        let d = self
+            .gate
+            .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
+                port.receive_remote_in(c.energy_in_j);
+                *latest = Some(*c);
+            });
+        if d.link_error {
+            self.counters.link_errors += 1;
         }
-        self.gate.note_undecodable(link.undecodable());
-        fresh
+        d.accepted > 0
     }
 
     /// The watchdog: a fresh command feeds it (and re-pairs after a safe stop); silence
@@ -566,6 +559,9 @@ struct PortCommand {
     /// The controller's command.
     command: SlaveCommand,
 }
+
+/// Most commands taken from the link in one cycle (more than any queue holds).
+const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 
 #[cfg(test)]
 mod tests {

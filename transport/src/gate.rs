@@ -6,6 +6,8 @@
 
 use h4_shared::wire::{WireError, WireMessage};
 
+use crate::Link;
+
 /// Why a received message was not accepted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum Rejection {
@@ -79,6 +81,17 @@ pub struct Gate<M> {
     pub counters: GateCounters,
 }
 
+/// What one [`Gate::drain`] saw.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Drained {
+    /// Messages the link delivered.
+    pub received: u64,
+    /// Of those, accepted by the gate.
+    pub accepted: u64,
+    /// The link failed while receiving (the drain stopped there).
+    pub link_error: bool,
+}
+
 impl<M: WireMessage> Gate<M> {
     /// A gate for `arm_id`. After `restart_silence_ns` without an accepted message, a
     /// message whose sequence number went backwards is taken as a restarted peer.
@@ -145,6 +158,37 @@ impl<M: WireMessage> Gate<M> {
     /// by the gate.
     pub fn note_undecodable(&mut self, link_total: u64) {
         self.counters.undecodable = link_total;
+    }
+
+    /// Drains `link` at `now_ns`: at most `max` messages, each through [`Gate::accept`], every
+    /// accepted one handed to `on_accept`; then the payloads the link dropped undecoded are
+    /// noted ([`Gate::note_undecodable`]). The one receive path of both endpoints.
+    pub fn drain<Out: WireMessage, L: Link<Out, M> + ?Sized>(
+        &mut self,
+        link: &mut L,
+        now_ns: u64,
+        max: usize,
+        mut on_accept: impl FnMut(&M),
+    ) -> Drained {
+        let mut d = Drained::default();
+        for _ in 0..max {
+            match link.try_recv() {
+                Ok(Some(msg)) => {
+                    d.received += 1;
+                    if let Ok(m) = self.accept(&msg, now_ns) {
+                        d.accepted += 1;
+                        on_accept(&m);
+                    }
+                }
+                Ok(None) => break,
+                Err(_) => {
+                    d.link_error = true;
+                    break;
+                }
+            }
+        }
+        self.note_undecodable(link.undecodable());
+        d
     }
 
     /// The newest accepted message.

@@ -172,7 +172,7 @@ impl ImpairmentCounters {
 }
 
 /// An event of the impairment, for recordings: what happened to which message when.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LinkEventKind {
     /// Lost (random or burst).
@@ -186,7 +186,7 @@ pub enum LinkEventKind {
 }
 
 /// One impairment event.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, schemars::JsonSchema)]
 pub struct LinkEvent {
     /// When, ns on the impairment's clock.
     pub time_ns: u64,

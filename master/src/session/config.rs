@@ -328,7 +328,8 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
         assert!(load(&path, &[]).is_ok());
         for (set, field) in [
-            ("environment.tilt_deg=50", "environment.tilt_deg"),
+            ("environment.tilt_deg=61", "environment.tilt_deg"),
+            ("slave.controller.kp=-5", "slave.controller.kp"),
             ("coupling.fade_ms=0", "coupling.fade_ms"),
             (
                 "coupling.guide_setpoint_max_n=900",

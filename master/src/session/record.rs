@@ -10,79 +10,82 @@ use serde::Serialize;
 
 use crate::teleop::MasterCycle;
 
-#[derive(Serialize)]
+/// One master cycle of the simulation (topic `/master/cycle`, schema `h4.MasterCycle`).
+#[derive(Serialize, schemars::JsonSchema)]
 struct MasterMsg {
+    /// Handle pose [x, y, z, theta], mm, rad, master frame.
     pose: [f64; 4],
+    /// Handle velocity [mm/s, mm/s, mm/s, rad/s].
     velocity: [f64; 4],
+    /// The operator's grip force on the handle [Fx, Fy, Fz, My], N, N·mm.
     hand_wrench: [f64; 4],
+    /// Where the scripted operator wants the handle, mm.
     intent_target_mm: [f64; 3],
+    /// The operator holds the clutch.
     clutch: bool,
+    /// scale.force × the slave's force (or the contact model's), before the passivity
+    /// controller, N.
     link_force_n: [f64; 3],
+    /// Wrench applied by the device [Fx, Fy, Fz, My], N, N·mm.
     rendered_wrench: [f64; 4],
+    /// The master port's passivity damping, N·s/mm.
     damping_n_s_per_mm: f64,
+    /// The master port's passivity observer, J.
     observed_j: f64,
+    /// Feedback-loss fade of the rendered force (1 full, 0 faded out).
     fade: f64,
+    /// The slave target sent this cycle [x, y, z, theta], mm, rad, slave frame.
     slave_target: [f64; 4],
+    /// Force set-point sent (force-guided mode), N.
     setpoint_n: f64,
+    /// Energy that entered the link at the master port so far, J.
     energy_in_j: f64,
+    /// Energy the link delivered at the master port so far, J.
     energy_out_j: f64,
+    /// Energy the master's passivity controller dissipated so far, J.
     dissipated_j: f64,
 }
 
-#[derive(Serialize)]
+/// One slave cycle of the simulation (topic `/slave/cycle`, schema `h4.SlaveCycle`; the slave
+/// process's own shape is `h4.SlaveProcessCycle`).
+#[derive(Serialize, schemars::JsonSchema)]
 struct SlaveMsg {
+    /// Position the link asks for, mm, slave frame.
     desired_mm: [f64; 3],
+    /// Pose commanded to the arm after the passivity controller, mm, rad.
     commanded_pose: [f64; 4],
+    /// Measured pose (forward kinematics of the measured actuators), mm, rad.
     measured_pose: [f64; 4],
+    /// The simulated arm's true pose, mm, rad (simulation truth).
     true_pose: [f64; 4],
+    /// Measured contact wrench [Fx, Fy, Fz, My], N, N·mm (filtered sensor).
     wrench_measured: [f64; 4],
+    /// True contact force, N (simulation truth).
     true_force_n: [f64; 3],
+    /// The controller's status code.
     status: u8,
+    /// The slave port's passivity admittance, mm/(N·s).
     admittance_mm_per_n_s: f64,
+    /// The slave port's passivity observer, J.
     observed_j: f64,
+    /// Commanded minus desired position (the passivity controller's drift), mm.
     drift_mm: [f64; 3],
+    /// Energy that entered the link at the slave port so far, J.
     energy_in_j: f64,
+    /// Energy the link delivered at the slave port so far, J.
     energy_out_j: f64,
+    /// Energy the slave's passivity controller dissipated so far, J.
     dissipated_j: f64,
 }
 
-#[derive(Serialize)]
+/// One impairment event (topic `/link/events`, schema `h4.LinkEvent`).
+#[derive(Serialize, schemars::JsonSchema)]
 struct LinkMsg {
+    /// `command` (master → slave) or `feedback` (slave → master).
     direction: &'static str,
+    /// What happened to which message when.
     event: LinkEvent,
 }
-
-const MASTER_SCHEMA: &str = r#"{"type":"object","title":"h4.MasterCycle","properties":{
-"pose":{"type":"array","items":{"type":"number"},"description":"handle [x,y,z,theta] mm, rad"},
-"velocity":{"type":"array","items":{"type":"number"}},
-"hand_wrench":{"type":"array","items":{"type":"number"},"description":"grip force on the handle, N, N·mm"},
-"intent_target_mm":{"type":"array","items":{"type":"number"}},
-"clutch":{"type":"boolean"},
-"link_force_n":{"type":"array","items":{"type":"number"},"description":"scale.force × slave force, before the passivity controller"},
-"rendered_wrench":{"type":"array","items":{"type":"number"},"description":"applied by the device, N, N·mm"},
-"damping_n_s_per_mm":{"type":"number"},
-"observed_j":{"type":"number"},
-"fade":{"type":"number"},
-"slave_target":{"type":"array","items":{"type":"number"}},
-"setpoint_n":{"type":"number"},
-"energy_in_j":{"type":"number"},"energy_out_j":{"type":"number"},"dissipated_j":{"type":"number"}}}"#;
-
-const SLAVE_SCHEMA: &str = r#"{"type":"object","title":"h4.SlaveCycle","properties":{
-"desired_mm":{"type":"array","items":{"type":"number"},"description":"position the link asks for"},
-"commanded_pose":{"type":"array","items":{"type":"number"},"description":"after the passivity controller"},
-"measured_pose":{"type":"array","items":{"type":"number"}},
-"true_pose":{"type":"array","items":{"type":"number"}},
-"wrench_measured":{"type":"array","items":{"type":"number"}},
-"true_force_n":{"type":"array","items":{"type":"number"}},
-"status":{"type":"integer"},
-"admittance_mm_per_n_s":{"type":"number"},
-"observed_j":{"type":"number"},
-"drift_mm":{"type":"array","items":{"type":"number"}},
-"energy_in_j":{"type":"number"},"energy_out_j":{"type":"number"},"dissipated_j":{"type":"number"}}}"#;
-
-const LINK_SCHEMA: &str = r#"{"type":"object","title":"h4.LinkEvent","properties":{
-"direction":{"type":"string"},
-"event":{"type":"object","properties":{"time_ns":{"type":"integer"},"seq":{"type":"integer"},"kind":{"type":"string"}}}}}"#;
 
 /// The session's channels in a recording.
 pub(super) struct Channels {
@@ -95,9 +98,9 @@ impl Channels {
     /// Adds the channels to `r`.
     pub(super) fn add(r: &mut Recorder) -> Result<Self, RecordingError> {
         Ok(Channels {
-            master: r.add_channel("/master/cycle", "h4.MasterCycle", MASTER_SCHEMA)?,
-            slave: r.add_channel("/slave/cycle", "h4.SlaveCycle", SLAVE_SCHEMA)?,
-            link: r.add_channel("/link/events", "h4.LinkEvent", LINK_SCHEMA)?,
+            master: r.add_channel_for::<MasterMsg>("/master/cycle", "h4.MasterCycle")?,
+            slave: r.add_channel_for::<SlaveMsg>("/slave/cycle", "h4.SlaveCycle")?,
+            link: r.add_channel_for::<LinkMsg>("/link/events", "h4.LinkEvent")?,
         })
     }
 
