@@ -19,9 +19,9 @@ use h4_transport::Link;
 use h4_transport::gate::GateCounters;
 use serde::{Deserialize, Serialize};
 
-use crate::controller::{SlaveController, Status};
+use crate::controller::Status;
 use crate::experiment::ExperimentConfig;
-use crate::plant::{SimArm, SimError};
+use crate::plant::SimError;
 use crate::teleop::{SlaveTeleop, TeleopError, TeleopParams};
 
 /// How the loop runs.

@@ -20,10 +20,6 @@ use std::time::{Duration, Instant};
 use h4_shared::wire::{Command, Feedback, PROTOCOL_VERSION};
 use h4_transport::Link;
 use h4_transport::zenoh::{MasterZenohLink, SlaveZenohLink, ZenohConfig, ZenohMode};
-use rcgen::{
-    BasicConstraints, CertificateParams, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair,
-    KeyUsagePurpose,
-};
 
 /// The shipped configuration files.
 const SHIPPED_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/zenoh");
@@ -92,53 +88,8 @@ impl Drop for TempDir {
     }
 }
 
-fn new_ca(name: &str) -> (String, Issuer<'static, KeyPair>) {
-    let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
-    params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    params.distinguished_name.push(DnType::CommonName, name);
-    params.key_usages = vec![
-        KeyUsagePurpose::DigitalSignature,
-        KeyUsagePurpose::KeyCertSign,
-        KeyUsagePurpose::CrlSign,
-    ];
-    let key = KeyPair::generate().unwrap();
-    let cert = params.self_signed(&key).unwrap();
-    (cert.pem(), Issuer::new(params, key))
-}
-
-/// Writes `<file>.pem` and `<file>-key.pem`: a certificate for common name `cn` (usable as
-/// TLS server and client) signed by `issuer`.
-fn leaf(dir: &Path, file: &str, cn: &str, issuer: &Issuer<'static, KeyPair>) {
-    let mut params =
-        CertificateParams::new(vec!["localhost".to_string(), "127.0.0.1".to_string()]).unwrap();
-    params.distinguished_name.push(DnType::CommonName, cn);
-    params.use_authority_key_identifier_extension = true;
-    params.key_usages = vec![
-        KeyUsagePurpose::DigitalSignature,
-        KeyUsagePurpose::KeyEncipherment,
-    ];
-    params.extended_key_usages = vec![
-        ExtendedKeyUsagePurpose::ServerAuth,
-        ExtendedKeyUsagePurpose::ClientAuth,
-    ];
-    let key = KeyPair::generate().unwrap();
-    let cert = params.signed_by(&key, issuer).unwrap();
-    fs::write(dir.join(format!("{file}.pem")), cert.pem()).unwrap();
-    fs::write(dir.join(format!("{file}-key.pem")), key.serialize_pem()).unwrap();
-}
-
-/// The test PKI: `ca.pem`; `slave`, `master`, `monitor` signed by it; `rogue-master` (common
-/// name "h4-master") signed by another CA.
-fn write_pki(dir: &Path) {
-    let (ca_pem, ca) = new_ca("h4-test-ca");
-    fs::write(dir.join("ca.pem"), ca_pem).unwrap();
-    leaf(dir, "slave", "h4-slave", &ca);
-    leaf(dir, "master", "h4-master", &ca);
-    leaf(dir, "monitor", "h4-monitor", &ca);
-    let (rogue_ca_pem, rogue_ca) = new_ca("rogue-ca");
-    fs::write(dir.join("rogue-ca.pem"), rogue_ca_pem).unwrap();
-    leaf(dir, "rogue-master", "h4-master", &rogue_ca);
-}
+mod pki;
+use pki::write_pki;
 
 /// Installs shipped file `shipped` as `installed` in `dir`: paths point into `dir`, then each
 /// `(from, to)` replacement is applied. Returns the installed file's path.
@@ -158,7 +109,7 @@ fn install(dir: &Path, shipped: &str, installed: &str, replacements: &[(&str, &s
 fn slave_settings(port: u16, file: &str) -> ZenohConfig {
     ZenohConfig {
         mode: ZenohMode::Peer,
-        listen: vec![format!("tls/127.0.0.1:{port}")],
+        listen: vec![format!("quic/127.0.0.1:{port}")],
         config_file: Some(file.to_string()),
         ..ZenohConfig::default()
     }
@@ -312,7 +263,7 @@ fn mutual_tls_only_the_master_with_its_certificate_commands() {
 
     let port = free_port();
     let mut slave = SlaveZenohLink::open(ARM, &slave_settings(port, &slave_file)).unwrap();
-    let tls = format!("tls/127.0.0.1:{port}");
+    let tls = format!("quic/127.0.0.1:{port}");
     let mut master =
         MasterZenohLink::open(ARM, &client_settings(tls.clone(), Some(master_file))).unwrap();
     let mut others = [
@@ -368,7 +319,7 @@ fn tls_with_passwords_only_the_master_user_commands() {
 
     let port = free_port();
     let mut slave = SlaveZenohLink::open(ARM, &slave_settings(port, &slave_file)).unwrap();
-    let tls = format!("tls/127.0.0.1:{port}");
+    let tls = format!("quic/127.0.0.1:{port}");
     let mut master =
         MasterZenohLink::open(ARM, &client_settings(tls.clone(), Some(master_file))).unwrap();
     let mut others = [
@@ -387,8 +338,8 @@ fn tls_with_passwords_only_the_master_user_commands() {
     assert!(others[1].link.is_err(), "a wrong password opened a session");
 }
 
-/// The shipped files allow TLS links only, so an end in peer mode cannot fall back to the
-/// Zenoh link's default plain-TCP loopback listener: it must be given a `tls/` listener (or
+/// The shipped files allow QUIC (TLS 1.3) links only, so an end in peer mode cannot fall back
+/// to the Zenoh link's default plain-TCP loopback listener: it must be given a `quic/` listener (or
 /// run as a client, as the files recommend for the master).
 #[test]
 fn tls_only_files_refuse_a_plain_tcp_listener() {
@@ -397,7 +348,7 @@ fn tls_only_files_refuse_a_plain_tcp_listener() {
     let master_file = install(dir.path(), "master-mtls.json5", "master.json5", &[]);
     let peer = ZenohConfig {
         mode: ZenohMode::Peer,
-        connect: vec![format!("tls/127.0.0.1:{}", free_port())],
+        connect: vec![format!("quic/127.0.0.1:{}", free_port())],
         config_file: Some(master_file),
         ..ZenohConfig::default()
     };
