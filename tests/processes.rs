@@ -420,59 +420,52 @@ fn loopback_verdict_catches_an_unprotected_stiff_contact() {
     );
 }
 
+/// Runs the slave (listening on `endpoint`) and the master (connecting to it) over Zenoh,
+/// with extra arguments each, until the master's `duration_s` is over; stops the slave and
+/// returns both (for their logs) with both summaries.
+fn zenoh_pair(
+    scratch: &Scratch,
+    endpoint: &str,
+    slave_extra: &[&str],
+    master_extra: &[&str],
+    duration_s: &str,
+) -> (Running, Running, Value, Value) {
+    let (master, slave) = binaries();
+    let ss = scratch.path("slave.json").display().to_string();
+    let ms = scratch.path("master.json").display().to_string();
+    let mut sa = vec![
+        "--transport",
+        "zenoh",
+        "--zenoh-listen",
+        endpoint,
+        "--summary",
+        &ss,
+    ];
+    sa.extend_from_slice(slave_extra);
+    let mut sl = Running::spawn("slave", slave, &slave_args(scratch, &sa), scratch);
+    let mut mas = vec!["--transport", "zenoh", "--zenoh-connect", endpoint];
+    mas.extend_from_slice(&["--duration-s", duration_s, "--summary", &ms]);
+    mas.extend_from_slice(master_extra);
+    let mut ma = Running::spawn("master", master, &master_args(scratch, &mas), scratch);
+    let limit_s = 60.0 + 2.0 * duration_s.parse::<f64>().expect("duration");
+    let ok = ma.wait(limit_s);
+    assert!(ok, "master failed:\n{}\nslave:\n{}", ma.log(), sl.log());
+    sl.stop();
+    let m = read_json(&scratch.path("master.json"));
+    let sv = read_json(&scratch.path("slave.json"));
+    (sl, ma, m, sv)
+}
+
 #[test]
 fn zenoh_processes_run_a_contact_and_end_stable() {
     let _g = serial();
-    let (master, slave) = binaries();
     let scratch = Scratch::new("zenoh");
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .expect("free port")
         .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let slave_summary = scratch.path("slave.json");
-    let master_summary = scratch.path("master.json");
-    let ss = slave_summary.display().to_string();
-    let ms = master_summary.display().to_string();
-    let mut sl = Running::spawn(
-        "slave",
-        slave,
-        &slave_args(
-            &scratch,
-            &[
-                "--transport",
-                "zenoh",
-                "--zenoh-listen",
-                &endpoint,
-                "--summary",
-                &ss,
-            ],
-        ),
-        &scratch,
-    );
-    let mut ma = Running::spawn(
-        "master",
-        master,
-        &master_args(
-            &scratch,
-            &[
-                "--transport",
-                "zenoh",
-                "--zenoh-connect",
-                &endpoint,
-                "--duration-s",
-                "8",
-                "--summary",
-                &ms,
-            ],
-        ),
-        &scratch,
-    );
-    let ok = ma.wait(60.0);
-    assert!(ok, "master failed:\n{}\nslave:\n{}", ma.log(), sl.log());
-    sl.stop();
-    let m = read_json(&master_summary);
-    let sv = read_json(&slave_summary);
+    let (_sl, _ma, m, sv) = zenoh_pair(&scratch, &endpoint, &[], &[], "8");
     assert!(u(&m, "round_trip_samples") > 1000, "{m:#}");
     assert!(u(&m, "contact_cycles") > 1000, "{m:#}");
     assert_eq!(u(&m, "feedback_invalid"), 0, "{m:#}");
@@ -500,7 +493,6 @@ const SECURE_RUN_S: &str = "60";
 #[test]
 fn secure_link_processes_run_60_s_without_a_crash() {
     let _g = serial();
-    let (master, slave) = binaries();
     let scratch = Scratch::new("secure");
     let pki_dir = scratch.path("pki");
     std::fs::create_dir_all(&pki_dir).expect("pki dir");
@@ -520,61 +512,19 @@ fn secure_link_processes_run_60_s_without_a_crash() {
         .expect("free port")
         .port();
     let endpoint = format!("quic/127.0.0.1:{port}");
-    let slave_summary = scratch.path("slave.json");
-    let master_summary = scratch.path("master.json");
-    let ss = slave_summary.display().to_string();
-    let ms = master_summary.display().to_string();
-    let mut sl = Running::spawn(
-        "slave",
-        slave,
-        &slave_args(
-            &scratch,
-            &[
-                "--transport",
-                "zenoh",
-                "--zenoh-listen",
-                &endpoint,
-                "--zenoh-config",
-                &slave_cfg,
-                "--summary",
-                &ss,
-            ],
-        ),
+    let (sl, ma, m, sv) = zenoh_pair(
         &scratch,
+        &endpoint,
+        &["--zenoh-config", &slave_cfg],
+        &["--zenoh-mode", "client", "--zenoh-config", &master_cfg],
+        SECURE_RUN_S,
     );
-    let mut ma = Running::spawn(
-        "master",
-        master,
-        &master_args(
-            &scratch,
-            &[
-                "--transport",
-                "zenoh",
-                "--zenoh-mode",
-                "client",
-                "--zenoh-connect",
-                &endpoint,
-                "--zenoh-config",
-                &master_cfg,
-                "--duration-s",
-                SECURE_RUN_S,
-                "--summary",
-                &ms,
-            ],
-        ),
-        &scratch,
-    );
-    let ok = ma.wait(180.0);
-    assert!(ok, "master failed:\n{}\nslave:\n{}", ma.log(), sl.log());
-    sl.stop();
     for (who, log) in [("master", ma.log()), ("slave", sl.log())] {
         assert!(
             !log.contains("memory allocation") && !log.contains("panicked"),
             "{who} crashed:\n{log}"
         );
     }
-    let m = read_json(&master_summary);
-    let sv = read_json(&slave_summary);
     // 60 000 cycles; host stalls may cost a few thousand round trips, never most of them.
     assert!(u(&m, "round_trip_samples") > 30_000, "{m:#}");
     assert_eq!(u(&m, "feedback_invalid"), 0, "{m:#}");
