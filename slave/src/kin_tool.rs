@@ -5,10 +5,16 @@
 //! rows; compliance in mm/N, mm/(N·mm), rad/N…, stiffness the inverse); for actuator positions
 //! `{"l", "pose"}`; for anything rejected `{"error": "<reason>", "detail": "<text>"}` with the
 //! reason codes of KINEMATICS.md. Every line gets exactly one answer, in order.
+//!
+//! With workspace limits (the command's default: the prototype's nominal workspace,
+//! [`WorkspaceLimits::default`]) a pose, given or computed, outside them is an error too
+//! (`theta_out_of_range`, `near_direct_singularity`, `near_workspace_boundary`,
+//! `stroke_limit`), as the controller would refuse it; `--no-workspace-check` gives the bare
+//! kinematics.
 
 use std::io::{BufRead, Write};
 
-use h4_shared::{ActuatorStiffness, H4Params, KinError};
+use h4_shared::{ActuatorStiffness, H4Params, KinError, Workspace, WorkspaceLimits};
 use nalgebra::{Matrix4, Vector4};
 use serde::Deserialize;
 use serde_json::{Value, json};
@@ -41,8 +47,23 @@ fn kin_error(e: KinError) -> Value {
     error_line(e.reason_code(), e.to_string())
 }
 
-/// Answers one input line.
-pub fn answer(line: &str, params: &H4Params, k: &ActuatorStiffness) -> Value {
+/// Answers one input line; with `limits`, poses outside the workspace are refused.
+pub fn answer(
+    line: &str,
+    params: &H4Params,
+    k: &ActuatorStiffness,
+    limits: Option<&WorkspaceLimits>,
+) -> Value {
+    let check = |pose: &Vector4<f64>, l: &Vector4<f64>| -> Result<(), KinError> {
+        match limits {
+            Some(limits) => Workspace {
+                params: *params,
+                limits: *limits,
+            }
+            .check(pose, l),
+            None => Ok(()),
+        }
+    };
     let input: Input = match serde_json::from_str(line) {
         Ok(i) => i,
         Err(e) if e.is_data() => return error_line("invalid_input", e.to_string()),
@@ -53,6 +74,7 @@ pub fn answer(line: &str, params: &H4Params, k: &ActuatorStiffness) -> Value {
             let pose = Vector4::from(pose);
             let result = (|| -> Result<Value, KinError> {
                 let l = params.ik_checked(&pose)?;
+                check(&pose, &l)?;
                 let j = params.jacobian(&pose)?;
                 let j_inv = params.jacobian_inverse(&pose)?;
                 let compliance = h4_shared::kinematics::compliance_from_inverse(&j_inv, k);
@@ -70,7 +92,10 @@ pub fn answer(line: &str, params: &H4Params, k: &ActuatorStiffness) -> Value {
         }
         (None, Some(l)) => {
             let l = Vector4::from(l);
-            match params.fk(&l) {
+            match params
+                .fk(&l)
+                .and_then(|pose| check(&pose, &l).map(|()| pose))
+            {
                 Ok(pose) => json!({ "l": vec4(&l), "pose": vec4(&pose) }),
                 Err(e) => kin_error(e),
             }
@@ -88,10 +113,11 @@ pub fn run(
     mut output: impl Write,
     params: &H4Params,
     k: &ActuatorStiffness,
+    limits: Option<&WorkspaceLimits>,
 ) -> std::io::Result<()> {
     for line in input.lines() {
         let answer = match line {
-            Ok(line) => answer(&line, params, k),
+            Ok(line) => answer(&line, params, k, limits),
             Err(e) => error_line("invalid_input", e.to_string()),
         };
         writeln!(output, "{answer}")?;

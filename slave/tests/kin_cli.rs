@@ -83,6 +83,35 @@ fn answers_every_line_in_order() {
     assert!(lines[3]["detail"].as_str().unwrap().contains("leg pair"));
 }
 
+/// The workspace is checked (the controller would refuse these poses); the bare kinematics
+/// answer them with `--no-workspace-check`.
+#[test]
+fn poses_outside_the_workspace_are_refused_unless_asked() {
+    let input = concat!(
+        "{\"pose\":[2000,0,-250,0]}\n",
+        "{\"pose\":[0,0,-250,1.5]}\n",
+        "{\"pose\":[10,50,-250,0.349]}\n",
+    );
+    let (lines, ok) = run_kin(&[], input);
+    assert!(ok);
+    let reasons: Vec<&str> = lines
+        .iter()
+        .map(|l| l["error"].as_str().unwrap_or("-"))
+        .collect();
+    assert_eq!(
+        reasons,
+        ["stroke_limit", "theta_out_of_range", "-"],
+        "{lines:?}"
+    );
+    let (bare, ok) = run_kin(&["--no-workspace-check"], input);
+    assert!(ok);
+    assert!(bare.iter().all(|l| l["l"].is_array()), "{bare:?}");
+    // An FK answer outside the workspace is refused the same way.
+    let l = bare[0]["l"].to_string();
+    let (fk, _) = run_kin(&[], &format!("{{\"l\":{l}}}\n"));
+    assert_eq!(fk[0]["error"], "stroke_limit", "{fk:?}");
+}
+
 #[test]
 fn custom_parameters_and_bad_flags() {
     let (lines, ok) = run_kin(

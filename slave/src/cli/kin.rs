@@ -3,7 +3,7 @@
 use std::io::{BufReader, BufWriter};
 use std::process::ExitCode;
 
-use h4_shared::{ActuatorStiffness, H4Params};
+use h4_shared::{ActuatorStiffness, H4Params, WorkspaceLimits};
 
 /// The kinematics tool's options.
 #[derive(Debug, clap::Args)]
@@ -14,6 +14,10 @@ pub struct KinArgs {
     /// Axial stiffness of every actuator, N/mm, for the compliance and stiffness matrices.
     #[arg(long = "stiffness", value_name = "K_N_PER_MM", default_value_t = 1.0)]
     stiffness_n_per_mm: f64,
+    /// Answer poses outside the nominal workspace too (|θ| ≤ 60°, ≥ 10 mm from the singular
+    /// line, rail clearance ≥ 20 mm, actuators within ±650 mm): the bare kinematics.
+    #[arg(long)]
+    no_workspace_check: bool,
 }
 
 impl KinArgs {
@@ -28,6 +32,9 @@ impl KinArgs {
             BufWriter::new(stdout.lock()),
             &self.params,
             &k,
+            (!self.no_workspace_check)
+                .then(WorkspaceLimits::default)
+                .as_ref(),
         )
         .map_err(|e| format!("kin: {e}"))?;
         Ok(ExitCode::SUCCESS)
