@@ -320,23 +320,28 @@ mod tests {
         }
     }
 
+    /// The prototype at rest at (0, 0, −250 mm), 100 N/mm actuators, default plant, a quiet
+    /// sensor, touching `surface`.
+    fn test_arm(surface: Surface) -> SimArm {
+        SimArm::new(
+            H4Params::PROTOTYPE,
+            [100.0; 4],
+            PlantConfig::default(),
+            quiet_sensor(),
+            surface,
+            Pose::new(0.0, 0.0, -250.0, 0.0),
+            1,
+        )
+        .unwrap()
+    }
+
     /// Pressing into a plane: the static force equals (Λ + 1/k_env)⁻¹ × the commanded
     /// depth, i.e. the platform deflects as the compliance matrix predicts.
     #[test]
     fn static_deflection_matches_compliance_matrix() {
         let params = H4Params::PROTOTYPE;
-        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
         let k_env = 200.0;
-        let mut arm = SimArm::new(
-            params,
-            [100.0; 4],
-            PlantConfig::default(),
-            quiet_sensor(),
-            plane(-250.0, k_env),
-            pose0,
-            1,
-        )
-        .unwrap();
+        let mut arm = test_arm(plane(-250.0, k_env));
         let target = Pose::new(0.0, 0.0, -250.5, 0.0);
         let l = params.ik_checked(&target).unwrap();
         arm.command(&[l[0], l[1], l[2], l[3]]);
@@ -361,20 +366,10 @@ mod tests {
     #[test]
     fn friction_never_exceeds_the_coulomb_bound() {
         let params = H4Params::PROTOTYPE;
-        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
         let mu = 0.3;
         let mut surface = plane(-250.0, 1000.0);
         surface.material.friction_coefficient = mu;
-        let mut arm = SimArm::new(
-            params,
-            [100.0; 4],
-            PlantConfig::default(),
-            quiet_sensor(),
-            surface,
-            pose0,
-            1,
-        )
-        .unwrap();
+        let mut arm = test_arm(surface);
         let mut worst: f64 = 0.0;
         let mut slid = false;
         // Press in, then jerk sideways along x and y, back and forth.
@@ -405,7 +400,6 @@ mod tests {
     #[test]
     fn plane_kernel_matches_the_generic_kernel() {
         let params = H4Params::PROTOTYPE;
-        let pose0 = Pose::new(0.0, 0.0, -250.0, 0.0);
         let t = 10f64.to_radians();
         let surface = Surface {
             shape: SurfaceShape::Plane {
@@ -419,16 +413,7 @@ mod tests {
             },
         };
         let make = |generic: bool| {
-            let mut arm = SimArm::new(
-                params,
-                [100.0; 4],
-                PlantConfig::default(),
-                quiet_sensor(),
-                surface,
-                pose0,
-                1,
-            )
-            .unwrap();
+            let mut arm = test_arm(surface);
             arm.generic_kernel = generic;
             arm
         };
