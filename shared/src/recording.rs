@@ -75,10 +75,11 @@ fn mcap_err(e: mcap::McapError) -> RecordingError {
     RecordingError::Mcap(e.to_string())
 }
 
-/// Where a recording goes: a file, or memory (for tests).
+/// Where a recording goes: a file, memory (for tests), or a crash-safe file.
 enum Sink {
     File(BufWriter<File>),
     Memory(Cursor<Vec<u8>>),
+    CrashSafe(CrashSafeFile),
 }
 
 impl Write for Sink {
@@ -86,12 +87,17 @@ impl Write for Sink {
         match self {
             Sink::File(f) => f.write(buf),
             Sink::Memory(m) => m.write(buf),
+            Sink::CrashSafe(c) => {
+                c.pending.extend_from_slice(buf);
+                Ok(buf.len())
+            }
         }
     }
     fn flush(&mut self) -> std::io::Result<()> {
         match self {
             Sink::File(f) => f.flush(),
             Sink::Memory(m) => m.flush(),
+            Sink::CrashSafe(c) => c.write_out(),
         }
     }
 }
@@ -101,7 +107,71 @@ impl Seek for Sink {
         match self {
             Sink::File(f) => f.seek(pos),
             Sink::Memory(m) => m.seek(pos),
+            // Written with seeking disabled: only the position is ever asked for.
+            Sink::CrashSafe(c) => match pos {
+                std::io::SeekFrom::Current(0) => Ok(c.end + c.pending.len() as u64),
+                _ => Err(std::io::Error::new(
+                    std::io::ErrorKind::Unsupported,
+                    "crash-safe recording: seeking is disabled",
+                )),
+            },
         }
+    }
+}
+
+/// The end of a valid MCAP file with no summary section: a DataEnd record (data CRC 0: not
+/// computed), a Footer record (summary start 0: no summary; CRC 0) and the closing magic.
+const TRAILER: [u8; 50] = {
+    let mut t = [0u8; 50];
+    // DataEnd: opcode 0x0F, record length 4 (u64 LE), data_section_crc 0.
+    t[0] = 0x0F;
+    t[1] = 4;
+    // Footer at 13: opcode 0x02, record length 20, summary_start 0, summary_offset_start 0,
+    // summary_crc 0.
+    t[13] = 0x02;
+    t[14] = 20;
+    // Magic at 42.
+    let magic = *b"\x89MCAP0\r\n";
+    let mut i = 0;
+    while i < 8 {
+        t[42 + i] = magic[i];
+        i += 1;
+    }
+    t
+};
+
+/// A recording file that is a valid MCAP file after every checkpoint: the MCAP writer's bytes
+/// collect in memory (chunks are built whole, seeking disabled), and each checkpoint appends
+/// them to the file followed by [`TRAILER`] in one write, then steps back over the trailer so
+/// the next checkpoint overwrites it. A process killed between checkpoints leaves a file that
+/// every MCAP reader opens (no summary section: readers scan it), missing only what came after
+/// the last checkpoint.
+struct CrashSafeFile {
+    file: File,
+    /// Bytes of MCAP data in the file (the trailer, if any, lies after them).
+    end: u64,
+    pending: Vec<u8>,
+    /// The next flush is a checkpoint (append the trailer); otherwise the final write. Set by
+    /// [`Recorder::checkpoint`], which cannot reach the sink inside the MCAP writer.
+    checkpoint: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl CrashSafeFile {
+    fn write_out(&mut self) -> std::io::Result<()> {
+        let data = self.pending.len() as u64;
+        let checkpoint = self.checkpoint.load(std::sync::atomic::Ordering::Relaxed);
+        if checkpoint {
+            self.pending.extend_from_slice(&TRAILER);
+        }
+        self.file.seek(std::io::SeekFrom::Start(self.end))?;
+        self.file.write_all(&self.pending)?;
+        self.end += data;
+        self.pending.clear();
+        if !checkpoint {
+            // The final summary and footer replaced the trailer; nothing may follow them.
+            self.file.set_len(self.end)?;
+        }
+        Ok(())
     }
 }
 
@@ -111,6 +181,8 @@ pub struct Recorder {
     topics: Vec<(u16, String, u32)>,
     buffer: Vec<u8>,
     path: String,
+    /// Set for a crash-safe recording ([`Recorder::create_crash_safe`]).
+    checkpoint_flag: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -150,13 +222,61 @@ impl Recorder {
         )
     }
 
+    /// Creates (or truncates) a crash-safe recording at `path`: nothing reaches the file
+    /// between [`Recorder::checkpoint`]s, and after each the file is a complete MCAP file
+    /// (without a summary section until [`Recorder::finish`]). A process killed at any moment
+    /// leaves a file every MCAP reader opens, missing what was written after the last
+    /// checkpoint. Used by the processes' recordings ([`BackgroundRecorder`]).
+    pub fn create_crash_safe(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
+        let path = path.as_ref();
+        let name = path.display().to_string();
+        let file = File::create(path).map_err(|source| RecordingError::Io {
+            path: name.clone(),
+            source,
+        })?;
+        let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let sink = Sink::CrashSafe(CrashSafeFile {
+            file,
+            end: 0,
+            pending: Vec::with_capacity(2 * CHUNK_BYTES as usize),
+            checkpoint: std::sync::Arc::clone(&flag),
+        });
+        let mut rec = Self::to_sink(sink, name)?;
+        rec.checkpoint_flag = Some(flag);
+        rec.checkpoint()?;
+        Ok(rec)
+    }
+
+    /// Ends the current chunk and, for a crash-safe recording, writes everything so far to
+    /// the file as a complete MCAP file (one write). For other recordings: ends the chunk
+    /// and flushes.
+    pub fn checkpoint(&mut self) -> Result<(), RecordingError> {
+        use std::sync::atomic::Ordering;
+        let path = self.path.clone();
+        let writer = self.writer.as_mut().ok_or(RecordingError::Finished)?;
+        if let Some(f) = &self.checkpoint_flag {
+            f.store(true, Ordering::Relaxed);
+        }
+        let result = writer.flush();
+        if let Some(f) = &self.checkpoint_flag {
+            f.store(false, Ordering::Relaxed);
+        }
+        result.map_err(|e| match e {
+            mcap::McapError::Io(source) => RecordingError::Io { path, source },
+            e => mcap_err(e),
+        })
+    }
+
     fn to_sink(sink: Sink, path: String) -> Result<Self, RecordingError> {
         // zstd chunks of at most CHUNK_BYTES of messages, compressed in the writer's own thread
         // (no compression workers beside the 1 kHz loops); docs/processes.md, "Recordings".
+        // A crash-safe file builds each chunk in memory (no seeking back into the file).
+        let crash_safe = matches!(sink, Sink::CrashSafe(_));
         let options = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))
             .compression_threads(0)
             .chunk_size(Some(CHUNK_BYTES))
+            .disable_seeking(crash_safe)
             .profile("")
             .library(LIBRARY);
         let writer = options.create(sink).map_err(mcap_err)?;
@@ -165,6 +285,7 @@ impl Recorder {
             topics: Vec::new(),
             buffer: Vec::with_capacity(1024),
             path,
+            checkpoint_flag: None,
         })
     }
 
@@ -253,8 +374,8 @@ impl Recorder {
         writer.finish().map_err(mcap_err)?;
         match writer.into_inner() {
             Sink::Memory(m) => Ok(m.into_inner()),
-            Sink::File(mut f) => {
-                f.flush().map_err(|source| RecordingError::Io {
+            mut sink => {
+                sink.flush().map_err(|source| RecordingError::Io {
                     path: self.path.clone(),
                     source,
                 })?;
@@ -371,9 +492,15 @@ pub fn json_schema_for<T: schemars::JsonSchema>(
     })
 }
 
+/// How often a [`BackgroundRecorder`] makes its file complete on disk
+/// ([`Recorder::checkpoint`]): a process killed at any moment loses at most this much of its
+/// recording (plus the records still queued).
+pub const CHECKPOINT_INTERVAL: std::time::Duration = std::time::Duration::from_millis(500);
+
 /// A recording written by its own thread: a control loop hands it one `Copy` record per cycle
 /// through a bounded queue (no allocation, no blocking; a full queue drops the record and
-/// counts it), and the thread does the JSON encoding and the file writes.
+/// counts it), and the thread does the JSON encoding and the file writes. The file is
+/// crash-safe ([`Recorder::create_crash_safe`]), checkpointed every [`CHECKPOINT_INTERVAL`].
 pub struct BackgroundRecorder<T: Send + 'static> {
     tx: Option<std::sync::mpsc::SyncSender<(u64, T)>>,
     handle: Option<std::thread::JoinHandle<Result<(), String>>>,
@@ -395,13 +522,25 @@ impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
                 dropped: 0,
             });
         };
-        let mut rec = Recorder::create(path)?;
+        let mut rec = Recorder::create_crash_safe(path)?;
         let channel = rec.add_channel(topic, schema_name, json_schema)?;
         let (tx, rx) = std::sync::mpsc::sync_channel::<(u64, T)>(8192);
         let handle = std::thread::spawn(move || -> Result<(), String> {
-            for (time_ns, item) in rx {
-                rec.write(channel, time_ns, &item)
-                    .map_err(|e| e.to_string())?;
+            use std::sync::mpsc::RecvTimeoutError;
+            let mut next = std::time::Instant::now() + CHECKPOINT_INTERVAL;
+            loop {
+                let wait = next.saturating_duration_since(std::time::Instant::now());
+                match rx.recv_timeout(wait) {
+                    Ok((time_ns, item)) => rec
+                        .write(channel, time_ns, &item)
+                        .map_err(|e| e.to_string())?,
+                    Err(RecvTimeoutError::Timeout) => {}
+                    Err(RecvTimeoutError::Disconnected) => break,
+                }
+                if std::time::Instant::now() >= next {
+                    rec.checkpoint().map_err(|e| e.to_string())?;
+                    next = std::time::Instant::now() + CHECKPOINT_INTERVAL;
+                }
             }
             rec.finish().map_err(|e| e.to_string())
         });
@@ -574,6 +713,51 @@ mod tests {
         let missing = dir.join("missing.mcap");
         let err = merge(&[&a, &missing], &dir.join("x.mcap")).unwrap_err();
         assert!(err.to_string().contains("missing.mcap"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_crash_safe_recording_killed_between_checkpoints_is_valid_up_to_the_last_one() {
+        let dir = std::env::temp_dir().join(format!("h4-crashsafe-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("killed.mcap");
+        let mut rec = Recorder::create_crash_safe(&path).unwrap();
+        let ch = rec
+            .add_channel("/a", "A", r#"{"type":"object"}"#)
+            .unwrap();
+        // Valid from the start: an empty recording.
+        let empty = std::fs::read(&path).unwrap();
+        assert_eq!(mcap::MessageStream::new(&empty).unwrap().count(), 0);
+        for i in 0..300u64 {
+            rec.write(ch, i, &Sample { t: i as f64 }).unwrap();
+            if i == 99 || i == 199 {
+                rec.checkpoint().unwrap();
+            }
+        }
+        // "Killed": never finished, nothing after the second checkpoint reaches the file.
+        std::mem::forget(rec);
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(bytes.ends_with(b"\x89MCAP0\r\n"));
+        let times: Vec<u64> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap().log_time)
+            .collect();
+        assert_eq!(times, (0..200).collect::<Vec<u64>>());
+        // Finished normally, the same kind of file is an ordinary MCAP file with a summary.
+        let done = dir.join("done.mcap");
+        let mut rec = Recorder::create_crash_safe(&done).unwrap();
+        let ch = rec.add_channel("/a", "A", r#"{"type":"object"}"#).unwrap();
+        for i in 0..50u64 {
+            rec.write(ch, i, &Sample { t: i as f64 }).unwrap();
+            if i % 20 == 0 {
+                rec.checkpoint().unwrap();
+            }
+        }
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&done).unwrap();
+        assert_eq!(mcap::MessageStream::new(&bytes).unwrap().count(), 50);
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        assert_eq!(summary.stats.unwrap().message_count, 50);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
