@@ -1,4 +1,4 @@
-//! Process plumbing for the 1 kHz programs: an orderly-stop flag set by SIGINT/SIGTERM, a
+//! Process plumbing for the 1 kHz programs: an orderly-stop flag set by SIGINT/SIGTERM/SIGHUP, a
 //! watchdog on the last valid message, a terminal status line that stays quiet when the
 //! output is not a terminal, and the loop options both `run` commands share ([`LoopArgs`]).
 #![allow(unsafe_code)]
@@ -14,10 +14,10 @@ extern "C" fn on_signal(_sig: libc::c_int) {
     STOP.store(true, Ordering::SeqCst);
 }
 
-/// Installs SIGINT and SIGTERM handlers that only set a flag ([`stop_requested`]); the loop
-/// checks it and stops in order (recording closed, summary written).
+/// Installs SIGINT, SIGTERM and SIGHUP handlers that only set a flag ([`stop_requested`]);
+/// the loop checks it and stops in order (safe state, recording closed, summary written).
 pub fn install_stop_handlers() -> std::io::Result<()> {
-    for sig in [libc::SIGINT, libc::SIGTERM] {
+    for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
         // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
         let prev = unsafe { libc::signal(sig, on_signal as *const () as libc::sighandler_t) };
         if prev == libc::SIG_ERR {
@@ -27,12 +27,12 @@ pub fn install_stop_handlers() -> std::io::Result<()> {
     Ok(())
 }
 
-/// Whether SIGINT or SIGTERM has arrived.
+/// Whether a stop was requested: SIGINT, SIGTERM, SIGHUP or [`request_stop`].
 pub fn stop_requested() -> bool {
     STOP.load(Ordering::SeqCst)
 }
 
-/// Whether SIGINT or SIGTERM has arrived (a stop asked for by [`request_stop`] is not a
+/// Whether SIGINT, SIGTERM or SIGHUP has arrived (a stop asked for by [`request_stop`] is not a
 /// signal).
 pub fn signal_received() -> bool {
     SIGNALLED.load(Ordering::SeqCst)
@@ -41,6 +41,69 @@ pub fn signal_received() -> bool {
 /// Requests an orderly stop from inside the process (e.g. at the end of a fixed duration).
 pub fn request_stop() {
     STOP.store(true, Ordering::SeqCst);
+}
+
+/// Stops this process in order when its parent dies: the kernel sends SIGTERM when the parent
+/// exits (`PR_SET_PDEATHSIG`), and a watcher thread checks every 50 ms that the parent is
+/// still `parent_pid` (it catches a parent that died before the signal was armed, or a
+/// reparenting the signal misses). Either requests an orderly stop ([`request_stop`]).
+/// For a child started by another program (`h4-master loopback` starts `h4-slave run
+/// --parent-pid PID`).
+pub fn stop_with_parent(parent_pid: u32) -> std::io::Result<()> {
+    // SAFETY: plain prctl on the calling process with an integer argument.
+    let rc = unsafe {
+        libc::prctl(
+            libc::PR_SET_PDEATHSIG,
+            libc::SIGTERM as libc::c_ulong,
+            0,
+            0,
+            0,
+        )
+    };
+    if rc != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    let parent_alive = move || {
+        // SAFETY: getppid has no preconditions and cannot fail.
+        let ppid = unsafe { libc::getppid() };
+        u32::try_from(ppid).is_ok_and(|p| p == parent_pid)
+    };
+    if !parent_alive() {
+        request_stop();
+        return Ok(());
+    }
+    std::thread::Builder::new()
+        .name("parent-watch".into())
+        .spawn(move || {
+            while parent_alive() {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+            }
+            eprintln!("parent process {parent_pid} is gone: stopping");
+            request_stop();
+        })
+        .map(|_| ())
+}
+
+/// Checks before a run that `path` (the value of `flag`, e.g. `--summary`) can be written:
+/// not a directory, its directory exists, and the file can be opened for writing. A file that
+/// did not exist is created for the check and removed again. The error names the flag, the
+/// path and the reason.
+pub fn check_writable(flag: &str, path: &std::path::Path) -> Result<(), String> {
+    let fail = |why: String| format!("{flag} {}: cannot be written: {why}", path.display());
+    if path.is_dir() {
+        return Err(fail("it is a directory".into()));
+    }
+    let existed = path.exists();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .map_err(|e| fail(e.to_string()))?;
+    if !existed {
+        let _ = std::fs::remove_file(path);
+    }
+    Ok(())
 }
 
 /// CPU time (user + system, all threads) this process has used so far, s; 0 if unknown.
@@ -216,6 +279,20 @@ pub fn exit_after_run(fixed_end: bool) -> std::process::ExitCode {
         ExitStatus::Interrupted.into()
     } else {
         ExitStatus::Ok.into()
+    }
+}
+
+impl LoopArgs {
+    /// [`check_writable`] on `--summary` and `--record`: an unwritable path is an error
+    /// before the run starts.
+    pub fn check_outputs(&self) -> Result<(), String> {
+        if let Some(p) = &self.summary {
+            check_writable("--summary", p)?;
+        }
+        if let Some(p) = &self.record {
+            check_writable("--record", p)?;
+        }
+        Ok(())
     }
 }
 

@@ -390,6 +390,15 @@ impl Recorder {
 pub struct MergeStats {
     /// Messages written, per topic, in topic order.
     pub messages_by_topic: BTreeMap<String, u64>,
+    /// Per input: messages taken from it.
+    pub messages_by_input: Vec<u64>,
+    /// Per input: the last message's log time, ns (0: none).
+    pub last_log_time_ns: Vec<u64>,
+    /// Per input: it ended properly (a summary section: the writer finished it); false for
+    /// the file of a process that was killed (crash-safe files end at their last checkpoint).
+    pub complete: Vec<bool>,
+    /// Per input: its tail could not be read (a torn last write); what came before is merged.
+    pub unreadable_tail: Vec<bool>,
 }
 
 /// Merges MCAP files into one at `out`: every channel of every input (with its schema), and
@@ -417,19 +426,33 @@ pub fn merge(inputs: &[&Path], out: &Path) -> Result<MergeStats, RecordingError>
     let writer = rec.writer.as_mut().ok_or(RecordingError::Finished)?;
     let mut channels: BTreeMap<(usize, u16), (u16, String)> = BTreeMap::new();
     let mut sequence: BTreeMap<u16, u32> = BTreeMap::new();
-    let mut stats = MergeStats::default();
+    let n = files.len();
+    let mut stats = MergeStats {
+        messages_by_input: vec![0; n],
+        last_log_time_ns: vec![0; n],
+        complete: files
+            .iter()
+            .map(|b| matches!(mcap::Summary::read(b), Ok(Some(_))))
+            .collect(),
+        unreadable_tail: vec![false; n],
+        ..MergeStats::default()
+    };
+    let mut ended = vec![false; n];
     loop {
-        // The input whose next message is the earliest.
+        // The input whose next message is the earliest; an input whose next record cannot be
+        // read (a torn tail) ends there.
         let mut earliest: Option<(usize, u64)> = None;
         for (i, s) in streams.iter_mut().enumerate() {
+            if ended.get(i).copied().unwrap_or(true) {
+                continue;
+            }
             match s.peek() {
                 Some(Ok(m)) if earliest.is_none_or(|(_, t)| m.log_time < t) => {
                     earliest = Some((i, m.log_time));
                 }
                 Some(Err(_)) => {
-                    if let Some(Err(e)) = s.next() {
-                        return Err(mcap_err(e));
-                    }
+                    ended[i] = true;
+                    stats.unreadable_tail[i] = true;
                 }
                 _ => {}
             }
@@ -474,6 +497,8 @@ pub fn merge(inputs: &[&Path], out: &Path) -> Result<MergeStats, RecordingError>
         if let Some((_, topic)) = channels.get(&key) {
             *stats.messages_by_topic.entry(topic.clone()).or_insert(0) += 1;
         }
+        stats.messages_by_input[i] += 1;
+        stats.last_log_time_ns[i] = m.log_time;
     }
     rec.finish()?;
     Ok(stats)

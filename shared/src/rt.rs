@@ -150,6 +150,25 @@ pub struct Pacer {
     pub lateness: Histogram,
     /// Deadlines missed in total.
     pub misses: u64,
+    /// Deadlines missed after a cycle whose body used at least half a period of the loop
+    /// thread's CPU time: the loop's own work overran. The other misses happened while the
+    /// thread was not running (the host or the scheduler stalled it).
+    pub misses_outside_stalls: u64,
+    /// The loop thread's CPU time at the last wake-up, ns.
+    woke_cpu_ns: u64,
+}
+
+/// CPU time the calling thread has used, ns (0 if unknown).
+pub fn thread_cpu_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointer to a live timespec; the clock id is a constant.
+    if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } != 0 {
+        return 0;
+    }
+    u64::try_from(ts.tv_sec).unwrap_or(0) * 1_000_000_000 + u64::try_from(ts.tv_nsec).unwrap_or(0)
 }
 
 impl Pacer {
@@ -167,6 +186,8 @@ impl Pacer {
             cycle: 0,
             lateness: Histogram::new(),
             misses: 0,
+            misses_outside_stalls: 0,
+            woke_cpu_ns: thread_cpu_ns(),
         }
     }
 
@@ -179,6 +200,7 @@ impl Pacer {
     /// counted as missed and skipped (no burst of catch-up cycles).
     pub fn wait(&mut self) -> Tick {
         let deadline = self.next;
+        let body_cpu_ns = thread_cpu_ns().saturating_sub(self.woke_cpu_ns);
         let now = Instant::now();
         if let Some(until_spin) = deadline.checked_duration_since(now + self.spin) {
             std::thread::sleep(until_spin);
@@ -195,6 +217,10 @@ impl Pacer {
             .max(1);
         let missed = late_ns / period_ns;
         self.misses += missed;
+        if missed > 0 && body_cpu_ns >= period_ns / 2 {
+            self.misses_outside_stalls += missed;
+        }
+        self.woke_cpu_ns = thread_cpu_ns();
         self.lateness.record(late_ns);
         let skip = u32::try_from(missed + 1).unwrap_or(u32::MAX);
         self.next = deadline + self.period * skip;
@@ -218,6 +244,10 @@ pub struct LoopReport {
     pub cycles: u64,
     /// Deadlines missed (the loop woke more than a whole period late).
     pub deadline_misses: u64,
+    /// Of those, the ones after a cycle that used at least half a period of the loop thread's
+    /// CPU time (the loop's own work overran); the rest happened while the host or the
+    /// scheduler did not run the loop thread.
+    pub deadline_misses_outside_stalls: u64,
     /// Lateness of the loop's wake-up, p50, µs.
     pub lateness_p50_us: f64,
     /// p99 lateness, µs.
@@ -244,6 +274,7 @@ impl LoopReport {
         LoopReport {
             cycles,
             deadline_misses: pacer.misses,
+            deadline_misses_outside_stalls: pacer.misses_outside_stalls,
             lateness_p50_us: us(h.quantile(0.5)),
             lateness_p99_us: us(h.quantile(0.99)),
             lateness_p999_us: us(h.quantile(0.999)),
@@ -326,13 +357,44 @@ impl RtLoop {
     /// returned at once).
     pub fn run<E>(
         &mut self,
+        body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let end_ns = self.end_ns;
+        self.cycle_until(body, |now_ns| {
+            crate::process::stop_requested() || end_ns.is_some_and(|e| now_ns >= e)
+        })
+    }
+
+    /// After [`RtLoop::run`] stopped: runs `body` on the same pacer, clock and statistics for
+    /// at most `limit_s` more, whatever the stop request says, until `body` returns false
+    /// (e.g. the slave bringing its arm to its safe state before the process exits).
+    pub fn run_after_stop(
+        &mut self,
+        limit_s: f64,
+        mut body: impl FnMut(&mut CycleCtx<'_>) -> bool,
+    ) {
+        use crate::clock::Clock;
+        let end_ns = self.clock.now_ns() + (limit_s.max(0.0) * 1e9) as u64;
+        let done = std::cell::Cell::new(false);
+        let Ok(()) = self.cycle_until(
+            |cx| {
+                done.set(!body(cx));
+                Ok::<(), std::convert::Infallible>(())
+            },
+            |now_ns| done.get() || now_ns >= end_ns,
+        );
+    }
+
+    fn cycle_until<E>(
+        &mut self,
         mut body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
+        mut stop: impl FnMut(u64) -> bool,
     ) -> Result<(), E> {
         use crate::clock::Clock;
         loop {
             let tick = self.pacer.wait();
             let now_ns = self.clock.now_ns();
-            if crate::process::stop_requested() || self.end_ns.is_some_and(|e| now_ns >= e) {
+            if stop(now_ns) {
                 break;
             }
             self.cycles += 1;

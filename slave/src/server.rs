@@ -48,6 +48,9 @@ pub struct RunOptions {
     pub duration_s: Option<f64>,
     /// Write an MCAP recording here.
     pub record: Option<PathBuf>,
+    /// After a stop request, keep cycling (commands ignored) for at most this long until the
+    /// arm is in its safe state with the force released, s.
+    pub shutdown_limit_s: f64,
 }
 
 impl Default for RunOptions {
@@ -63,6 +66,7 @@ impl Default for RunOptions {
             lock_memory: false,
             duration_s: None,
             record: None,
+            shutdown_limit_s: 2.0,
         }
     }
 }
@@ -109,6 +113,45 @@ pub struct SlaveRunSummary {
     pub final_state: String,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
+    /// The stop: the loop kept running with commands ignored until the arm was in its safe
+    /// state with the force released (or the time limit); what it reached.
+    pub shutdown: ShutdownReport,
+}
+
+/// How the slave left: after a stop request (signal, parent gone, duration) the loop ignores
+/// commands, its watchdog trips, and the arm goes to its safe state (set-point ramped to zero,
+/// retract, hold) before the process exits.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ShutdownReport {
+    /// Cycles run after the stop request.
+    pub cycles: u64,
+    /// The endpoint's state at exit (`SafeStop`, or `Idle` if no master ever commanded).
+    pub final_state: String,
+    /// True contact force at exit, N.
+    pub final_force_n: f64,
+    /// The arm reached its safe state (not `Active`) with the true force below
+    /// [`SHUTDOWN_RELEASED_N`] within the limit.
+    pub safe: bool,
+}
+
+/// The force below which the shutdown counts the arm as released, N.
+pub const SHUTDOWN_RELEASED_N: f64 = 0.5;
+/// How long the arm holds in its safe state before the process exits, cycles.
+const SHUTDOWN_HOLD_CYCLES: u64 = 50;
+
+/// A link that still publishes but ignores (drains and drops) every received message: the
+/// slave's view of the world after a stop request.
+struct Deaf<'a, L>(&'a mut L);
+
+impl<L: Link<Feedback, Command>> Link<Feedback, Command> for Deaf<'_, L> {
+    fn publish(&mut self, msg: &Feedback) -> Result<(), h4_transport::LinkError> {
+        self.0.publish(msg)
+    }
+    fn try_recv(&mut self) -> Result<Option<Command>, h4_transport::LinkError> {
+        while self.0.try_recv()?.is_some() {}
+        Ok(None)
+    }
 }
 
 /// Why the slave could not run.
@@ -190,7 +233,7 @@ pub fn run<L: Link<Feedback, Command>>(
         arm,
         period_ns,
     )?;
-    let mut recorder = BackgroundRecorder::<CycleRecord>::start_for(
+    let mut recorder: BackgroundRecorder<CycleRecord> = BackgroundRecorder::start_for(
         opts.record.as_deref(),
         "/slave/cycle",
         "h4.SlaveProcessCycle",
@@ -233,22 +276,7 @@ pub fn run<L: Link<Feedback, Command>>(
             s.contact_cycles += 1;
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
-        recorder.push(
-            cx.unix_ns,
-            CycleRecord {
-                time_ns: now,
-                state: c.state as u8,
-                status: out.status.code(),
-                lateness_us: us(cx.tick.lateness_ns),
-                force_measured_n: out.normal_force_n,
-                force_desired_n: out.setpoint_n,
-                force_true_n: true_force_n,
-                measured_pose: out.measured_pose,
-                commanded_pose: out.commanded_pose,
-                contact_normal: out.contact_normal,
-                command_seq: c.command_seq,
-            },
-        );
+        recorder.push(cx.unix_ns, CycleRecord::of(&c, cx, true_force_n));
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(
@@ -267,6 +295,7 @@ pub fn run<L: Link<Feedback, Command>>(
         Ok::<(), std::convert::Infallible>(())
     });
     let k = *teleop.counters();
+    s.shutdown = shut_down(&mut teleop, link, &mut rt, &mut recorder, opts);
     s.commands_rejected_by_controller = k.commands_rejected_by_controller;
     s.link_errors = k.link_errors;
     s.safe_stops = k.safe_stops;
@@ -282,4 +311,52 @@ pub fn run<L: Link<Feedback, Command>>(
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
+}
+
+/// After the stop request: commands ignored, the watchdog trips, the safe stop ramps the
+/// force to zero and retracts; returns when the arm holds released (or at the limit).
+fn shut_down<L: Link<Feedback, Command>>(
+    teleop: &mut SlaveTeleop<crate::plant::SimArm>,
+    link: &mut L,
+    rt: &mut RtLoop,
+    recorder: &mut BackgroundRecorder<CycleRecord>,
+    opts: &RunOptions,
+) -> ShutdownReport {
+    let period_ns = opts.period_ns.max(1);
+    let mut deaf = Deaf(link);
+    let mut r = ShutdownReport::default();
+    let mut held = 0;
+    rt.run_after_stop(opts.shutdown_limit_s, |cx| {
+        let c = teleop.step(&mut deaf, cx.now_ns, period_ns as f64 * 1e-9);
+        teleop.arm_mut().advance(period_ns * (1 + cx.tick.missed));
+        let force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
+        recorder.push(cx.unix_ns, CycleRecord::of(&c, cx, force_n));
+        r.cycles += 1;
+        r.final_force_n = force_n;
+        r.safe = c.state != SlaveState::Active && force_n < SHUTDOWN_RELEASED_N;
+        held = if r.safe { held + 1 } else { 0 };
+        // Idle: never commanded, nothing to bring back.
+        !(c.state == SlaveState::Idle && r.safe || held >= SHUTDOWN_HOLD_CYCLES)
+    });
+    r.final_state = format!("{:?}", teleop.state());
+    r
+}
+
+impl CycleRecord {
+    fn of(c: &crate::teleop::TeleopCycle, cx: &h4_shared::rt::CycleCtx<'_>, force_true_n: f64) -> Self {
+        let out = &c.out;
+        CycleRecord {
+            time_ns: cx.now_ns,
+            state: c.state as u8,
+            status: out.status.code(),
+            lateness_us: us(cx.tick.lateness_ns),
+            force_measured_n: out.normal_force_n,
+            force_desired_n: out.setpoint_n,
+            force_true_n,
+            measured_pose: out.measured_pose,
+            commanded_pose: out.commanded_pose,
+            contact_normal: out.contact_normal,
+            command_seq: c.command_seq,
+        }
+    }
 }

@@ -100,6 +100,11 @@ pub struct LoopbackSummary {
     pub force_transparency_err_pct: f64,
     /// Time in contact seen by the master, s.
     pub contact_time_s: f64,
+    /// Both processes ran to the end and reported (false: the slave process died; its
+    /// summary fields are then zero and `faults` says how it ended).
+    pub complete: bool,
+    /// With `--record`: what was merged and what was lost.
+    pub recording: Option<RecordingReport>,
     /// The master process's own summary.
     pub master: MasterRunSummary,
     /// The slave process's own summary.
@@ -107,73 +112,20 @@ pub struct LoopbackSummary {
 }
 
 impl LoopbackArgs {
-    /// Runs the two processes; exit code 0 if stable and in real time, 1 if not, 130 if a
-    /// signal stopped it early.
+    /// Runs the two processes; exit code 0 if stable and in real time, 1 if not (or if the
+    /// slave process died), 130 if a signal stopped it early.
     pub fn run(self) -> Result<ExitCode, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.config, &self.set)
             .map_err(|e| format!("{}: {e}", self.config.display()))?;
-        let slave_bin = find_slave_binary(self.slave_bin.as_deref())?;
-        let pid = std::process::id();
-        let work = std::env::temp_dir().join(format!("h4-loopback-{pid}"));
-        std::fs::create_dir_all(&work).map_err(|e| format!("{}: {e}", work.display()))?;
-        let world = work.join("slave-world.toml");
-        let passivity = work.join("passivity.toml");
-        write_slave_config(&cfg, &world, &passivity)?;
-        let slave_summary = work.join("slave-summary.json");
-        let slave_log = work.join("slave.log");
-
-        // A prefix of our own: runs side by side never share services.
-        let transport = TransportArgs::iceoryx2(self.arm_id, format!("h4-loopback-{pid}"));
-        let mut cmd = std::process::Command::new(&slave_bin);
-        cmd.arg("run")
-            .arg("--config")
-            .arg(&world)
-            .args(transport.to_args())
-            .arg("--passivity-config")
-            .arg(&passivity)
-            .arg("--watchdog-ms")
-            .arg(self.watchdog_ms.to_string())
-            .arg("--summary")
-            .arg(&slave_summary)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(
-                std::fs::File::create(&slave_log)
-                    .map_err(|e| format!("{}: {e}", slave_log.display()))?,
-            );
         let parts = self.record.as_deref().map(RecordingParts::next_to);
-        if let Some(p) = &parts {
-            cmd.arg("--record").arg(&p.slave);
-        }
-        if let Some(p) = self.fifo_priority {
-            cmd.arg("--fifo-priority").arg(p.to_string());
-        }
-        let slave = cmd
-            .spawn()
-            .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
-        let slave_pid = i32::try_from(slave.id()).map_err(|e| e.to_string())?;
-        // If the slave dies, the master stops too (instead of waiting for its feedback).
-        let slave = Arc::new(Mutex::new(slave));
-        let done = Arc::new(AtomicBool::new(false));
-        let watcher = {
-            let slave = Arc::clone(&slave);
-            let done = Arc::clone(&done);
-            std::thread::spawn(move || {
-                while !done.load(Ordering::SeqCst) {
-                    let exited = slave
-                        .lock()
-                        .map(|mut c| matches!(c.try_wait(), Ok(Some(_))))
-                        .unwrap_or(true);
-                    if exited {
-                        h4_shared::process::request_stop();
-                        return;
-                    }
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-            })
-        };
-
+        self.check_outputs(parts.as_ref())?;
+        let slave_bin = find_slave_binary(self.slave_bin.as_deref())?;
+        // A prefix of our own: runs side by side never share services.
+        let pid = std::process::id();
+        let transport = TransportArgs::iceoryx2(self.arm_id, format!("h4-loopback-{pid}"));
+        let slave = SlaveChild::spawn(&self, &cfg, &slave_bin, &transport, parts.as_ref())?;
+        let slave_pid = slave.pid;
         let duration_s = self.duration_s.unwrap_or(cfg.duration_s);
         let master_args = super::run::RunArgs {
             config: self.config.clone(),
@@ -191,42 +143,222 @@ impl LoopbackArgs {
         // The slave is told to stop the moment the master's loop ends, before its watchdog
         // sees the master's silence.
         let master = master_args.run_summary_then(|| {
-            // SAFETY: plain syscall; the slave is our child, reaped only in `stop_child`.
+            // SAFETY: plain syscall; the slave is our child, reaped only in `SlaveChild::stop`.
             unsafe {
                 libc::kill(slave_pid, libc::SIGTERM);
             }
         });
-        done.store(true, Ordering::SeqCst);
-        let _ = watcher.join();
-        let stopped = match slave.lock() {
-            Ok(mut child) => stop_child(&mut child),
-            Err(_) => Err("slave process handle poisoned".to_string()),
+        let ended = slave.stop();
+        let master = master.map_err(|e| with_log(format!("master: {e}"), &ended.log))?;
+        if !ended.log.trim().is_empty() {
+            eprintln!("h4-slave said:\n{}", ended.log.trim_end());
+        }
+        let (slave, slave_fault) = match &ended.outcome {
+            Ok(()) => (
+                serde_json::from_str::<SlaveRunSummary>(&ended.stdout)
+                    .map_err(|e| format!("slave summary: {e}"))?,
+                None,
+            ),
+            Err(e) => (SlaveRunSummary::default(), Some(e.clone())),
         };
-        let log = std::fs::read_to_string(&slave_log).unwrap_or_default();
-        let master = master.map_err(|e| with_log(format!("master: {e}"), &log))?;
-        stopped.map_err(|e| with_log(e, &log))?;
-        let slave_json = std::fs::read_to_string(&slave_summary)
-            .map_err(|e| with_log(format!("slave summary: {e}"), &log))?;
-        let slave: SlaveRunSummary = serde_json::from_str(&slave_json)
-            .map_err(|e| format!("slave summary {}: {e}", slave_summary.display()))?;
-        if !log.trim().is_empty() {
-            eprintln!("h4-slave said:\n{}", log.trim_end());
+        let recording = match (&self.record, &parts) {
+            (Some(out), Some(p)) => Some(p.merge_into(out, ended.died_unix_ns)?),
+            _ => None,
+        };
+        let mut summary = combine(&cfg, duration_s, master, slave);
+        if let Some(e) = &slave_fault {
+            summary.complete = false;
+            summary.faults.push(format!("slave process: {e}"));
         }
-        let _ = std::fs::remove_dir_all(&work);
-        if let (Some(out), Some(p)) = (&self.record, &parts) {
-            p.merge_into(out)?;
+        if let Some(r) = &recording {
+            for lost in &r.lost {
+                eprintln!("h4-master: recording: {lost}");
+            }
         }
-
-        let summary = combine(&cfg, duration_s, master, slave);
+        summary.recording = recording;
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
         Ok(if h4_shared::process::signal_received() {
             ExitStatus::Interrupted.into()
-        } else if summary.stable && summary.realtime_ok {
+        } else if summary.stable && summary.realtime_ok && summary.complete {
             ExitCode::SUCCESS
         } else {
             ExitStatus::VerdictFailed.into()
         })
     }
+
+    /// `--summary`, `--record` and the recording's parts must be writable before the run.
+    fn check_outputs(&self, parts: Option<&RecordingParts>) -> Result<(), String> {
+        use h4_shared::process::check_writable;
+        if let Some(p) = &self.summary {
+            check_writable("--summary", p)?;
+        }
+        if let Some(p) = &self.record {
+            check_writable("--record", p)?;
+        }
+        if let Some(p) = parts {
+            check_writable("--record (its master part)", &p.master)?;
+            check_writable("--record (its slave part)", &p.slave)?;
+        }
+        Ok(())
+    }
+}
+
+/// The slave child: stdout (its summary) and stderr (its log) read by two threads, a watcher
+/// that stops the master when the slave exits. No temporary files: the slave's world and
+/// passivity files are handed over as memory files.
+struct SlaveChild {
+    pid: i32,
+    child: Arc<Mutex<Child>>,
+    done: Arc<AtomicBool>,
+    died_unix_ns: Arc<std::sync::atomic::AtomicU64>,
+    watcher: std::thread::JoinHandle<()>,
+    stdout: std::thread::JoinHandle<String>,
+    stderr: std::thread::JoinHandle<String>,
+}
+
+/// What the slave left when it ended.
+struct SlaveEnded {
+    /// Its orderly stop, or why not (killed by a signal, failed).
+    outcome: Result<(), String>,
+    /// Its standard output: the summary JSON.
+    stdout: String,
+    /// Its standard error.
+    log: String,
+    /// Unix time the master saw it exit by itself (0: it did not, it was stopped), ns.
+    died_unix_ns: u64,
+}
+
+impl SlaveChild {
+    fn spawn(
+        args: &LoopbackArgs,
+        cfg: &SessionConfig,
+        slave_bin: &Path,
+        transport: &TransportArgs,
+        parts: Option<&RecordingParts>,
+    ) -> Result<Self, String> {
+        let world = memory_file(
+            "slave-world.toml",
+            &toml::to_string(&slave_world(cfg)).map_err(|e| e.to_string())?,
+        )?;
+        let passivity = memory_file(
+            "passivity.toml",
+            &toml::to_string(&cfg.passivity).map_err(|e| e.to_string())?,
+        )?;
+        let mut cmd = std::process::Command::new(slave_bin);
+        cmd.arg("run")
+            .arg("--config")
+            .arg(fd_path(&world))
+            .args(transport.to_args())
+            .arg("--passivity-config")
+            .arg(fd_path(&passivity))
+            .arg("--watchdog-ms")
+            .arg(args.watchdog_ms.to_string())
+            .arg("--parent-pid")
+            .arg(std::process::id().to_string())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        if let Some(p) = parts {
+            cmd.arg("--record").arg(&p.slave);
+        }
+        if let Some(p) = args.fifo_priority {
+            cmd.arg("--fifo-priority").arg(p.to_string());
+        }
+        let mut child = cmd
+            .spawn()
+            .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
+        drop((world, passivity));
+        let pid = i32::try_from(child.id()).map_err(|e| e.to_string())?;
+        let stdout = read_all(child.stdout.take());
+        let stderr = read_all(child.stderr.take());
+        // If the slave dies, the master stops too (instead of waiting for its feedback).
+        let child = Arc::new(Mutex::new(child));
+        let done = Arc::new(AtomicBool::new(false));
+        let died_unix_ns = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let watcher = {
+            let (child, done, died) = (Arc::clone(&child), Arc::clone(&done), Arc::clone(&died_unix_ns));
+            std::thread::spawn(move || {
+                while !done.load(Ordering::SeqCst) {
+                    let exited = child
+                        .lock()
+                        .map(|mut c| matches!(c.try_wait(), Ok(Some(_))))
+                        .unwrap_or(true);
+                    if exited {
+                        died.store(unix_now_ns(), Ordering::SeqCst);
+                        h4_shared::process::request_stop();
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            })
+        };
+        Ok(SlaveChild {
+            pid,
+            child,
+            done,
+            died_unix_ns,
+            watcher,
+            stdout,
+            stderr,
+        })
+    }
+
+    /// Stops the slave (SIGTERM, then SIGKILL after 10 s) and collects what it left.
+    fn stop(self) -> SlaveEnded {
+        self.done.store(true, Ordering::SeqCst);
+        let _ = self.watcher.join();
+        let outcome = match self.child.lock() {
+            Ok(mut child) => stop_child(&mut child),
+            Err(_) => Err("slave process handle poisoned".to_string()),
+        };
+        SlaveEnded {
+            outcome,
+            stdout: self.stdout.join().unwrap_or_default(),
+            log: self.stderr.join().unwrap_or_default(),
+            died_unix_ns: self.died_unix_ns.load(Ordering::SeqCst),
+        }
+    }
+}
+
+fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}
+
+/// A thread reading `pipe` to its end.
+fn read_all(pipe: Option<impl std::io::Read + Send + 'static>) -> std::thread::JoinHandle<String> {
+    std::thread::spawn(move || {
+        let mut text = String::new();
+        if let Some(mut p) = pipe {
+            let _ = p.read_to_string(&mut text);
+        }
+        text
+    })
+}
+
+/// An anonymous memory file holding `text`, inherited by child processes (no close-on-exec),
+/// which open it as `/proc/self/fd/N` ([`fd_path`]): nothing on disk to leave behind.
+fn memory_file(name: &str, text: &str) -> Result<std::fs::File, String> {
+    use std::io::Write;
+    use std::os::fd::FromRawFd;
+    let cname = std::ffi::CString::new(name).map_err(|e| e.to_string())?;
+    // SAFETY: a valid NUL-terminated name; flags 0 (inheritable). The fd is owned by the File.
+    let fd = unsafe { libc::memfd_create(cname.as_ptr(), 0) };
+    if fd < 0 {
+        return Err(format!("memory file {name}: {}", std::io::Error::last_os_error()));
+    }
+    // SAFETY: `fd` was just created and is owned by nothing else.
+    let mut file = unsafe { std::fs::File::from_raw_fd(fd) };
+    file.write_all(text.as_bytes())
+        .map_err(|e| format!("memory file {name}: {e}"))?;
+    Ok(file)
+}
+
+/// The path under which a child process opens an inherited file.
+fn fd_path(file: &std::fs::File) -> String {
+    use std::os::fd::AsRawFd;
+    format!("/proc/self/fd/{}", file.as_raw_fd())
 }
 
 fn with_log(msg: String, log: &str) -> String {
@@ -257,9 +389,10 @@ impl RecordingParts {
     }
 
     /// Merges both parts into `out` and removes them; on failure they stay, and the error
-    /// names them.
-    fn merge_into(&self, out: &Path) -> Result<(), String> {
-        h4_shared::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
+    /// names them. A part that did not end properly (its process was killed) is merged up to
+    /// its last checkpoint and the report says what was lost.
+    fn merge_into(&self, out: &Path, slave_died_unix_ns: u64) -> Result<RecordingReport, String> {
+        let stats = h4_shared::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
             format!(
                 "{e} (the parts {} and {} are kept)",
                 self.master.display(),
@@ -268,8 +401,54 @@ impl RecordingParts {
         })?;
         let _ = std::fs::remove_file(&self.master);
         let _ = std::fs::remove_file(&self.slave);
-        Ok(())
+        let mut report = RecordingReport {
+            master_messages: stats.messages_by_input.first().copied().unwrap_or(0),
+            slave_messages: stats.messages_by_input.get(1).copied().unwrap_or(0),
+            master_complete: stats.complete.first().copied().unwrap_or(false),
+            slave_complete: stats.complete.get(1).copied().unwrap_or(false),
+            lost: Vec::new(),
+        };
+        for (i, who) in ["master", "slave"].into_iter().enumerate() {
+            if stats.complete.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            let last = stats.last_log_time_ns.get(i).copied().unwrap_or(0);
+            let torn = if stats.unreadable_tail.get(i).copied().unwrap_or(false) {
+                " (its last write was torn and skipped)"
+            } else {
+                ""
+            };
+            let gap = if who == "slave" && slave_died_unix_ns > last && last > 0 {
+                format!(
+                    "; the slave was seen dead {:.3} s after its last recorded cycle: at most that much is lost",
+                    (slave_died_unix_ns - last) as f64 / 1e9
+                )
+            } else {
+                String::new()
+            };
+            report.lost.push(format!(
+                "the {who} process did not finish its part: {} messages recovered up to its last checkpoint{torn}{gap}",
+                stats.messages_by_input.get(i).copied().unwrap_or(0)
+            ));
+        }
+        Ok(report)
     }
+}
+
+/// What `loopback --record` merged.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RecordingReport {
+    /// Messages from the master's part.
+    pub master_messages: u64,
+    /// Messages from the slave's part.
+    pub slave_messages: u64,
+    /// The master's part ended properly.
+    pub master_complete: bool,
+    /// The slave's part ended properly (false: the slave was killed; its part is merged up
+    /// to its last checkpoint, at most 0.5 s before the end).
+    pub slave_complete: bool,
+    /// What was lost, one sentence per incomplete part (empty: nothing).
+    pub lost: Vec<String>,
 }
 
 /// SIGTERM, then up to 10 s for an orderly stop; SIGKILL after that (an error).
@@ -469,6 +648,8 @@ fn combine(
         energy_min_j,
         force_transparency_err_pct: m.force_transparency_err_pct,
         contact_time_s: m.contact_cycles as f64 * 1e-3,
+        complete: true,
+        recording: None,
         master: m,
         slave: s,
     }

@@ -39,6 +39,7 @@ impl RunArgs {
     /// [`RunArgs::run_summary`], calling `at_loop_end` as soon as the loop has stopped.
     pub fn run_summary_then(&self, at_loop_end: impl FnOnce()) -> Result<MasterRunSummary, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        self.run.check_outputs()?;
         let cfg = session::load(&self.config, &self.set)
             .map_err(|e| format!("{}: {e}", self.config.display()))?;
         let link = self.transport.open_master().map_err(|e| e.to_string())?;

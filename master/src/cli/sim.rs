@@ -26,6 +26,9 @@ impl SimArgs {
     /// Runs the session; exit code 0 if the detector says stable, 1 if not.
     pub fn run(self) -> Result<ExitCode, String> {
         let cfg = session::load(&self.session, &self.set).map_err(|e| e.to_string())?;
+        if let Some(p) = &self.summary {
+            h4_shared::process::check_writable("--summary", p)?;
+        }
         let mut recorder = match &self.record {
             Some(p) => Some(Recorder::create(p).map_err(|e| e.to_string())?),
             None => None,

@@ -26,6 +26,9 @@ impl ExperimentArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         let cfg: h4_slave::experiment::ExperimentConfig =
             h4_shared::config::load(&self.file, &self.set).map_err(|e| e.to_string())?;
+        if let Some(p) = &self.summary {
+            h4_shared::process::check_writable("--summary", p)?;
+        }
         let mut recorder = match &self.record {
             Some(path) => Some(Recorder::create(path).map_err(|e| e.to_string())?),
             None => None,

@@ -34,6 +34,11 @@ pub struct RunArgs {
     /// `[passivity]` section (docs/sessions.md); default: the defaults there.
     #[arg(long, value_name = "FILE")]
     pub passivity_config: Option<PathBuf>,
+    /// Stop (safe state, summary) when process PID, this process's parent, dies: set by
+    /// `h4-master loopback` for the slave it starts (parent-death signal plus a watch on the
+    /// parent).
+    #[arg(long, value_name = "PID")]
+    pub parent_pid: Option<u32>,
 }
 
 /// A `--passivity-config` file: the keys of a session's `[passivity]` section.
@@ -51,6 +56,11 @@ impl RunArgs {
     /// Runs the slave process until stopped; prints and writes the summary.
     pub fn run(self) -> Result<ExitCode, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        if let Some(pid) = self.parent_pid {
+            h4_shared::process::stop_with_parent(pid)
+                .map_err(|e| format!("--parent-pid {pid}: {e}"))?;
+        }
+        self.run.check_outputs()?;
         let cfg: ExperimentConfig =
             h4_shared::config::load(&self.config, &self.set).map_err(|e| e.to_string())?;
         let passivity = match &self.passivity_config {
