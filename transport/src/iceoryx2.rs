@@ -127,12 +127,17 @@ where
         .history_size(1)
         .subscriber_max_buffer_size(opts.buffer.max(1))
         .enable_safe_overflow(true)
-        .max_publishers(4)
+        .max_publishers(MAX_PUBLISHERS)
         .max_subscribers(4)
         .max_nodes(8)
         .open_or_create()
         .map_err(|e| format!("{e:?}"))
 }
+
+/// Publishers per service: one master publishes commands, one slave feedback. A second
+/// process of the same kind on the same prefix and arm is refused when it creates its
+/// publisher (monitors only subscribe: [`monitor`]).
+pub const MAX_PUBLISHERS: usize = 1;
 
 static QUIET: Once = Once::new();
 
@@ -162,10 +167,22 @@ where
         what: "open or create the incoming service",
         detail,
     })?;
-    let publisher = out_service
-        .publisher_builder()
-        .create()
-        .map_err(|e| err("publisher")(&e))?;
+    let publisher = out_service.publisher_builder().create().map_err(|e| {
+        if matches!(
+            e,
+            ::iceoryx2::port::publisher::PublisherCreateError::ExceedsMaxSupportedPublishers
+        ) {
+            Iceoryx2Error {
+                what: "refused",
+                detail: format!(
+                    "another process already publishes on the service {}/{}/{out_topic}: one master and one slave per arm and prefix",
+                    opts.prefix, opts.arm_id
+                ),
+            }
+        } else {
+            err("publisher")(&e)
+        }
+    })?;
     let subscriber = in_service
         .subscriber_builder()
         .buffer_size(opts.buffer.max(1))
@@ -194,6 +211,103 @@ pub fn remove_stale_nodes() -> Result<usize, Iceoryx2Error> {
     })
     .map_err(|e| err("list nodes")(&e))?;
     Ok(dead)
+}
+
+/// A receive-only end on `<prefix>/<arm_id>/<topic>` (a monitor: it takes no publisher slot,
+/// so it never keeps the master or the slave out).
+pub struct Iceoryx2Monitor<In>
+where
+    Shm<In>: ZeroCopySend,
+    In: std::fmt::Debug + 'static,
+{
+    subscriber: Subscriber<ipc::Service, Shm<In>, ()>,
+    _node: Node<ipc::Service>,
+}
+
+impl<In> std::fmt::Debug for Iceoryx2Monitor<In>
+where
+    Shm<In>: ZeroCopySend,
+    In: std::fmt::Debug + 'static,
+{
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Iceoryx2Monitor").finish_non_exhaustive()
+    }
+}
+
+impl<In> Iceoryx2Monitor<In>
+where
+    Shm<In>: ZeroCopySend,
+    In: Copy + std::fmt::Debug + 'static,
+{
+    /// The next message, if any (non-blocking).
+    pub fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
+        match self.subscriber.receive() {
+            Ok(Some(sample)) => Ok(Some(sample.payload().0)),
+            Ok(None) => Ok(None),
+            Err(_) => Err(LinkError::ReceiveFailed {
+                transport: "iceoryx2",
+            }),
+        }
+    }
+}
+
+/// A monitor of the slave's feedback on `opts` (receive only).
+pub fn feedback_monitor(opts: &Iceoryx2Options) -> Result<Iceoryx2Monitor<Feedback>, Iceoryx2Error> {
+    QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
+    let node = NodeBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| err("node")(&e))?;
+    let service = service::<Feedback>(&node, opts, "feedback").map_err(|detail| Iceoryx2Error {
+        what: "open or create the feedback service",
+        detail,
+    })?;
+    let subscriber = service
+        .subscriber_builder()
+        .buffer_size(opts.buffer.max(1))
+        .create()
+        .map_err(|e| err("subscriber")(&e))?;
+    Ok(Iceoryx2Monitor {
+        subscriber,
+        _node: node,
+    })
+}
+
+/// What iceoryx2 holds on this host ([`resources`]).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Resources {
+    /// Nodes of live processes.
+    pub alive_nodes: usize,
+    /// Nodes of dead processes whose resources were not removed yet.
+    pub dead_nodes: usize,
+    /// Services whose name starts with the prefix asked for.
+    pub services: Vec<String>,
+}
+
+/// Lists, with iceoryx2's own node and service listing, the nodes on this host (alive and
+/// dead) and the services whose names start with `prefix`.
+pub fn resources(prefix: &str) -> Result<Resources, Iceoryx2Error> {
+    QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
+    let mut r = Resources::default();
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        match state {
+            NodeState::<ipc::Service>::Alive(_) => r.alive_nodes += 1,
+            NodeState::<ipc::Service>::Dead(_) => r.dead_nodes += 1,
+            _ => {}
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("list nodes")(&e))?;
+    ipc::Service::list(Config::global_config(), |service| {
+        let name = service.static_details.name().to_string();
+        if name.starts_with(prefix) {
+            r.services.push(name);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("list services")(&e))?;
+    r.services.sort();
+    Ok(r)
 }
 
 /// The master's end: publishes commands, receives feedback.

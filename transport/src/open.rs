@@ -127,28 +127,39 @@ impl TransportArgs {
         }
     }
 
+    /// Opens a Zenoh end and claims `role` on its arm ([`ZenohLink::claim_role`]): a second
+    /// master or slave on the same key expressions is refused.
     fn open_zenoh<Out: WireMessage, In: WireMessage>(
         &self,
+        role: &str,
     ) -> Result<Box<dyn Link<Out, In>>, OpenError> {
-        let link = ZenohLink::<Out, In>::open(self.arm_id, &self.zenoh())?;
+        let mut link = ZenohLink::<Out, In>::open(self.arm_id, &self.zenoh())?;
+        link.claim_role(role, ROLE_QUERY_TIMEOUT)?;
         Ok(Box::new(link))
     }
 
     /// Opens the slave's end (publishes feedback, receives commands). For iceoryx2, the
-    /// resources of dead processes are removed first (reported on stderr).
+    /// resources of dead processes are removed first (reported on stderr). A second slave on
+    /// the same arm (and iceoryx2 prefix) is refused: iceoryx2 allows one publisher per
+    /// service, Zenoh checks the slave's liveliness token.
     pub fn open_slave(&self) -> Result<Box<dyn Link<Feedback, Command>>, OpenError> {
         match self.transport {
             TransportKind::Iceoryx2 => Ok(Box::new(iox::slave(&self.iceoryx2_options())?)),
-            TransportKind::Zenoh => self.open_zenoh(),
+            TransportKind::Zenoh => self.open_zenoh("slave"),
         }
     }
 
     /// Opens the master's end (publishes commands, receives feedback). For iceoryx2, the
-    /// resources of dead processes are removed first (reported on stderr).
+    /// resources of dead processes are removed first (reported on stderr). A second master
+    /// is refused as a second slave is.
     pub fn open_master(&self) -> Result<Box<dyn Link<Command, Feedback>>, OpenError> {
         match self.transport {
             TransportKind::Iceoryx2 => Ok(Box::new(iox::master(&self.iceoryx2_options())?)),
-            TransportKind::Zenoh => self.open_zenoh(),
+            TransportKind::Zenoh => self.open_zenoh("master"),
         }
     }
 }
+
+/// How long a process opening a Zenoh end waits for the answers to its liveliness query
+/// (is another master / slave of this arm alive?).
+pub const ROLE_QUERY_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(1);

@@ -210,6 +210,18 @@ pub enum ZenohError {
         /// Zenoh's message.
         message: String,
     },
+    /// Another process already holds this role on this arm (its liveliness token is alive).
+    #[error(
+        "refused: another {role} already serves arm {arm_id} (its liveliness token {key} is alive on the Zenoh network): one master and one slave per arm"
+    )]
+    RoleTaken {
+        /// "master" or "slave".
+        role: String,
+        /// The arm.
+        arm_id: u16,
+        /// The liveliness key expression.
+        key: String,
+    },
     /// The message type encodes to more than [`MAX_WIRE_SIZE`] bytes.
     #[error("{name} encodes to {size} bytes, more than the {max} this link supports")]
     MessageTooLarge {
@@ -227,6 +239,10 @@ pub enum ZenohError {
 pub fn key_expr(arm_id: u16, name: &str) -> String {
     format!("h4/{arm_id}/{name}")
 }
+
+/// How long [`ZenohLink::claim_role`] lets the new session meet the network (peers learn of
+/// each other by gossip through the peer they connect to) before it asks who is alive.
+pub const ROLE_SETTLE: std::time::Duration = std::time::Duration::from_millis(1000);
 
 /// What the subscriber callback shares with the link end.
 struct Inbox<In> {
@@ -280,6 +296,8 @@ pub struct ZenohLink<Out: WireMessage, In: WireMessage> {
     _subscriber: Subscriber<()>,
     inbox: Arc<Inbox<In>>,
     publish_errors: u64,
+    // The role this end claimed ([`ZenohLink::claim_role`]); undeclared when dropped.
+    _role_token: Option<::zenoh::liveliness::LivelinessToken>,
     session: Session,
     arm_id: u16,
     _marker: PhantomData<fn(Out)>,
@@ -351,10 +369,50 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
             _subscriber: subscriber,
             inbox,
             publish_errors: 0,
+            _role_token: None,
             session,
             arm_id,
             _marker: PhantomData,
         })
+    }
+
+    /// Claims `role` ("master" or "slave") for this arm on the Zenoh network: refused
+    /// ([`ZenohError::RoleTaken`]) if another session holds the liveliness token
+    /// `h4/<arm_id>/<role>` (asked with a liveliness query, answered by the sessions this one
+    /// is connected to, waiting at most `timeout`), otherwise the token is declared and kept
+    /// while this end lives (a killed process's token vanishes with its session).
+    pub fn claim_role(&mut self, role: &str, timeout: std::time::Duration) -> Result<(), ZenohError> {
+        let key = key_expr(self.arm_id, role);
+        let declare = |message: String| ZenohError::Declare {
+            what: "liveliness token",
+            key: key.clone(),
+            message,
+        };
+        std::thread::sleep(ROLE_SETTLE);
+        let replies = self
+            .session
+            .liveliness()
+            .get(key.as_str())
+            .timeout(timeout)
+            .wait()
+            .map_err(|e| declare(e.to_string()))?;
+        while let Ok(reply) = replies.recv() {
+            if reply.result().is_ok() {
+                return Err(ZenohError::RoleTaken {
+                    role: role.to_string(),
+                    arm_id: self.arm_id,
+                    key,
+                });
+            }
+        }
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(key.as_str())
+            .wait()
+            .map_err(|e| declare(e.to_string()))?;
+        self._role_token = Some(token);
+        Ok(())
     }
 
     /// The arm this end serves.
