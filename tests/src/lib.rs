@@ -1,4 +1,7 @@
-//! Helpers shared by the behaviour tests: the reference kinematics vectors.
+//! Helpers shared by the behaviour tests: the reference kinematics vectors, and the real-process
+//! test support (`procs`).
+
+pub mod procs;
 
 use h4_shared::H4Params;
 use serde::Deserialize;

@@ -141,6 +141,17 @@ pub const MAX_PUBLISHERS: usize = 1;
 
 static QUIET: Once = Once::new();
 
+/// A node named `<prefix>/<arm_id>/<role>` (so [`resources`] can tell ours apart).
+fn node(opts: &Iceoryx2Options, role: &str) -> Result<Node<ipc::Service>, Iceoryx2Error> {
+    let name = format!("{}/{}/{role}", opts.prefix, opts.arm_id);
+    let name = NodeName::new(&name).map_err(|e| err("node name")(&e))?;
+    NodeBuilder::new()
+        .name(&name)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| err("node")(&e))
+}
+
 fn open<Out, In>(
     opts: &Iceoryx2Options,
     out_topic: &str,
@@ -155,10 +166,7 @@ where
     // iceoryx2 warns on every start that no config file was loaded; keep errors only
     // unless the user asks for more with IOX2_LOG_LEVEL.
     QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
-    let node = NodeBuilder::new()
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
-        .map_err(|e| err("node")(&e))?;
+    let node = node(opts, out_topic)?;
     let out_service = service::<Out>(&node, opts, out_topic).map_err(|detail| Iceoryx2Error {
         what: "open or create the outgoing service",
         detail,
@@ -254,10 +262,7 @@ where
 /// A monitor of the slave's feedback on `opts` (receive only).
 pub fn feedback_monitor(opts: &Iceoryx2Options) -> Result<Iceoryx2Monitor<Feedback>, Iceoryx2Error> {
     QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
-    let node = NodeBuilder::new()
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
-        .map_err(|e| err("node")(&e))?;
+    let node = node(opts, "monitor")?;
     let service = service::<Feedback>(&node, opts, "feedback").map_err(|detail| Iceoryx2Error {
         what: "open or create the feedback service",
         detail,
@@ -273,27 +278,39 @@ pub fn feedback_monitor(opts: &Iceoryx2Options) -> Result<Iceoryx2Monitor<Feedba
     })
 }
 
-/// What iceoryx2 holds on this host ([`resources`]).
+/// What iceoryx2 holds on this host under one prefix ([`resources`]).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Resources {
-    /// Nodes of live processes.
+    /// Nodes of live processes named under the prefix.
     pub alive_nodes: usize,
-    /// Nodes of dead processes whose resources were not removed yet.
+    /// Nodes of dead processes named under the prefix whose resources were not removed yet.
     pub dead_nodes: usize,
-    /// Services whose name starts with the prefix asked for.
+    /// Nodes iceoryx2 cannot inspect (no permission, being created or removed), any name.
+    pub other_nodes: usize,
+    /// Services whose name starts with the prefix.
     pub services: Vec<String>,
 }
 
-/// Lists, with iceoryx2's own node and service listing, the nodes on this host (alive and
-/// dead) and the services whose names start with `prefix`.
+/// Lists, with iceoryx2's own node and service listing, the nodes (alive and dead) and the
+/// services on this host whose names start with `prefix` (our nodes are named
+/// `<prefix>/<arm_id>/<role>`).
 pub fn resources(prefix: &str) -> Result<Resources, Iceoryx2Error> {
     QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
     let mut r = Resources::default();
+    use ::iceoryx2::node::NodeView;
+    let ours = |d: Option<&::iceoryx2::node::NodeDetails>| {
+        d.is_some_and(|d| d.name().as_str().starts_with(prefix))
+    };
     Node::<ipc::Service>::list(Config::global_config(), |state| {
-        match state {
-            NodeState::<ipc::Service>::Alive(_) => r.alive_nodes += 1,
-            NodeState::<ipc::Service>::Dead(_) => r.dead_nodes += 1,
-            _ => {}
+        match &state {
+            NodeState::<ipc::Service>::Alive(v) if ours(v.details().as_ref()) => {
+                r.alive_nodes += 1;
+            }
+            NodeState::<ipc::Service>::Dead(v) if ours(v.details().as_ref()) => {
+                r.dead_nodes += 1;
+            }
+            NodeState::<ipc::Service>::Alive(_) | NodeState::<ipc::Service>::Dead(_) => {}
+            _ => r.other_nodes += 1,
         }
         CallbackProgression::Continue
     })

@@ -1,0 +1,319 @@
+//! Support for the real-process tests (`tests/process*.rs`): the binaries of this build,
+//! scratch directories, child processes killed when dropped, summaries, the shared session
+//! arguments and iceoryx2 monitors of the slave's feedback.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command as Proc, Stdio};
+use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use h4_shared::wire::{Command, Feedback};
+use h4_transport::Link;
+use h4_transport::iceoryx2::{self as iox, Iceoryx2Link, Iceoryx2Monitor, Iceoryx2Options};
+use serde_json::Value;
+
+/// One process test at a time: each runs two 1 kHz loops, and the machine has two cores.
+pub static SERIAL: Mutex<()> = Mutex::new(());
+
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+pub fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("workspace root")
+        .to_path_buf()
+}
+
+/// `target/<profile>/` of this test binary (`target/<profile>/deps/processes-…`).
+pub fn profile_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable");
+    let deps = exe.parent().expect("deps dir");
+    deps.parent().expect("profile dir").to_path_buf()
+}
+
+/// The h4-master and h4-slave binaries of this build, built (or brought up to date) once
+/// with the cargo that runs the tests, in the same profile and target directory.
+pub fn binaries() -> &'static (PathBuf, PathBuf) {
+    static BINS: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    BINS.get_or_init(|| {
+        let dir = profile_dir();
+        if let Some(cargo) = std::env::var_os("CARGO") {
+            let profile = dir.file_name().and_then(|s| s.to_str()).unwrap_or("debug");
+            let profile = if profile == "debug" { "dev" } else { profile };
+            let mut build = Proc::new(cargo);
+            h4_shared::process::without_cargo_run_env(&mut build);
+            let out = build
+                .args(["build", "-p", "h4-master", "-p", "h4-slave", "--profile"])
+                .arg(profile)
+                .arg("--manifest-path")
+                .arg(workspace().join("Cargo.toml"))
+                .arg("--target-dir")
+                .arg(dir.parent().expect("target dir"))
+                .output()
+                .expect("run cargo build");
+            assert!(
+                out.status.success(),
+                "cargo build of h4-master and h4-slave failed:\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        let exe = std::env::consts::EXE_SUFFIX;
+        let master = dir.join(format!("h4-master{exe}"));
+        let slave = dir.join(format!("h4-slave{exe}"));
+        assert!(master.is_file(), "{} missing", master.display());
+        assert!(slave.is_file(), "{} missing", slave.display());
+        (master, slave)
+    })
+}
+
+/// A scratch directory and iceoryx2 prefix of this test.
+pub struct Scratch {
+    /// The directory.
+    pub dir: PathBuf,
+    /// The iceoryx2 prefix.
+    pub prefix: String,
+}
+
+impl Scratch {
+    pub fn new(name: &str) -> Self {
+        let tag = format!("h4-test-{}-{name}", std::process::id());
+        let dir = std::env::temp_dir().join(&tag);
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch dir");
+        Scratch { dir, prefix: tag }
+    }
+
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// A child process killed when dropped (a failing test leaves nothing running).
+pub struct Running {
+    name: &'static str,
+    child: Option<Child>,
+    log: PathBuf,
+}
+
+impl Running {
+    pub fn spawn(name: &'static str, bin: &Path, args: &[String], scratch: &Scratch) -> Self {
+        let log = scratch.path(&format!("{name}.log"));
+        let child = Proc::new(bin)
+            .args(args)
+            .current_dir(workspace())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).expect("log file"))
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+        Running {
+            name,
+            child: Some(child),
+            log,
+        }
+    }
+
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    pub fn pid(&self) -> i32 {
+        self.child.as_ref().map_or(0, |c| c.id() as i32)
+    }
+
+    pub fn signal(&self, sig: i32) {
+        // SAFETY: plain syscall on our own, not yet reaped child.
+        unsafe {
+            libc::kill(self.pid(), sig);
+        }
+    }
+
+    pub fn sigkill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// Waits for the exit (watchdog: `limit_s`, then the child is killed and the test
+    /// fails); returns whether it exited successfully.
+    pub fn wait(&mut self, limit_s: f64) -> bool {
+        let mut child = self.child.take().expect("child already reaped");
+        let t = Instant::now();
+        loop {
+            if let Some(status) = child.try_wait().expect("try_wait") {
+                return status.success();
+            }
+            if t.elapsed().as_secs_f64() > limit_s {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!(
+                    "watchdog: {} did not finish within {limit_s} s; its log:\n{}",
+                    self.name,
+                    self.log()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// SIGTERM, then an orderly exit within the watchdog.
+    pub fn stop(&mut self) {
+        self.signal(libc::SIGTERM);
+        let ok = self.wait(20.0);
+        assert!(ok, "{} failed; its log:\n{}", self.name, self.log());
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        self.sigkill();
+    }
+}
+
+pub fn read_json(path: &Path) -> Value {
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("summary {}: {e}", path.display()));
+    serde_json::from_str(&text).expect("summary JSON")
+}
+
+pub fn f(v: &Value, key: &str) -> f64 {
+    v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{key} missing in {v}"))
+}
+
+pub fn u(v: &Value, key: &str) -> u64 {
+    v[key]
+        .as_u64()
+        .unwrap_or_else(|| panic!("{key} missing in {v}"))
+}
+
+pub fn s(v: &[&str]) -> Vec<String> {
+    v.iter().map(|x| x.to_string()).collect()
+}
+
+/// The scripted contact used here: the wall-push session on a 20 N/mm wall, so the slave's
+/// position-mode contact stays below its force limit (80 N). Both processes get the same
+/// session: the master reads it, the slave the files `h4-master slave-config` derives.
+pub const SESSION: &str = "config/sessions/wall-push.toml";
+pub const WALL_N_PER_MM: &str = "20";
+
+/// `h4-slave run` arguments for the slave side of the session (world and passivity files
+/// written by `h4-master slave-config`).
+pub fn slave_args(scratch: &Scratch, extra: &[&str]) -> Vec<String> {
+    let (master, _) = binaries();
+    let world = scratch.path("world.toml");
+    let passivity = scratch.path("passivity.toml");
+    let mut cfg = s(&["slave-config", SESSION, "--set"]);
+    cfg.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    cfg.extend(["--world".into(), world.display().to_string()]);
+    cfg.extend(["--passivity".into(), passivity.display().to_string()]);
+    let out = Proc::new(master)
+        .args(&cfg)
+        .current_dir(workspace())
+        .output()
+        .expect("h4-master slave-config");
+    assert!(
+        out.status.success(),
+        "slave-config: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut a = s(&["run", "--config"]);
+    a.push(world.display().to_string());
+    a.push("--passivity-config".into());
+    a.push(passivity.display().to_string());
+    a.extend(s(&["--fifo-priority", "10", "--iceoryx2-prefix"]));
+    a.push(scratch.prefix.clone());
+    a.extend(s(extra));
+    a
+}
+
+pub fn master_args(scratch: &Scratch, extra: &[&str]) -> Vec<String> {
+    let mut a = s(&["run", "--config", SESSION, "--set"]);
+    a.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    a.extend(s(&["--fifo-priority", "10", "--iceoryx2-prefix"]));
+    a.push(scratch.prefix.clone());
+    a.extend(s(extra));
+    a
+}
+
+/// A third iceoryx2 node on the test's services that watches the slave's feedback.
+pub fn spy(scratch: &Scratch) -> Iceoryx2Monitor<Feedback> {
+    monitor(&scratch.prefix)
+}
+
+/// A receive-only iceoryx2 node on the feedback of `prefix` (arm 0).
+pub fn monitor(prefix: &str) -> Iceoryx2Monitor<Feedback> {
+    iox::feedback_monitor(&Iceoryx2Options {
+        prefix: prefix.to_string(),
+        ..Iceoryx2Options::new(0)
+    })
+    .expect("open the test's iceoryx2 monitor")
+}
+
+/// The test as the master on the test's services (publishes commands).
+pub fn master_end(scratch: &Scratch) -> Iceoryx2Link<Command, Feedback> {
+    iox::master(&Iceoryx2Options {
+        prefix: scratch.prefix.clone(),
+        ..Iceoryx2Options::new(0)
+    })
+    .expect("open the test's iceoryx2 end")
+}
+
+/// Something feedback can be read from without blocking.
+pub trait FeedbackSource {
+    /// The next feedback message, if any.
+    fn next_feedback(&mut self) -> Option<Feedback>;
+}
+
+impl FeedbackSource for Iceoryx2Monitor<Feedback> {
+    fn next_feedback(&mut self) -> Option<Feedback> {
+        self.try_recv().expect("receive")
+    }
+}
+
+impl FeedbackSource for Iceoryx2Link<Command, Feedback> {
+    fn next_feedback(&mut self) -> Option<Feedback> {
+        self.try_recv().expect("receive")
+    }
+}
+
+/// Reads feedback until `pred` holds (watchdog `limit_s`); returns the matching message.
+pub fn watch_until(
+    link: &mut impl FeedbackSource,
+    limit_s: f64,
+    what: &str,
+    mut pred: impl FnMut(&Feedback) -> bool,
+) -> Feedback {
+    let t = Instant::now();
+    loop {
+        while let Some(fb) = link.next_feedback() {
+            if pred(&fb) {
+                return fb;
+            }
+        }
+        assert!(
+            t.elapsed().as_secs_f64() < limit_s,
+            "watchdog: {what} not seen within {limit_s} s"
+        );
+        std::thread::sleep(Duration::from_micros(500));
+    }
+}
+
+pub fn force(fb: &Feedback) -> f64 {
+    let w = fb.wrench_measured;
+    (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt()
+}
+
