@@ -149,11 +149,16 @@ impl Running {
     /// Waits for the exit (watchdog: `limit_s`, then the child is killed and the test
     /// fails); returns whether it exited successfully.
     pub fn wait(&mut self, limit_s: f64) -> bool {
+        self.wait_status(limit_s).success()
+    }
+
+    /// Waits for the exit (watchdog as [`Running::wait`]); returns the exit status.
+    pub fn wait_status(&mut self, limit_s: f64) -> std::process::ExitStatus {
         let mut child = self.child.take().expect("child already reaped");
         let t = Instant::now();
         loop {
             if let Some(status) = child.try_wait().expect("try_wait") {
-                return status.success();
+                return status;
             }
             if t.elapsed().as_secs_f64() > limit_s {
                 let _ = child.kill();
@@ -317,3 +322,106 @@ pub fn force(fb: &Feedback) -> f64 {
     (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt()
 }
 
+
+/// `h4-master loopback` arguments: the test session on the 20 N/mm wall for `duration_s`,
+/// both loops under SCHED_FIFO 10 where allowed, plus `extra`.
+pub fn loopback_args(duration_s: &str, extra: &[&str]) -> Vec<String> {
+    let mut a = s(&["loopback", "--config", SESSION, "--duration-s", duration_s]);
+    a.extend(s(&["--fifo-priority", "10", "--set"]));
+    a.push(format!("environment.stiffness_n_per_mm={WALL_N_PER_MM}"));
+    a.extend(s(extra));
+    a
+}
+
+/// Whether process `pid` exists and is not a zombie.
+pub fn alive(pid: i32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        // The state follows the parenthesised command name.
+        Ok(stat) => stat
+            .rsplit_once(')')
+            .is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')),
+        Err(_) => false,
+    }
+}
+
+/// Waits (at most `limit_s`) until `pid` is gone; returns whether it went.
+pub fn wait_gone(pid: i32, limit_s: f64) -> bool {
+    let t = Instant::now();
+    while t.elapsed().as_secs_f64() < limit_s {
+        if !alive(pid) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    !alive(pid)
+}
+
+/// The first child process of `pid` (waits at most `limit_s` for one to appear).
+pub fn child_of(pid: i32, limit_s: f64) -> i32 {
+    let t = Instant::now();
+    loop {
+        let children =
+            std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap_or_default();
+        if let Some(c) = children.split_whitespace().next() {
+            return c.parse().expect("child pid");
+        }
+        assert!(
+            t.elapsed().as_secs_f64() < limit_s,
+            "watchdog: process {pid} started no child within {limit_s} s"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Kills `pid` (SIGKILL) when dropped if it is still alive: a process the test did not start
+/// itself (e.g. the slave of a loopback) never outlives a failing test.
+pub struct KillOnDrop(pub i32);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if self.0 > 0 && alive(self.0) {
+            // SAFETY: plain syscall; a stale pid at worst gets a signal it ignores or ESRCH.
+            unsafe {
+                libc::kill(self.0, libc::SIGKILL);
+            }
+        }
+    }
+}
+
+/// Unix time now, ns.
+pub fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// Opens MCAP files with the public Python reader (`mcap` package, `make_reader`) and returns,
+/// per path, `{messages, last_log_time_ns: {topic: ns}}`; panics with the reader's error if a
+/// file does not open or read to its end.
+pub fn read_with_python_mcap(paths: &[&Path]) -> Value {
+    const SCRIPT: &str = r#"
+import json, sys
+from mcap.reader import make_reader
+out = {}
+for path in sys.argv[1:]:
+    with open(path, "rb") as f:
+        n, last = 0, {}
+        for schema, channel, message in make_reader(f).iter_messages():
+            n += 1
+            last[channel.topic] = max(last.get(channel.topic, 0), message.log_time)
+    out[path] = {"messages": n, "last_log_time_ns": last}
+print(json.dumps(out))
+"#;
+    let out = Proc::new("python3")
+        .arg("-c")
+        .arg(SCRIPT)
+        .args(paths)
+        .output()
+        .expect("python3");
+    assert!(
+        out.status.success(),
+        "the Python MCAP reader failed on {paths:?}:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("reader output")
+}
