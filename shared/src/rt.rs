@@ -150,10 +150,13 @@ pub struct Pacer {
     pub lateness: Histogram,
     /// Deadlines missed in total.
     pub misses: u64,
-    /// Deadlines missed after a cycle whose body used at least half a period of the loop
-    /// thread's CPU time: the loop's own work overran. The other misses happened while the
-    /// thread was not running (the host or the scheduler stalled it).
+    /// Deadlines missed after a cycle whose body used at least a whole period of the loop
+    /// thread's CPU time: the loop's own work alone overran. The other misses happened while
+    /// the thread was not running (the host or the scheduler stalled it): had it run, its work
+    /// would have fitted in the period.
     pub misses_outside_stalls: u64,
+    /// Largest CPU time of the loop thread in one cycle's body, ns.
+    pub max_body_cpu_ns: u64,
     /// The loop thread's CPU time at the last wake-up, ns.
     woke_cpu_ns: u64,
 }
@@ -187,6 +190,7 @@ impl Pacer {
             lateness: Histogram::new(),
             misses: 0,
             misses_outside_stalls: 0,
+            max_body_cpu_ns: 0,
             woke_cpu_ns: thread_cpu_ns(),
         }
     }
@@ -217,9 +221,10 @@ impl Pacer {
             .max(1);
         let missed = late_ns / period_ns;
         self.misses += missed;
-        if missed > 0 && body_cpu_ns >= period_ns / 2 {
+        if missed > 0 && body_cpu_ns >= period_ns {
             self.misses_outside_stalls += missed;
         }
+        self.max_body_cpu_ns = self.max_body_cpu_ns.max(body_cpu_ns);
         self.woke_cpu_ns = thread_cpu_ns();
         self.lateness.record(late_ns);
         let skip = u32::try_from(missed + 1).unwrap_or(u32::MAX);
@@ -244,10 +249,13 @@ pub struct LoopReport {
     pub cycles: u64,
     /// Deadlines missed (the loop woke more than a whole period late).
     pub deadline_misses: u64,
-    /// Of those, the ones after a cycle that used at least half a period of the loop thread's
-    /// CPU time (the loop's own work overran); the rest happened while the host or the
-    /// scheduler did not run the loop thread.
+    /// Of those, the ones after a cycle whose body used at least a whole period of the loop
+    /// thread's CPU time (the loop's own work alone overran); the rest happened while the host
+    /// or the scheduler did not run the loop thread (its work would have fitted).
     pub deadline_misses_outside_stalls: u64,
+    /// Largest CPU time of the loop thread in one cycle's body (the per-cycle work, without
+    /// the pacer's wait), µs.
+    pub max_cycle_cpu_us: f64,
     /// Lateness of the loop's wake-up, p50, µs.
     pub lateness_p50_us: f64,
     /// p99 lateness, µs.
@@ -275,6 +283,7 @@ impl LoopReport {
             cycles,
             deadline_misses: pacer.misses,
             deadline_misses_outside_stalls: pacer.misses_outside_stalls,
+            max_cycle_cpu_us: us(pacer.max_body_cpu_ns),
             lateness_p50_us: us(h.quantile(0.5)),
             lateness_p99_us: us(h.quantile(0.99)),
             lateness_p999_us: us(h.quantile(0.999)),
