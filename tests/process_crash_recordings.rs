@@ -58,7 +58,10 @@ fn sigkill_of_the_slave_while_recording_loses_at_most_a_second_and_loopback_says
     assert_eq!(r["master_complete"], true, "{v:#}");
     let lost = r["lost"].as_array().expect("lost");
     assert!(!lost.is_empty(), "{v:#}");
-    assert!(log.contains("recording: the slave process did not finish"), "{log}");
+    assert!(
+        log.contains("recording: the slave process did not finish"),
+        "{log}"
+    );
     assert!(u(r, "slave_messages") > 1000, "{v:#}");
     // The merged file opens in the public reader, with the slave's cycles up to (at most a
     // second before) the kill.

@@ -48,9 +48,12 @@ fn a_second_slave_or_master_on_the_same_iceoryx2_services_is_refused() {
     );
     // The first pair still works.
     let before = watch_until(&mut mon, 5.0, "feedback", |_| true).echo_seq;
-    watch_until(&mut mon, 5.0, "the first master's commands still echoed", |fb| {
-        fb.state == SlaveState::Active as u8 && fb.echo_seq > before + 100
-    });
+    watch_until(
+        &mut mon,
+        5.0,
+        "the first master's commands still echoed",
+        |fb| fb.state == SlaveState::Active as u8 && fb.echo_seq > before + 100,
+    );
     ma.stop();
     sl.stop();
     let m = read_json(&scratch.path("master.json"));
@@ -68,10 +71,19 @@ fn a_second_slave_or_master_on_the_same_zenoh_keys_is_refused() {
         .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let zenoh = |listen: bool| -> Vec<&str> {
-        let flag = if listen { "--zenoh-listen" } else { "--zenoh-connect" };
+        let flag = if listen {
+            "--zenoh-listen"
+        } else {
+            "--zenoh-connect"
+        };
         vec!["--transport", "zenoh", flag, &endpoint]
     };
-    let mut sl = Running::spawn("slave", slave, &slave_args(&scratch, &zenoh(true)), &scratch);
+    let mut sl = Running::spawn(
+        "slave",
+        slave,
+        &slave_args(&scratch, &zenoh(true)),
+        &scratch,
+    );
     // The first slave listens, then claims its role (after Zenoh's settle time).
     let t = std::time::Instant::now();
     while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
@@ -81,14 +93,24 @@ fn a_second_slave_or_master_on_the_same_zenoh_keys_is_refused() {
     std::thread::sleep(std::time::Duration::from_secs(2));
     let mut second = zenoh(false);
     second.extend(["--duration-s", "3"]);
-    refused("a second slave", slave, &slave_args(&scratch, &second), &scratch);
+    refused(
+        "a second slave",
+        slave,
+        &slave_args(&scratch, &second),
+        &scratch,
+    );
     let ms = scratch.path("master.json").display().to_string();
     let mut first = zenoh(false);
     first.extend(["--summary", ms.as_str()]);
     let mut ma = Running::spawn("master", master, &master_args(&scratch, &first), &scratch);
     // The first master claims its role (Zenoh's settle time) before the second starts.
     std::thread::sleep(std::time::Duration::from_secs(3));
-    refused("a second master", master, &master_args(&scratch, &second), &scratch);
+    refused(
+        "a second master",
+        master,
+        &master_args(&scratch, &second),
+        &scratch,
+    );
     ma.stop();
     sl.stop();
     let m = read_json(&scratch.path("master.json"));

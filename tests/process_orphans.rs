@@ -14,7 +14,11 @@ use h4_tests::procs::*;
 fn loopback_in_contact(
     scratch: &Scratch,
     extra: &[&str],
-) -> (Running, KillOnDrop, h4_transport::iceoryx2::Iceoryx2Monitor<h4_shared::wire::Feedback>) {
+) -> (
+    Running,
+    KillOnDrop,
+    h4_transport::iceoryx2::Iceoryx2Monitor<h4_shared::wire::Feedback>,
+) {
     let (master, _) = binaries();
     let lb = Running::spawn("loopback", master, &loopback_args("60", extra), scratch);
     let slave = KillOnDrop(child_of(lb.pid(), 30.0));
@@ -74,13 +78,41 @@ fn an_unwritable_summary_or_recording_is_an_error_before_the_run() {
     let bad = "/nonexistent-h4-dir/out";
     let is_dir = scratch.dir.display().to_string();
     let cases: Vec<(&str, &std::path::PathBuf, Vec<String>)> = vec![
-        ("slave run --summary", slave, slave_args(&scratch, &["--duration-s", "30", "--summary", bad])),
-        ("slave run --record", slave, slave_args(&scratch, &["--duration-s", "30", "--record", bad])),
-        ("master run --summary", master, master_args(&scratch, &["--duration-s", "30", "--summary", bad])),
-        ("master run --record", master, master_args(&scratch, &["--duration-s", "30", "--record", &is_dir])),
-        ("loopback --summary", master, loopback_args("30", &["--summary", bad])),
-        ("loopback --record", master, loopback_args("30", &["--record", bad])),
-        ("sim --summary", master, s(&["sim", SESSION, "--summary", bad])),
+        (
+            "slave run --summary",
+            slave,
+            slave_args(&scratch, &["--duration-s", "30", "--summary", bad]),
+        ),
+        (
+            "slave run --record",
+            slave,
+            slave_args(&scratch, &["--duration-s", "30", "--record", bad]),
+        ),
+        (
+            "master run --summary",
+            master,
+            master_args(&scratch, &["--duration-s", "30", "--summary", bad]),
+        ),
+        (
+            "master run --record",
+            master,
+            master_args(&scratch, &["--duration-s", "30", "--record", &is_dir]),
+        ),
+        (
+            "loopback --summary",
+            master,
+            loopback_args("30", &["--summary", bad]),
+        ),
+        (
+            "loopback --record",
+            master,
+            loopback_args("30", &["--record", bad]),
+        ),
+        (
+            "sim --summary",
+            master,
+            s(&["sim", SESSION, "--summary", bad]),
+        ),
     ];
     for (what, bin, args) in cases {
         let mut p = Running::spawn("refused", bin, &args, &scratch);

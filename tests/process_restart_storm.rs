@@ -72,7 +72,13 @@ fn iceoryx2_files() -> usize {
         std::fs::read_dir(dir).map_or(0, |entries| {
             entries
                 .flatten()
-                .map(|e| if e.path().is_dir() { 1 + count(&e.path()) } else { 1 })
+                .map(|e| {
+                    if e.path().is_dir() {
+                        1 + count(&e.path())
+                    } else {
+                        1
+                    }
+                })
                 .sum()
         })
     }
@@ -104,15 +110,23 @@ fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
     observe(&mut mon, &mut jumps, 20.0, "slave feedback", |_| true);
     for i in 0..CYCLES {
         let mut ma = Running::spawn("master", master, &master_args(&scratch, &[]), &scratch);
-        observe(&mut mon, &mut jumps, 20.0, "paired with the new master", |fb| {
-            fb.state == SlaveState::Active as u8
-        });
+        observe(
+            &mut mon,
+            &mut jumps,
+            20.0,
+            "paired with the new master",
+            |fb| fb.state == SlaveState::Active as u8,
+        );
         hold(&mut mon, &mut jumps, 300);
         ma.sigkill();
         observe(&mut mon, &mut jumps, 10.0, "safe state", |fb| {
             fb.state == SlaveState::SafeStop as u8
         });
-        assert!(jumps.max_step_mm < MAX_STEP_MM, "master restart {i}: {} mm", jumps.max_step_mm);
+        assert!(
+            jumps.max_step_mm < MAX_STEP_MM,
+            "master restart {i}: {} mm",
+            jumps.max_step_mm
+        );
     }
     // Slave, the last master's replacement, the monitor: the 20 dead masters were cleaned.
     let ms = scratch.path("master.json").display().to_string();
@@ -122,13 +136,19 @@ fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
         &master_args(&scratch, &["--summary", &ms]),
         &scratch,
     );
-    observe(&mut mon, &mut jumps, 20.0, "paired", |fb| fb.state == SlaveState::Active as u8);
+    observe(&mut mon, &mut jumps, 20.0, "paired", |fb| {
+        fb.state == SlaveState::Active as u8
+    });
     no_leaks(&scratch.prefix, 3, 2);
     eprintln!(
         "master storm: max step {:.4} mm, max force step {:.3} N over {} pairs",
         jumps.max_step_mm, jumps.max_force_step_n, jumps.pairs
     );
-    assert!(jumps.max_force_step_n < MAX_FORCE_STEP_N, "{} N", jumps.max_force_step_n);
+    assert!(
+        jumps.max_force_step_n < MAX_FORCE_STEP_N,
+        "{} N",
+        jumps.max_force_step_n
+    );
     assert!(jumps.pairs > 5_000, "{}", jumps.pairs);
 
     let mut jumps = Jumps::default();
@@ -150,7 +170,11 @@ fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
         sl.sigkill();
         killed_seq = jumps.prev.map_or(u64::MAX, |p| p.seq);
         jumps.prev = None;
-        assert!(jumps.max_step_mm < MAX_STEP_MM, "slave restart {i}: {} mm", jumps.max_step_mm);
+        assert!(
+            jumps.max_step_mm < MAX_STEP_MM,
+            "slave restart {i}: {} mm",
+            jumps.max_step_mm
+        );
     }
     no_leaks(&scratch.prefix, 3, 2);
     ma.stop();
@@ -161,7 +185,11 @@ fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
         "slave storm: max step {:.4} mm, max force step {:.3} N; master: {m}",
         jumps.max_step_mm, jumps.max_force_step_n
     );
-    assert!(jumps.max_force_step_n < MAX_FORCE_STEP_N, "{} N", jumps.max_force_step_n);
+    assert!(
+        jumps.max_force_step_n < MAX_FORCE_STEP_N,
+        "{} N",
+        jumps.max_force_step_n
+    );
     // Nothing is rendered while faded out. (Not asserted: the master's rendered force across a
     // slave restart shorter than its feedback timeout steps from the old slave's force to the
     // new one's in one cycle, up to 6 N measured; docs/processes.md, "Restart storms".)

@@ -50,7 +50,10 @@ fn sample(pid: i32, t_s: f64) -> Option<Sample> {
 
 fn judge(who: &str, samples: &[Sample]) {
     let after: Vec<&Sample> = samples.iter().filter(|s| s.t_s >= WARM_UP_S).collect();
-    assert!(after.len() >= 20, "{who}: too few samples after the warm-up: {samples:?}");
+    assert!(
+        after.len() >= 20,
+        "{who}: too few samples after the warm-up: {samples:?}"
+    );
     let base = after[0];
     let max_rss = after.iter().map(|s| s.rss_kib).max().unwrap_or(0);
     let (fd_min, fd_max) = (
@@ -71,8 +74,14 @@ fn judge(who: &str, samples: &[Sample]) {
         "{who}: resident memory grew {} KiB after {WARM_UP_S} s",
         max_rss - base.rss_kib
     );
-    assert_eq!(fd_min, fd_max, "{who}: open file descriptors changed: {samples:?}");
-    assert_eq!(shm_min, shm_max, "{who}: shared-memory mappings changed: {samples:?}");
+    assert_eq!(
+        fd_min, fd_max,
+        "{who}: open file descriptors changed: {samples:?}"
+    );
+    assert_eq!(
+        shm_min, shm_max,
+        "{who}: shared-memory mappings changed: {samples:?}"
+    );
     assert!(shm_min > 0, "{who}: no iceoryx2 shared memory mapped?");
 }
 

@@ -266,7 +266,10 @@ fn secure_link_processes_run_60_s_without_a_crash() {
     eprintln!("secure link {run_s} s: master {m}\nslave {sv}");
     assert!(u(&m, "round_trip_samples") > half, "{m:#}");
     assert_eq!(u(&m, "feedback_invalid"), 0, "{m:#}");
-    assert!(sv["gate"]["accepted"].as_u64().unwrap_or(0) > half, "{sv:#}");
+    assert!(
+        sv["gate"]["accepted"].as_u64().unwrap_or(0) > half,
+        "{sv:#}"
+    );
     assert_eq!(sv["gate"]["malformed"], 0);
 }
 

@@ -747,9 +747,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("killed.mcap");
         let mut rec = Recorder::create_crash_safe(&path).unwrap();
-        let ch = rec
-            .add_channel("/a", "A", r#"{"type":"object"}"#)
-            .unwrap();
+        let ch = rec.add_channel("/a", "A", r#"{"type":"object"}"#).unwrap();
         // Valid from the start: an empty recording.
         let empty = std::fs::read(&path).unwrap();
         assert_eq!(mcap::MessageStream::new(&empty).unwrap().count(), 0);

@@ -343,7 +343,11 @@ fn shut_down<L: Link<Feedback, Command>>(
 }
 
 impl CycleRecord {
-    fn of(c: &crate::teleop::TeleopCycle, cx: &h4_shared::rt::CycleCtx<'_>, force_true_n: f64) -> Self {
+    fn of(
+        c: &crate::teleop::TeleopCycle,
+        cx: &h4_shared::rt::CycleCtx<'_>,
+        force_true_n: f64,
+    ) -> Self {
         let out = &c.out;
         CycleRecord {
             time_ns: cx.now_ns,

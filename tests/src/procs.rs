@@ -322,7 +322,6 @@ pub fn force(fb: &Feedback) -> f64 {
     (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt()
 }
 
-
 /// `h4-master loopback` arguments: the test session on the 20 N/mm wall for `duration_s`,
 /// both loops under SCHED_FIFO 10 where allowed, plus `extra`.
 pub fn loopback_args(duration_s: &str, extra: &[&str]) -> Vec<String> {

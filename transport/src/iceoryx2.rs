@@ -260,7 +260,9 @@ where
 }
 
 /// A monitor of the slave's feedback on `opts` (receive only).
-pub fn feedback_monitor(opts: &Iceoryx2Options) -> Result<Iceoryx2Monitor<Feedback>, Iceoryx2Error> {
+pub fn feedback_monitor(
+    opts: &Iceoryx2Options,
+) -> Result<Iceoryx2Monitor<Feedback>, Iceoryx2Error> {
     QUIET.call_once(|| set_log_level_from_env_or(LogLevel::Error));
     let node = node(opts, "monitor")?;
     let service = service::<Feedback>(&node, opts, "feedback").map_err(|detail| Iceoryx2Error {

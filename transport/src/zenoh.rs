@@ -381,7 +381,11 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
     /// `h4/<arm_id>/<role>` (asked with a liveliness query, answered by the sessions this one
     /// is connected to, waiting at most `timeout`), otherwise the token is declared and kept
     /// while this end lives (a killed process's token vanishes with its session).
-    pub fn claim_role(&mut self, role: &str, timeout: std::time::Duration) -> Result<(), ZenohError> {
+    pub fn claim_role(
+        &mut self,
+        role: &str,
+        timeout: std::time::Duration,
+    ) -> Result<(), ZenohError> {
         let key = key_expr(self.arm_id, role);
         let declare = |message: String| ZenohError::Declare {
             what: "liveliness token",

@@ -276,7 +276,11 @@ impl SlaveChild {
         let done = Arc::new(AtomicBool::new(false));
         let died_unix_ns = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let watcher = {
-            let (child, done, died) = (Arc::clone(&child), Arc::clone(&done), Arc::clone(&died_unix_ns));
+            let (child, done, died) = (
+                Arc::clone(&child),
+                Arc::clone(&done),
+                Arc::clone(&died_unix_ns),
+            );
             std::thread::spawn(move || {
                 while !done.load(Ordering::SeqCst) {
                     let exited = child
@@ -346,7 +350,10 @@ fn memory_file(name: &str, text: &str) -> Result<std::fs::File, String> {
     // SAFETY: a valid NUL-terminated name; flags 0 (inheritable). The fd is owned by the File.
     let fd = unsafe { libc::memfd_create(cname.as_ptr(), 0) };
     if fd < 0 {
-        return Err(format!("memory file {name}: {}", std::io::Error::last_os_error()));
+        return Err(format!(
+            "memory file {name}: {}",
+            std::io::Error::last_os_error()
+        ));
     }
     // SAFETY: `fd` was just created and is owned by nothing else.
     let mut file = unsafe { std::fs::File::from_raw_fd(fd) };
@@ -392,13 +399,14 @@ impl RecordingParts {
     /// names them. A part that did not end properly (its process was killed) is merged up to
     /// its last checkpoint and the report says what was lost.
     fn merge_into(&self, out: &Path, slave_died_unix_ns: u64) -> Result<RecordingReport, String> {
-        let stats = h4_shared::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
-            format!(
-                "{e} (the parts {} and {} are kept)",
-                self.master.display(),
-                self.slave.display()
-            )
-        })?;
+        let stats =
+            h4_shared::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
+                format!(
+                    "{e} (the parts {} and {} are kept)",
+                    self.master.display(),
+                    self.slave.display()
+                )
+            })?;
         let _ = std::fs::remove_file(&self.master);
         let _ = std::fs::remove_file(&self.slave);
         let mut report = RecordingReport {
