@@ -22,7 +22,9 @@
 use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::kinematics::{Pose, Workspace};
 use h4_shared::vec3::norm3;
-use h4_shared::wire::{CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION};
+use h4_shared::wire::{
+    CMD_FLAG_ACK_SAFE_STOP, CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
+};
 use serde::{Deserialize, Serialize};
 
 use h4_shared::passivity::{ImpedancePort, PassivityParams};
@@ -325,6 +327,9 @@ pub struct MasterStep {
     pub workspace_limited: bool,
     /// The rendered force was limited.
     pub saturated: bool,
+    /// The slave reports its safe stop: the rendering fades out, and once it has, the
+    /// master starts a new energy ledger and acknowledges (`CMD_FLAG_ACK_SAFE_STOP`).
+    pub slave_safe_stop: bool,
 }
 
 /// The master's coupling state.
@@ -357,6 +362,13 @@ pub struct MasterCoupling {
     pub model: ContactModel,
     /// The slave targets sent, by sequence number (ring; allocated once).
     sent: Vec<(u64, [f64; 3])>,
+    /// The newest feedback reports the slave's safe stop.
+    slave_stopped: bool,
+    /// The master has faded out, started a new ledger and acknowledges the safe stop
+    /// until the slave is active again.
+    acking: bool,
+    /// Safe stops of the slave seen (each counted once, when first reported).
+    pub safe_stops_seen: u64,
 }
 
 /// Commands remembered for the contact model (≥ the longest round trip in cycles).
@@ -384,6 +396,9 @@ impl MasterCoupling {
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
+            slave_stopped: false,
+            acking: false,
+            safe_stops_seen: 0,
             p,
         }
     }
@@ -410,9 +425,39 @@ impl MasterCoupling {
         self.offset_mm
     }
 
-    /// Hands the coupling a feedback message the gate accepted at `now_ns`.
+    /// A new pairing (the slave restarted; a session id can call it too): the port starts
+    /// a new ledger, taking the newest feedback's energy as its first, and the rendering
+    /// fades in again from zero.
+    pub fn new_pairing(&mut self) {
+        self.port.new_pairing();
+        if let Some(fb) = &self.feedback {
+            self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        }
+        self.fade = 0.0;
+        self.model.reset_used();
+    }
+
+    /// The slave is in its safe stop (as the newest feedback reports).
+    pub fn slave_safe_stop(&self) -> bool {
+        self.slave_stopped
+    }
+
+    /// Hands the coupling a feedback message the gate accepted at `now_ns`. Feedback that
+    /// reports the slave's safe stop carries the old ledger's energy: it is not taken (the
+    /// master starts a new ledger before it acknowledges; the slave, on the acknowledgement).
     pub fn receive(&mut self, fb: &Feedback, now_ns: u64) {
-        self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        if fb.state == SlaveState::SafeStop as u8 {
+            if !self.slave_stopped {
+                self.safe_stops_seen += 1;
+            }
+            self.slave_stopped = true;
+        } else {
+            if fb.state == SlaveState::Active as u8 {
+                self.acking = false;
+            }
+            self.slave_stopped = false;
+            self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        }
         let slot = &self.sent[(fb.echo_seq % SENT_HISTORY as u64) as usize];
         if slot.0 == fb.echo_seq && fb.echo_seq > 0 {
             self.model.observe(&self.p.model, fb, slot.1);
@@ -462,11 +507,17 @@ impl MasterCoupling {
         } else {
             p.feedback_timeout_ms
         };
-        self.fade = if silent_ms > timeout_ms {
+        self.fade = if silent_ms > timeout_ms || self.slave_stopped {
             (self.fade - rate).max(0.0)
         } else {
             (self.fade + rate).min(1.0)
         };
+        // Faded out in the slave's safe stop: a new ledger, then the acknowledgement.
+        if self.slave_stopped && self.fade == 0.0 && !self.acking {
+            self.acking = true;
+            self.port.new_pairing();
+            self.model.reset_used();
+        }
     }
 
     /// Clutch and indexing: on release the handle's pose and the slave target become the
@@ -695,6 +746,7 @@ impl MasterCoupling {
         step.observed_j = pc.observed_j;
         step.fade = self.fade;
         step.slave_target = target;
+        step.slave_safe_stop = self.slave_stopped;
         self.last = step;
         step
     }
@@ -743,7 +795,12 @@ impl MasterCoupling {
             arm_id: self.p.arm_id,
             mode: mode as u8,
             reserved: 0,
-            flags: if self.clutched { CMD_FLAG_CLUTCH } else { 0 },
+            flags: if self.clutched { CMD_FLAG_CLUTCH } else { 0 }
+                | if self.acking {
+                    CMD_FLAG_ACK_SAFE_STOP
+                } else {
+                    0
+                },
         }
     }
 }

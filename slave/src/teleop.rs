@@ -24,8 +24,8 @@ use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::process::Watchdog;
 use h4_shared::vec3::norm3;
 use h4_shared::wire::{
-    Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, Feedback, Mode,
-    PROTOCOL_VERSION, SlaveState,
+    CMD_FLAG_ACK_SAFE_STOP, Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
+    FAULT_FORCE_LIMIT, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
 };
 use h4_transport::Link;
 use h4_transport::gate::{Gate, GateCounters};
@@ -91,8 +91,14 @@ pub struct TeleopCounters {
     pub safe_stops: u64,
     /// Silence when the watchdog tripped (largest over all trips), ms.
     pub safe_stop_entry_silence_ms: f64,
-    /// Times a master was paired again after a safe stop.
+    /// Times a master was paired again after a safe stop (each on the master's
+    /// acknowledgement, `CMD_FLAG_ACK_SAFE_STOP`).
     pub repairs: u64,
+    /// Commands received in the safe stop without the master's acknowledgement (they
+    /// keep the link alive but neither re-engage the arm nor count as energy).
+    pub unacknowledged_in_safe_stop: u64,
+    /// New energy ledgers started (re-engagement after a safe stop, a restarted master).
+    pub new_pairings: u64,
     /// Feedback messages published.
     pub feedback_published: u64,
 }
@@ -147,6 +153,9 @@ pub struct SlaveTeleop<A: ArmDriver> {
     desired_theta: f64,
     anchored: bool,
     last_out: Option<ControllerOutput>,
+    /// Last cycle's commanded displacement and the force measured at its start, booked
+    /// by the port once the force at its end is measured.
+    pending_work: Option<([f64; 3], [f64; 3])>,
     seq: u64,
     counters: TeleopCounters,
 }
@@ -215,6 +224,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             desired_theta: 0.0,
             anchored: false,
             last_out: None,
+            pending_work: None,
             seq: 0,
             counters: TeleopCounters::default(),
             p,
@@ -271,8 +281,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
-        let fresh = self.receive(link, now_ns);
-        let (repaired, tripped) = self.watch(fresh, now_ns);
+        let (fresh, acked) = self.receive(link, now_ns);
+        let (repaired, tripped) = self.watch(fresh, acked, now_ns);
         let intent = self.follow(dt_s);
         let port = self.shape_command(&intent, dt_s);
         let input = ControllerInput {
@@ -307,27 +317,64 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         }
     }
 
-    /// Drains the link through the receive gate; returns whether a valid command arrived.
-    fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> bool {
+    /// Drains the link through the receive gate; returns whether a valid command arrived
+    /// and whether the master acknowledged a safe stop (then the port has started a new
+    /// ledger before taking the acknowledging command's energy). In the safe stop, commands
+    /// without the acknowledgement are not followed and their energies (the old ledger's)
+    /// are not taken. A restarted master (the gate re-paired) also starts a new ledger.
+    fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> (bool, bool) {
         let port = &mut self.port;
         let latest = &mut self.latest;
+        let safe_stopped = self.state == SlaveState::SafeStop;
+        let mut acked = false;
+        let mut ignored = 0;
+        let restarts = self.gate.counters.repaired;
         let d = self
             .gate
             .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
+                if safe_stopped && !acked {
+                    if c.flags & CMD_FLAG_ACK_SAFE_STOP == 0 {
+                        ignored += 1;
+                        return;
+                    }
+                    acked = true;
+                    port.new_pairing();
+                }
                 port.receive_remote_in(c.energy_in_j);
                 *latest = Some(*c);
             });
+        self.counters.unacknowledged_in_safe_stop += ignored;
+        if acked {
+            self.counters.new_pairings += 1;
+        }
+        if self.gate.counters.repaired > restarts && !acked {
+            self.new_pairing();
+        }
         if d.link_error {
             self.counters.link_errors += 1;
         }
-        d.accepted > 0
+        (d.accepted > 0, acked)
     }
 
-    /// The watchdog: a fresh command feeds it (and re-pairs after a safe stop); silence
-    /// while active trips it into the safe stop. Returns (re-paired, tripped) this cycle.
-    fn watch(&mut self, fresh: bool, now_ns: u64) -> (bool, bool) {
+    /// A new pairing: the port starts a new energy ledger (taking the newest command's
+    /// energy as the new pairing's first), and the desired pose re-anchors on the next
+    /// command (no jump). Called on a restarted master; a session id in the wire header
+    /// can call it on a new session too.
+    pub fn new_pairing(&mut self) {
+        self.port.new_pairing();
+        if let Some(c) = &self.latest {
+            self.port.receive_remote_in(c.energy_in_j);
+        }
+        self.anchored = false;
+        self.counters.new_pairings += 1;
+    }
+
+    /// The watchdog: a fresh command feeds it (and, with the master's acknowledgement,
+    /// re-pairs after a safe stop); silence while active trips it into the safe stop.
+    /// Returns (re-paired, tripped) this cycle.
+    fn watch(&mut self, fresh: bool, acked: bool, now_ns: u64) -> (bool, bool) {
         let mut repaired = false;
-        if fresh {
+        if fresh && (acked || self.state != SlaveState::SafeStop) {
             self.watchdog.feed(now_ns);
             if self.state == SlaveState::SafeStop {
                 self.ctrl.clear_safe_stop();
@@ -447,7 +494,6 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         PortCommand {
             step: ps,
             control,
-            force_n: force,
             drift_mm,
             command: SlaveCommand {
                 mode,
@@ -477,19 +523,29 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     }
 
     /// The port books the motion actually commanded (the controller's rate limits and
-    /// holds included) against the force the arm measured. Only position mode closes a
+    /// holds included) against the force the arm measured at the same instants: the
+    /// displacement commanded last cycle (executed over it) against the forces measured
+    /// at its start and at its end (this cycle's reading). Only position mode closes a
     /// loop through the link: in force-guided mode the contact force is the slave's own
     /// force loop's, and nothing measured is rendered.
     fn book(&mut self, out: &ControllerOutput, intent: &Intent, port: &PortCommand, dt_s: f64) {
+        let f_now = [
+            out.wrench_measured[0],
+            out.wrench_measured[1],
+            out.wrench_measured[2],
+        ];
+        if let Some((f_start, moved)) = self.pending_work.take() {
+            self.port.commit_work(f_start, f_now, moved);
+        }
         let moved = self.last_out.map_or([0.0; 3], |o| {
             [
-                (out.commanded_pose[0] - o.commanded_pose[0]) / dt_s,
-                (out.commanded_pose[1] - o.commanded_pose[1]) / dt_s,
-                (out.commanded_pose[2] - o.commanded_pose[2]) / dt_s,
+                out.commanded_pose[0] - o.commanded_pose[0],
+                out.commanded_pose[1] - o.commanded_pose[1],
+                out.commanded_pose[2] - o.commanded_pose[2],
             ]
         });
         if intent.mode == Mode::Position {
-            self.port.commit(port.force_n, moved, dt_s);
+            self.pending_work = Some((f_now, moved));
             if port.control {
                 self.port.hand_back(dt_s);
             }
@@ -552,8 +608,6 @@ struct PortCommand {
     step: AdmittanceStep,
     /// The port's controller acts (passivity on, position mode, no clutch).
     control: bool,
-    /// The force the port books against, N (last cycle's measurement).
-    force_n: [f64; 3],
     /// The port's drift (commanded − desired), mm.
     drift_mm: [f64; 3],
     /// The controller's command.
@@ -612,15 +666,22 @@ mod tests {
         slave: InprocEnd<Feedback, Command>,
         now: u64,
         seq: u64,
+        /// Commands carry the safe-stop acknowledgement.
+        ack: bool,
     }
 
     impl Rig {
         fn cycle(&mut self, send: Option<f64>) -> TeleopCycle {
             if let Some(z) = send {
                 self.seq += 1;
-                self.master
-                    .publish(&command(self.seq, self.now, z))
-                    .unwrap();
+                let mut c = command(self.seq, self.now, z);
+                if self.ack {
+                    c.flags |= CMD_FLAG_ACK_SAFE_STOP;
+                    c.energy_in_j = 1e-4;
+                } else {
+                    c.energy_in_j = 5.0;
+                }
+                self.master.publish(&c).unwrap();
             }
             let c = self.ep.step(&mut self.slave, self.now, 1e-3);
             while self.master.try_recv().unwrap().is_some() {}
@@ -639,6 +700,7 @@ mod tests {
             slave,
             now: 0,
             seq: 0,
+            ack: false,
         };
         assert_eq!(r.ep.state(), SlaveState::Idle);
         // Follow a slow downward ramp.
@@ -662,8 +724,21 @@ mod tests {
         assert_eq!(r.ep.counters().safe_stops, 1);
         let held = r.cycle(None).out.commanded_pose;
         assert!(r.cycle(None).fault_flags & FAULT_COMMAND_TIMEOUT != 0);
-        // The master comes back 20 mm away: re-paired, and the commanded pose moves
-        // gradually (no jump).
+        // Commands without the master's acknowledgement do not re-engage the arm, and
+        // their (old ledger's) energy is not taken.
+        let observed = r.ep.port().observed_j();
+        for _ in 0..100 {
+            let c = r.cycle(Some(-230.0));
+            assert!(!c.repaired);
+            assert_eq!(c.state, SlaveState::SafeStop);
+            assert!((c.out.commanded_pose[2] - held[2]).abs() < 0.2);
+        }
+        assert_eq!(r.ep.port().observed_j(), observed);
+        assert_eq!(r.ep.counters().unacknowledged_in_safe_stop, 100);
+        // The master comes back 20 mm away and acknowledges: re-paired on a new ledger
+        // (the old ledger's 5 J are gone), and the commanded pose moves gradually (no
+        // jump).
+        r.ack = true;
         let mut prev = held;
         let mut repaired = false;
         for _ in 0..300 {
@@ -675,6 +750,8 @@ mod tests {
         }
         assert!(repaired);
         assert_eq!(r.ep.counters().repairs, 1);
+        assert_eq!(r.ep.counters().new_pairings, 1);
+        assert!(r.ep.port().observed_j() <= 1e-4 + 1e-12);
         assert_eq!(r.ep.state(), SlaveState::Active);
         assert!(prev[2] > held[2] + 1.0, "did not move towards the master");
         assert_eq!(r.ep.counters().feedback_published, r.ep.counters().cycles);
@@ -690,6 +767,7 @@ mod tests {
             slave,
             now: 0,
             seq: 0,
+            ack: false,
         };
         for _ in 0..200 {
             r.cycle(Some(-250.0));

@@ -135,7 +135,7 @@ impl Default for SlaveConfig {
             plant: PlantConfig::default(),
             sensor: SensorConfig::default(),
             controller: ControllerParams::default(),
-            command_timeout_ms: 500.0,
+            command_timeout_ms: 20.0,
         }
     }
 }
