@@ -658,6 +658,7 @@ impl MasterCoupling {
     /// (discrete-time bound).
     fn bound_damping(&mut self, dev: &DeviceState, dt_s: f64) {
         let p = &self.p;
+        self.port.mass_estimate_kg = (dev.effective_mass_kg > 0.0).then_some(dev.effective_mass_kg);
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
             let local = if p.mode == CouplingMode::PositionForce && !self.clutched {

@@ -295,7 +295,8 @@ impl MasterTeleop {
         now_ns: u64,
         dt_s: f64,
     ) -> MasterCycle {
-        let before = self.device.read();
+        // The hand is physics: it acts on the handle's true state.
+        let before = self.device.true_state();
         let hand = self
             .operator
             .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, dt_s);

@@ -201,6 +201,11 @@ pub struct ImpedancePort {
     pub damping_step_limit_n_s_per_mm: Option<f64>,
     /// Cycles in which the controller limited the force (bounded damping was not enough).
     pub limited_cycles: u64,
+    /// The handle's (smallest effective) mass as the caller knows it, kg (`None`: the
+    /// force limit counts only `F · v · dt`). A force held over a cycle also accelerates
+    /// the handle: it does up to `|F|² dt² / 2m` more work than `F · v · dt`, which the
+    /// limit then counts too.
+    pub mass_estimate_kg: Option<f64>,
     /// Pairings this port has had (1 + the times [`ImpedancePort::new_pairing`] was called).
     pub pairings: u64,
     alpha: f64,
@@ -320,11 +325,8 @@ impl ImpedancePort {
             // cannot make the handle chatter as more damping would) until this cycle's
             // output fits what the observer holds: the energy put out never exceeds the
             // observer's, whatever the damping bound.
-            let p1 = dot3(&force, &velocity_mm_per_s);
-            let avail_n_mm_per_s =
-                (self.observed_j() - self.energy_reserve_j).max(0.0) / (J_PER_N_MM * dt_s);
-            if p1 > avail_n_mm_per_s && p1 > 0.0 {
-                let s = avail_n_mm_per_s / p1;
+            let s = self.output_share(&force, &velocity_mm_per_s, dt_s);
+            if s < 1.0 {
                 for f in force.iter_mut() {
                     *f *= s;
                 }
@@ -335,6 +337,34 @@ impl ImpedancePort {
             force_n: force,
             damping_n_s_per_mm: alpha,
             observed_j: self.observed_j() - dot3(&force, &velocity_mm_per_s).max(0.0) * dt_s * 1e-3,
+        }
+    }
+
+    /// The largest share `s ∈ [0, 1]` of `force` whose work over the cycle, `s F · v dt`
+    /// plus (with a mass estimate) the acceleration's `s² |F|² dt² / 2m`, fits what the
+    /// observer holds above the reserve.
+    fn output_share(&self, force: &[f64; 3], v: &[f64; 3], dt_s: f64) -> f64 {
+        let e = (self.observed_j() - self.energy_reserve_j).max(0.0);
+        let a = dot3(force, v) * dt_s * J_PER_N_MM;
+        let b = match self.mass_estimate_kg {
+            // N² s² / kg = N·m = 1 J.
+            Some(m) if m > 0.0 => dot3(force, force) * dt_s * dt_s / (2.0 * m),
+            _ => 0.0,
+        };
+        if a + b <= e {
+            return 1.0;
+        }
+        let s = if b > 1e-300 {
+            (-a + (a * a + 4.0 * b * e).sqrt()) / (2.0 * b)
+        } else if a > 0.0 {
+            e / a
+        } else {
+            1.0
+        };
+        if s.is_finite() {
+            s.clamp(0.0, 1.0)
+        } else {
+            0.0
         }
     }
 

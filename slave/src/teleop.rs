@@ -49,6 +49,92 @@ pub struct TeleopParams {
     pub passivity: PassivityParams,
     /// Commanded speeds are limited to this share of the controller's speed limit.
     pub speed_margin: f64,
+    /// Contact hand-over: in position mode, the slave's own force loop holds a contact.
+    pub contact: ContactHandover,
+}
+
+/// Contact hand-over (position mode): when the slave meets a surface, its force controller
+/// (the paper's implicit force control, `Mode::ForceGuided`) takes the contact over, so
+/// that neither the wall's stiffness nor the link's delay is inside the loop that sets the
+/// contact force. The master's command then sets the force through a virtual spring: the
+/// force set-point is `hold_min_n + stiffness_n_per_mm · depth`, `depth` how far the
+/// (passivity-shaped) commanded position lies beyond where the contact began, along the
+/// contact normal; along the surface the arm follows the command's velocity. The
+/// set-point never exceeds `force_share` of the controller's force limit. When the command
+/// lies `release_mm` out of the surface the arm goes back to position control.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ContactHandover {
+    /// Hand-over on.
+    pub enabled: bool,
+    /// The virtual spring's stiffness, N/mm at the slave (what the master's command
+    /// feels like in contact, whatever the wall).
+    pub stiffness_n_per_mm: f64,
+    /// Set-point while the command is at the contact point, N (above the controller's
+    /// contact threshold, so a light contact is held, not lost and re-touched).
+    pub hold_min_n: f64,
+    /// The command this far out of the surface ends the hand-over, mm.
+    pub release_mm: f64,
+    /// Largest set-point, as a share of the controller's force limit.
+    pub force_share: f64,
+}
+
+impl Default for ContactHandover {
+    fn default() -> Self {
+        ContactHandover {
+            enabled: true,
+            stiffness_n_per_mm: 5.0,
+            hold_min_n: 1.0,
+            release_mm: 0.3,
+            force_share: 0.8,
+        }
+    }
+}
+
+impl ContactHandover {
+    /// Checks every field; errors name the key with `prefix`.
+    pub fn validate_at(&self, prefix: &str) -> Result<(), h4_shared::config::ConfigError> {
+        use h4_shared::config::check_range;
+        check_range(
+            &format!("{prefix}stiffness_n_per_mm"),
+            self.stiffness_n_per_mm,
+            0.01,
+            1e4,
+            "N/mm",
+        )?;
+        check_range(
+            &format!("{prefix}hold_min_n"),
+            self.hold_min_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &format!("{prefix}release_mm"),
+            self.release_mm,
+            0.0,
+            100.0,
+            "mm",
+        )?;
+        check_range(
+            &format!("{prefix}force_share"),
+            self.force_share,
+            0.05,
+            1.0,
+            "",
+        )
+    }
+}
+
+/// A contact held by the slave's force loop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct HeldContact {
+    /// The commanded position when the contact began, mm.
+    point_mm: [f64; 3],
+    /// The outward contact normal (the measured force's direction at the touch).
+    normal: [f64; 3],
+    /// The virtual commanded position (the passivity port's), mm.
+    virtual_mm: [f64; 3],
 }
 
 impl Default for TeleopParams {
@@ -59,6 +145,7 @@ impl Default for TeleopParams {
             restart_silence_ms: 100.0,
             passivity: PassivityParams::default(),
             speed_margin: 0.9,
+            contact: ContactHandover::default(),
         }
     }
 }
@@ -156,6 +243,7 @@ pub struct SlaveTeleop<A: ArmDriver> {
     /// Last cycle's commanded displacement and the force measured at its start, booked
     /// by the port once the force at its end is measured.
     pending_work: Option<([f64; 3], [f64; 3])>,
+    held: Option<HeldContact>,
     seq: u64,
     counters: TeleopCounters,
 }
@@ -225,6 +313,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             anchored: false,
             last_out: None,
             pending_work: None,
+            held: None,
             seq: 0,
             counters: TeleopCounters::default(),
             p,
@@ -465,6 +554,14 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             ]
         });
         let v_d = intent.desired_velocity;
+        if mode != Mode::Position || intent.clutch {
+            self.held = None;
+        } else {
+            self.update_held(force, held);
+        }
+        if let Some(mut h) = self.held {
+            return self.handover(&mut h, intent, force, max_v, control, dt_s);
+        }
         let ps = if mode == Mode::Position {
             self.port
                 .step_position(held, self.desired, v_d, force, max_v, dt_s, control)
@@ -495,6 +592,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             step: ps,
             control,
             drift_mm,
+            virtual_move_mm: None,
             command: SlaveCommand {
                 mode,
                 pose,
@@ -503,6 +601,99 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                     .setpoint_n
                     .clamp(0.0, self.ctrl.params().force_limit_n),
                 clutch: intent.clutch,
+            },
+        }
+    }
+
+    /// Starts the contact hand-over on a touch (the measured force above the controller's
+    /// contact threshold, in position mode) and ends it once the command lies
+    /// `release_mm` out of the surface.
+    fn update_held(&mut self, force: [f64; 3], commanded: [f64; 3]) {
+        let c = self.p.contact;
+        if !c.enabled {
+            self.held = None;
+            return;
+        }
+        match self.held {
+            None => {
+                let f = norm3(&force);
+                if f > self.ctrl.params().contact_threshold_n {
+                    self.held = Some(HeldContact {
+                        point_mm: commanded,
+                        normal: [force[0] / f, force[1] / f, force[2] / f],
+                        virtual_mm: commanded,
+                    });
+                }
+            }
+            Some(h) => {
+                let out = depth_mm(&h, &self.desired);
+                if out < -c.release_mm {
+                    self.held = None;
+                }
+            }
+        }
+    }
+
+    /// One cycle of the contact hand-over: the passivity port moves the virtual commanded
+    /// position (its energy bound holds the depth when the observer is empty), and the
+    /// force loop is asked for the virtual spring's force at its depth.
+    fn handover(
+        &mut self,
+        h: &mut HeldContact,
+        intent: &Intent,
+        force: [f64; 3],
+        max_v: f64,
+        control: bool,
+        dt_s: f64,
+    ) -> PortCommand {
+        let c = self.p.contact;
+        let v_d = intent.desired_velocity;
+        let ps =
+            self.port
+                .step_position(h.virtual_mm, self.desired, v_d, force, max_v, dt_s, control);
+        let moved = [
+            ps.target_mm[0] - h.virtual_mm[0],
+            ps.target_mm[1] - h.virtual_mm[1],
+            ps.target_mm[2] - h.virtual_mm[2],
+        ];
+        h.virtual_mm = ps.target_mm;
+        self.held = Some(*h);
+        let depth = depth_mm(h, &h.virtual_mm);
+        let limit = self.ctrl.params().force_limit_n * c.force_share;
+        let sp = if depth >= 0.0 {
+            c.hold_min_n + c.stiffness_n_per_mm * depth
+        } else {
+            c.hold_min_n * (1.0 + depth / c.release_mm.max(1e-6)).max(0.0)
+        };
+        // Along the surface: the command's velocity without its normal part.
+        let n = h.normal;
+        let vn = v_d[0] * n[0] + v_d[1] * n[1] + v_d[2] * n[2];
+        let mut vt = [0.0; 3];
+        for i in 0..3 {
+            vt[i] = v_d[i] - vn * n[i];
+        }
+        let speed = norm3(&vt);
+        if speed > max_v {
+            for v in vt.iter_mut() {
+                *v *= max_v / speed;
+            }
+        }
+        PortCommand {
+            step: ps,
+            control,
+            drift_mm: self.port.drift_mm,
+            virtual_move_mm: Some(moved),
+            command: SlaveCommand {
+                mode: Mode::ForceGuided,
+                pose: [
+                    h.virtual_mm[0],
+                    h.virtual_mm[1],
+                    h.virtual_mm[2],
+                    self.desired_theta,
+                ],
+                velocity: [vt[0], vt[1], vt[2], 0.0],
+                force_setpoint_n: sp.clamp(0.0, limit),
+                clutch: false,
             },
         }
     }
@@ -537,12 +728,16 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         if let Some((f_start, moved)) = self.pending_work.take() {
             self.port.commit_work(f_start, f_now, moved);
         }
-        let moved = self.last_out.map_or([0.0; 3], |o| {
-            [
-                out.commanded_pose[0] - o.commanded_pose[0],
-                out.commanded_pose[1] - o.commanded_pose[1],
-                out.commanded_pose[2] - o.commanded_pose[2],
-            ]
+        // In the contact hand-over the link's port is the virtual commanded position (the
+        // virtual spring's), not the arm's.
+        let moved = port.virtual_move_mm.unwrap_or_else(|| {
+            self.last_out.map_or([0.0; 3], |o| {
+                [
+                    out.commanded_pose[0] - o.commanded_pose[0],
+                    out.commanded_pose[1] - o.commanded_pose[1],
+                    out.commanded_pose[2] - o.commanded_pose[2],
+                ]
+            })
         });
         if intent.mode == Mode::Position {
             self.pending_work = Some((f_now, moved));
@@ -610,8 +805,16 @@ struct PortCommand {
     control: bool,
     /// The port's drift (commanded − desired), mm.
     drift_mm: [f64; 3],
+    /// In the contact hand-over: the virtual commanded position's move this cycle, mm.
+    virtual_move_mm: Option<[f64; 3]>,
     /// The controller's command.
     command: SlaveCommand,
+}
+
+/// How far `x` lies beyond the contact's start point, along its inward normal, mm.
+fn depth_mm(h: &HeldContact, x: &[f64; 3]) -> f64 {
+    let n = h.normal;
+    (h.point_mm[0] - x[0]) * n[0] + (h.point_mm[1] - x[1]) * n[1] + (h.point_mm[2] - x[2]) * n[2]
 }
 
 /// Most commands taken from the link in one cycle (more than any queue holds).

@@ -61,6 +61,7 @@ impl Session {
                 restart_silence_ms: 1000.0,
                 passivity: cfg.passivity,
                 speed_margin: 0.9,
+                contact: cfg.slave.contact,
             },
             ctrl,
             arm,
