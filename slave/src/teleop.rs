@@ -244,6 +244,9 @@ pub struct SlaveTeleop<A: ArmDriver> {
     /// by the port once the force at its end is measured.
     pending_work: Option<([f64; 3], [f64; 3])>,
     held: Option<HeldContact>,
+    /// The surface of the last held contact (start point, outward normal): position mode
+    /// approaches it again no faster than the controller's approach speed.
+    known_surface: Option<([f64; 3], [f64; 3])>,
     seq: u64,
     counters: TeleopCounters,
 }
@@ -314,6 +317,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             last_out: None,
             pending_work: None,
             held: None,
+            known_surface: None,
             seq: 0,
             counters: TeleopCounters::default(),
             p,
@@ -563,8 +567,10 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             return self.handover(&mut h, intent, force, max_v, control, dt_s);
         }
         let ps = if mode == Mode::Position {
-            self.port
-                .step_position(held, self.desired, v_d, force, max_v, dt_s, control)
+            let ps = self
+                .port
+                .step_position(held, self.desired, v_d, force, max_v, dt_s, control);
+            self.slow_near_known_surface(ps, held, dt_s)
         } else {
             self.port.clear_drift();
             AdmittanceStep {
@@ -605,6 +611,41 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         }
     }
 
+    /// Position mode near a surface held before (after a release, a safe stop, a
+    /// re-pairing): the motion into it, within `SURFACE_MARGIN_MM` of it or beyond, is
+    /// limited to the controller's approach speed, so a return to a known stiff wall
+    /// touches it as gently as the force loop's own approach; the gap becomes drift.
+    fn slow_near_known_surface(
+        &mut self,
+        mut ps: AdmittanceStep,
+        held: [f64; 3],
+        dt_s: f64,
+    ) -> AdmittanceStep {
+        let Some((point, n)) = self.known_surface else {
+            return ps;
+        };
+        let h = HeldContact {
+            point_mm: point,
+            normal: n,
+            virtual_mm: point,
+        };
+        let v = ps.velocity_mm_per_s;
+        let v_in = -(v[0] * n[0] + v[1] * n[1] + v[2] * n[2]);
+        let approach = self.ctrl.params().approach_speed_mm_per_s;
+        if depth_mm(&h, &ps.target_mm) > -SURFACE_MARGIN_MM && v_in > approach {
+            for i in 0..3 {
+                ps.velocity_mm_per_s[i] += (v_in - approach) * n[i];
+                ps.target_mm[i] = held[i] + ps.velocity_mm_per_s[i] * dt_s;
+            }
+            let mut drift = [0.0; 3];
+            for (i, d) in drift.iter_mut().enumerate() {
+                *d = ps.target_mm[i] - self.desired[i];
+            }
+            self.port.set_drift(drift);
+        }
+        ps
+    }
+
     /// Starts the contact hand-over on a touch (the measured force above the controller's
     /// contact threshold, in position mode) and ends it once the command lies
     /// `release_mm` out of the surface.
@@ -618,11 +659,13 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             None => {
                 let f = norm3(&force);
                 if f > self.ctrl.params().contact_threshold_n {
+                    let normal = [force[0] / f, force[1] / f, force[2] / f];
                     self.held = Some(HeldContact {
                         point_mm: commanded,
-                        normal: [force[0] / f, force[1] / f, force[2] / f],
+                        normal,
                         virtual_mm: commanded,
                     });
+                    self.known_surface = Some((commanded, normal));
                 }
             }
             Some(h) => {
@@ -810,6 +853,9 @@ struct PortCommand {
     /// The controller's command.
     command: SlaveCommand,
 }
+
+/// How close to a surface held before position mode slows to the approach speed, mm.
+const SURFACE_MARGIN_MM: f64 = 1.0;
 
 /// How far `x` lies beyond the contact's start point, along its inward normal, mm.
 fn depth_mm(h: &HeldContact, x: &[f64; 3]) -> f64 {
