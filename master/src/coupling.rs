@@ -63,6 +63,10 @@ pub struct CouplingConfig {
     /// Local damping the master renders against the handle's velocity (position–force),
     /// N·s/mm.
     pub master_damping_n_s_per_mm: f64,
+    /// Extra local damping while the slave reports a contact held by its force loop (its
+    /// desired wrench is not zero), N·s/mm: the delayed virtual wall of the slave's contact
+    /// hand-over needs more damping at the handle than free motion should feel.
+    pub contact_damping_n_s_per_mm: f64,
     /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
     /// (0: unfiltered).
     pub force_filter_hz: f64,
@@ -93,6 +97,7 @@ impl Default for CouplingConfig {
             guide_setpoint_max_n: 50.0,
             guide_approach_depth_mm: 20.0,
             master_damping_n_s_per_mm: 0.3,
+            contact_damping_n_s_per_mm: 0.0,
             force_filter_hz: 0.0,
             model: ModelParams::default().enabled,
             model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
@@ -155,6 +160,13 @@ impl Section for CouplingConfig {
         check_range(
             &f("master_damping_n_s_per_mm"),
             self.master_damping_n_s_per_mm,
+            0.0,
+            1.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            &f("contact_damping_n_s_per_mm"),
+            self.contact_damping_n_s_per_mm,
             0.0,
             1.0,
             "N·s/mm",
@@ -253,6 +265,8 @@ pub struct CouplingParams {
     /// Local damping the master renders against the handle's velocity, N·s/mm (position–
     /// force mode; passive, not part of the link's two-port).
     pub master_damping_n_s_per_mm: f64,
+    /// Extra local damping while the slave reports a contact, N·s/mm.
+    pub contact_damping_n_s_per_mm: f64,
     /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
     pub force_filter_hz: f64,
     /// Model-mediated rendering (position–force): the master renders a local model of the
@@ -291,6 +305,7 @@ impl CouplingParams {
             guide_setpoint_max_n: c.guide_setpoint_max_n,
             guide_approach_depth_mm: c.guide_approach_depth_mm,
             master_damping_n_s_per_mm: c.master_damping_n_s_per_mm,
+            contact_damping_n_s_per_mm: c.contact_damping_n_s_per_mm,
             force_filter_hz: c.force_filter_hz,
             model: ModelParams {
                 enabled: c.model,
@@ -653,6 +668,22 @@ impl MasterCoupling {
         }
     }
 
+    /// The local damping at the handle: `master_damping_n_s_per_mm`, plus
+    /// `contact_damping_n_s_per_mm` while the newest feedback reports a contact held by the
+    /// slave's force loop.
+    fn local_damping(&self) -> f64 {
+        let contact = self.feedback.is_some_and(|fb| {
+            let w = fb.wrench_desired;
+            w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 1e-6
+        });
+        self.p.master_damping_n_s_per_mm
+            + if contact {
+                self.p.contact_damping_n_s_per_mm
+            } else {
+                0.0
+            }
+    }
+
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
     /// the local damping, stays within what the handle's mass takes in one cycle
     /// (discrete-time bound).
@@ -662,7 +693,7 @@ impl MasterCoupling {
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
             let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
-                p.master_damping_n_s_per_mm * self.fade
+                self.local_damping() * self.fade
             } else {
                 0.0
             };
@@ -716,7 +747,7 @@ impl MasterCoupling {
             // Faded with the feedback: with no slave there is no loop to stabilise, and the
             // operator holds a free handle (the feedback-loss safe state renders nothing).
             for (f, v) in force.iter_mut().zip(handle_velocity.iter()) {
-                *f -= p.master_damping_n_s_per_mm * self.fade * v;
+                *f -= self.local_damping() * self.fade * v;
             }
         }
         // Force-guided: the local virtual spring sets the set-point.
