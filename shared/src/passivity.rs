@@ -742,10 +742,6 @@ mod tests {
         assert!(off.observed_j() < -1e-4, "{}", off.observed_j());
     }
 
-    fn norm(v: &[f64; 3]) -> f64 {
-        dot3(v, v).sqrt()
-    }
-
     /// A new pairing starts a new ledger on both ports: nothing of the old pairing's
     /// energy is budget any more, and the far end's new (small) cumulative values count.
     #[test]
