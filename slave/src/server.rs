@@ -51,6 +51,8 @@ pub struct RunOptions {
     /// After a stop request, keep cycling (commands ignored) for at most this long until the
     /// arm is in its safe state with the force released, s.
     pub shutdown_limit_s: f64,
+    /// Serve the live view here (`--foxglove-ws HOST:PORT`).
+    pub foxglove_ws: Option<String>,
 }
 
 impl Default for RunOptions {
@@ -67,6 +69,7 @@ impl Default for RunOptions {
             duration_s: None,
             record: None,
             shutdown_limit_s: 2.0,
+            foxglove_ws: None,
         }
     }
 }
@@ -169,6 +172,9 @@ pub enum ServerError {
     /// The teleoperation endpoint's settings are unusable.
     #[error("{0}")]
     Teleop(#[from] TeleopError),
+    /// The live view could not start.
+    #[error("{0}")]
+    Live(#[from] h4_shared::live::LiveError),
 }
 
 /// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
@@ -198,6 +204,8 @@ struct CycleRecord {
     contact_normal: [f64; 3],
     /// Sequence number of the command acted on.
     command_seq: u64,
+    /// The slave port's passivity observer, J.
+    energy_observed_j: f64,
 }
 
 fn us(ns: u64) -> f64 {
@@ -239,6 +247,14 @@ pub fn run<L: Link<Feedback, Command>>(
         "h4.SlaveProcessCycle",
     )
     .map_err(|e| ServerError::Recording(e.to_string()))?;
+    let live_server =
+        h4_shared::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-slave")?;
+    let mut live = h4_shared::live::topic_or_off::<CycleRecord>(
+        live_server.as_ref(),
+        "/slave/cycle",
+        "h4.SlaveProcessCycle",
+        1e9 / period_ns as f64,
+    );
 
     h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
     let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
@@ -276,7 +292,9 @@ pub fn run<L: Link<Feedback, Command>>(
             s.contact_cycles += 1;
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
-        recorder.push(cx.unix_ns, CycleRecord::of(&c, cx, true_force_n));
+        let record = CycleRecord::of(&c, cx, true_force_n);
+        recorder.push(cx.unix_ns, record);
+        live.push(cx.unix_ns, record);
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(
@@ -361,6 +379,7 @@ impl CycleRecord {
             commanded_pose: out.commanded_pose,
             contact_normal: out.contact_normal,
             command_seq: c.command_seq,
+            energy_observed_j: c.port.observed_j,
         }
     }
 }

@@ -3,6 +3,8 @@
 
 pub mod procs;
 
+pub mod bins;
+
 use h4_shared::H4Params;
 use serde::Deserialize;
 

@@ -56,6 +56,10 @@ pub struct LoopbackArgs {
     /// otherwise a warning and normal scheduling).
     #[arg(long)]
     pub fifo_priority: Option<i32>,
+    /// The live view: the master serves at HOST:PORT, the slave at HOST:PORT+1 (with port 0,
+    /// each picks a free port; both are printed on stderr).
+    #[command(flatten)]
+    pub live: h4_shared::live::LiveArgs,
 }
 
 /// What `loopback` prints.
@@ -139,6 +143,7 @@ impl LoopbackArgs {
                 lock_memory: false,
             },
             wait_for_slave_s: 20.0,
+            live: self.live.clone(),
         };
         // The slave is told to stop the moment the master's loop ends, before its watchdog
         // sees the master's silence.
@@ -263,6 +268,12 @@ impl SlaveChild {
         }
         if let Some(p) = args.fifo_priority {
             cmd.arg("--fifo-priority").arg(p.to_string());
+        }
+        if let Some(addr) = args.live.slave_address() {
+            if !addr.ends_with(":0") {
+                eprintln!("h4-master loopback: the slave's live view at ws://{addr}");
+            }
+            cmd.arg("--foxglove-ws").arg(addr);
         }
         let mut child = cmd
             .spawn()
