@@ -416,11 +416,13 @@ impl SlaveController {
         self.shaper.clear();
         self.tracking.reset_speed();
         let c_arm = along_normal(cx.compliance.lambda.as_ref(), &self.normal.normal);
+        let noise_n = self.tare.noise_along(&self.normal.normal);
         self.estimator.touch(
             &self.window,
             &self.normal.normal,
             c_arm,
             self.cycles,
+            noise_n,
             &self.p,
         );
     }

@@ -58,6 +58,9 @@ pub enum SimError {
 /// flight, which takes effect at once).
 const PENDING_MAX: usize = 16;
 
+/// Time the plant runs before time 0 to settle under gravity, ns.
+const SETTLE_NS: u64 = 400_000_000;
+
 /// The load on the force sensor `[Fx, Fy, Fz, My]` in its frame (turned by `theta_rad` about
 /// y from the base frame): the contact wrench `contact` (base frame) plus a payload of
 /// `mass_kg` at `com_mm` (sensor frame) under `g_minus_a_mm_per_s2` (gravity minus the
@@ -228,7 +231,30 @@ impl SimArm {
             generic_kernel: false,
         };
         arm.update_contact_damping();
+        arm.settle_under_gravity();
         Ok(arm)
+    }
+
+    /// With gravity on, the platform starts sagged under its weight: the plant runs
+    /// [`SETTLE_NS`] with the initial command held (the servos take the weight), then the
+    /// clock, the sensor's filters and its acceleration reference restart from that rest.
+    fn settle_under_gravity(&mut self) {
+        if self.cfg.gravity_mm_per_s2.iter().all(|g| *g == 0.0) {
+            return;
+        }
+        self.advance_physics(SETTLE_NS);
+        self.time_ns = 0;
+        self.remainder_ns = 0;
+        self.substep_counter = 0;
+        self.vel_at_sample = [self.vel[0], self.vel[1], self.vel[2]];
+        let load = sensor_load(
+            &self.contact_wrench,
+            self.pose[3],
+            self.cfg.payload_mass_kg,
+            self.cfg.payload_com_mm,
+            self.cfg.gravity_mm_per_s2,
+        );
+        self.sensor.restart(&load);
     }
 
     fn update_contact_damping(&mut self) {

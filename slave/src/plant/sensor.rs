@@ -120,6 +120,18 @@ impl ForceSensor {
         sensor
     }
 
+    /// Restarts the clock at 0 with the filters settled on `load` plus the bias (drift so
+    /// far kept).
+    pub(super) fn restart(&mut self, load: &Vector4<f64>) {
+        let cfg = self.cfg;
+        for (i, f) in self.filters.iter_mut().enumerate() {
+            let b = if i < 3 { cfg.bias_n[i] } else { cfg.bias_n_mm } + load[i] + self.drift[i];
+            f.reset(b);
+            self.filtered[i] = b;
+        }
+        self.next_sample_ns = 0;
+    }
+
     /// One sample of the true `load` (`[Fx, Fy, Fz, My]` in the sensor's frame).
     pub(super) fn sample(&mut self, load: &Vector4<f64>) {
         let s = &self.cfg;
