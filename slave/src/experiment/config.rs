@@ -94,6 +94,58 @@ impl Default for SummaryConfig {
     }
 }
 
+/// The targets the run is judged against (`h4-slave experiment` exits 1 when one is
+/// missed); the true force staying at or below `controller.force_limit_n` and the tool
+/// touching its surface are always required.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TargetsConfig {
+    /// Largest `force_error_p99_n` (steady tracking), N.
+    pub force_error_p99_n: f64,
+    /// Largest `force_error_p99_contact_n` (the whole contact), N.
+    pub force_error_p99_contact_n: f64,
+    /// Largest `force_error_max_n` (the whole contact), N.
+    pub force_error_max_n: f64,
+    /// Largest overshoot, %.
+    pub overshoot_pct: f64,
+    /// Longest settling, ms.
+    pub settling_ms: f64,
+    /// Longest time without contact once tracking, ms.
+    pub contact_lost_ms: f64,
+}
+
+impl Default for TargetsConfig {
+    fn default() -> Self {
+        TargetsConfig {
+            force_error_p99_n: 1.0,
+            force_error_p99_contact_n: 1.0,
+            force_error_max_n: 2.0,
+            overshoot_pct: 5.0,
+            settling_ms: 150.0,
+            contact_lost_ms: 0.0,
+        }
+    }
+}
+
+impl Section for TargetsConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("{prefix}{name}");
+        #[rustfmt::skip]
+        let checks: [(&str, f64, f64, f64, &str); 6] = [
+            ("force_error_p99_n", self.force_error_p99_n, 0.0, 1e4, "N"),
+            ("force_error_p99_contact_n", self.force_error_p99_contact_n, 0.0, 1e4, "N"),
+            ("force_error_max_n", self.force_error_max_n, 0.0, 1e4, "N"),
+            ("overshoot_pct", self.overshoot_pct, 0.0, 1e4, "%"),
+            ("settling_ms", self.settling_ms, 0.0, 3.6e6, "ms"),
+            ("contact_lost_ms", self.contact_lost_ms, 0.0, 3.6e6, "ms"),
+        ];
+        for (name, value, min, max, unit) in checks {
+            check_range(&field(name), value, min, max, unit)?;
+        }
+        Ok(())
+    }
+}
+
 /// One experiment, as read from a TOML file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -129,6 +181,9 @@ pub struct ExperimentConfig {
     /// The summary.
     #[serde(default)]
     pub summary: SummaryConfig,
+    /// The targets the run is judged against.
+    #[serde(default)]
+    pub targets: TargetsConfig,
 }
 
 impl Validate for ExperimentConfig {
@@ -138,6 +193,7 @@ impl Validate for ExperimentConfig {
         self.track.validate_at("track.")?;
         self.approach.validate_at("approach.")?;
         self.summary.validate_at("summary.")?;
+        self.targets.validate_at("targets.")?;
         self.validate_across()
     }
 }
