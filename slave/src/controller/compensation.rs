@@ -62,18 +62,25 @@ impl ToolCompensation {
     }
 
     /// The raw reading `raw` (sensor frame) with the identified bias and the tool's weight
-    /// and inertia at `theta_rad` taken off (with `gravity_compensation` off: as read).
+    /// and inertia at `theta_rad` taken off (with `gravity_compensation` off: as read). In
+    /// contact (`in_contact`) the command moves into the surface, not the tool: only the
+    /// weight is taken off.
     pub(super) fn remove(
         &self,
         raw: Vector4<f64>,
         theta_rad: f64,
+        in_contact: bool,
         p: &ControllerParams,
         dt: f64,
     ) -> Vector4<f64> {
         if !(p.gravity_compensation && self.tool.identified) {
             return raw;
         }
-        let a = self.accel(p.command_latency_cycles as usize, dt);
+        let a = if in_contact {
+            [0.0; 3]
+        } else {
+            self.accel(p.command_latency_cycles as usize, dt)
+        };
         let g = p.gravity_mm_per_s2;
         let load = sensor_load(
             &Vector4::zeros(),

@@ -238,7 +238,13 @@ impl SlaveController {
         let theta = pose_fk[3];
         let raw = self
             .comp
-            .remove(Vector4::from(input.wrench), theta, &self.p, dt);
+            .remove(
+                Vector4::from(input.wrench),
+                theta,
+                self.contact.in_contact,
+                &self.p,
+                dt,
+            );
         if self.tare.taring(self.p.tare_cycles) {
             return self.tare_step(pose_fk, raw);
         }

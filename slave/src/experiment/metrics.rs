@@ -38,8 +38,8 @@ pub struct Summary {
     pub force_error_p99_n: f64,
     /// 99th percentile of |F_n − F_d| over the whole contact, transients kept: from the
     /// first touch to the end, each event (first touch, step) counted from the cycle its
-    /// force first reaches the new set-point's settling band (the rise itself is the
-    /// set-point prefilter's, not an error), N.
+    /// force first comes within `summary.settle_band_min_n` of the new set-point (the rise
+    /// itself is the set-point prefilter's, not an error), N.
     pub force_error_p99_contact_n: f64,
     /// Largest |F_n − F_d| over the same cycles (overshoots, ringing, the start of the
     /// motion, contact losses all count), N.
@@ -320,14 +320,16 @@ fn judge_event(
         }
     }
     let settle_idx = last_out_of_band.map_or(idx, |j| j + 1);
-    // The whole contact: from the first cycle the force reaches the new set-point's band.
+    // The whole contact: from the first cycle the force comes within
+    // `settle_band_min_n` of the new set-point (or settles, if it never does).
+    let near = cfg.summary.settle_band_min_n;
     let reached = f_true
         .iter()
         .enumerate()
         .take(end)
         .skip(idx)
-        .find(|(_, f)| sign * (*f - to) >= -band)
-        .map_or(idx, |(j, _)| j);
+        .find(|(_, f)| sign * (*f - to) >= -near)
+        .map_or(settle_idx, |(j, _)| j);
     for f in f_true.iter().take(end).skip(reached) {
         phases.contact_errors.push((f - to).abs());
     }
