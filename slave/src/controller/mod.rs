@@ -498,6 +498,7 @@ impl SlaveController {
         } else {
             vt_n.min(self.p.max_speed_mm_per_s)
         };
+        self.force_law.sent(d_depth);
         let mut mv = -n * d_depth;
         mv += self.tracking.advance(target_speed, &self.p, dt);
         let dmax = self.p.max_speed_mm_per_s * dt;

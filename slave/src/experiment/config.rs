@@ -61,6 +61,9 @@ pub struct ApproachConfig {
     pub gap_mm: f64,
     /// The approach target lies this far below the contact point, mm.
     pub target_depth_mm: f64,
+    /// The tool's tilt θ about y commanded from the start (the arm starts at θ = 0, tares
+    /// its sensor there and turns while approaching), rad (−1 to 1).
+    pub theta_rad: f64,
 }
 
 impl Default for ApproachConfig {
@@ -68,6 +71,7 @@ impl Default for ApproachConfig {
         ApproachConfig {
             gap_mm: 2.0,
             target_depth_mm: 20.0,
+            theta_rad: 0.0,
         }
     }
 }
@@ -258,6 +262,7 @@ impl Section for TrackConfig {
 impl Section for ApproachConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         check_range(&format!("{prefix}gap_mm"), self.gap_mm, 0.0, 100.0, "mm")?;
+        check_range(&format!("{prefix}theta_rad"), self.theta_rad, -1.0, 1.0, "rad")?;
         check_range(
             &format!("{prefix}target_depth_mm"),
             self.target_depth_mm,

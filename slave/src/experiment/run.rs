@@ -169,7 +169,12 @@ pub fn run(
     cfg.validate()?;
     let p = cfg.surface.contact_point_mm;
     let start = Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let target = [p[0], p[1], p[2] - cfg.approach.target_depth_mm, 0.0];
+    let target = [
+        p[0],
+        p[1],
+        p[2] - cfg.approach.target_depth_mm,
+        cfg.approach.theta_rad,
+    ];
     let (mut arm, mut ctrl) = cfg.world().build(start, cfg.seed)?;
     let channels = match recorder.as_deref_mut() {
         Some(r) => Some(Channels::add(r)?),
