@@ -15,6 +15,10 @@ const TRUSTED_UPDATES: u32 = 10;
 /// Touch-down estimate: the force along the normal below which the approach counts as not
 /// yet touching (≈ 2.5 × the filtered noise: the fit averages the noise), N.
 const TOUCHDOWN_FLOOR_N: f64 = 0.1;
+/// Touch-down estimate: the build-up starts this many standard deviations of the sensor's
+/// noise above zero at least (below it a noisy approach looks like a build-up of many
+/// cycles, and the fit of noise gave a bogus stiffness: 19 % overshoot on steel at 0.3 N σ).
+const TOUCHDOWN_NOISE_SIGMAS: f64 = 4.0;
 /// Touch-down estimate: fewest cycles of force build-up before contact.
 const TOUCHDOWN_MIN_CYCLES: usize = 10;
 
@@ -77,7 +81,9 @@ impl StiffnessEstimator {
         self.updates = 0;
         self.c_tot = c_arm + self.c_env;
         if p.estimate_env_stiffness {
-            self.seed_from_touchdown(window, n, c_arm, cycles, p);
+            // The build-up starts where the force leaves the noise, not the fixed floor.
+            let floor_n = TOUCHDOWN_FLOOR_N.max(TOUCHDOWN_NOISE_SIGMAS * noise_n);
+            self.seed_from_touchdown(window, n, c_arm, cycles, floor_n, p);
         }
     }
 
@@ -128,10 +134,11 @@ impl StiffnessEstimator {
         n: &Vector3<f64>,
         c_arm: f64,
         cycles: u64,
+        floor_n: f64,
         p: &ControllerParams,
     ) {
         let at = |back: usize| window.back(back);
-        let onset = (1..WINDOW_MAX).find(|&back| window.f[at(back)].dot(n) < TOUCHDOWN_FLOOR_N);
+        let onset = (1..WINDOW_MAX).find(|&back| window.f[at(back)].dot(n) < floor_n);
         let Some(samples) = onset else {
             return;
         };

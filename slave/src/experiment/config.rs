@@ -59,7 +59,8 @@ fn default_start_delay() -> f64 {
 pub struct ApproachConfig {
     /// Start this far above the contact point (along +z), mm.
     pub gap_mm: f64,
-    /// The approach target lies this far below the contact point, mm.
+    /// The approach target lies this far below the contact point, mm (negative: above it,
+    /// the tool never touches; a free-space test).
     pub target_depth_mm: f64,
     /// The tool's tilt θ about y commanded from the start (the arm starts at θ = 0, tares
     /// its sensor there and turns while approaching), rad (−1 to 1).
@@ -266,9 +267,9 @@ impl Section for ApproachConfig {
         check_range(
             &format!("{prefix}target_depth_mm"),
             self.target_depth_mm,
-            0.1,
+            -100.0,
             100.0,
-            "mm",
+            "mm (negative: above the contact point, the tool stays in free space)",
         )
     }
 }

@@ -75,6 +75,9 @@ pub struct Summary {
     pub sim_time_s: f64,
     /// Whether the tool ever touched the surface (true contact force).
     pub contact_reached: bool,
+    /// Time from the first true contact to the controller's touch, ms (negative: a false
+    /// contact before it; NaN: either never happened).
+    pub contact_detection_delay_ms: f64,
     /// The verdict against the file's `[targets]`.
     pub verdict: Verdict,
     /// Wall-clock time of the simulation, s (the only field that is not deterministic).
@@ -160,6 +163,10 @@ pub(super) fn summarise(
         cycles,
         sim_time_s,
         contact_reached: trace.first_true_contact.is_some(),
+        contact_detection_delay_ms: match (trace.ctrl_contact_ms, trace.first_true_contact) {
+            (Some(tc), Some(fc)) => tc as f64 - fc as f64,
+            _ => f64::NAN,
+        },
         verdict: Verdict {
             passed: true,
             failures: Vec::new(),
