@@ -306,9 +306,21 @@ impl Section for ArmConfig {
             )?;
         }
         let t = &self.tool;
-        check_range(&format!("{prefix}tool.mass_kg"), t.mass_kg, 0.0, 100.0, "kg")?;
+        check_range(
+            &format!("{prefix}tool.mass_kg"),
+            t.mass_kg,
+            0.0,
+            100.0,
+            "kg",
+        )?;
         for i in 0..3 {
-            check_range(&format!("{prefix}tool.com_mm[{i}]"), t.com_mm[i], -1e3, 1e3, "mm")?;
+            check_range(
+                &format!("{prefix}tool.com_mm[{i}]"),
+                t.com_mm[i],
+                -1e3,
+                1e3,
+                "mm",
+            )?;
             check_range(
                 &format!("{prefix}tool.sensor_bias_n[{i}]"),
                 t.sensor_bias_n[i],

@@ -18,7 +18,11 @@ use h4_slave::experiment::{self, ExperimentConfig, Summary};
 use h4_slave::identify::identify;
 
 fn experiment_file(name: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/experiments")).join(name)
+    PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/experiments"
+    ))
+    .join(name)
 }
 
 fn load(name: &str, overrides: &[String]) -> ExperimentConfig {
@@ -45,7 +49,11 @@ fn misses(label: &str, cfg: &ExperimentConfig, s: &Summary) -> Vec<String> {
         .collect();
     let checks = [
         ("force_error_p99_n", s.force_error_p99_n, 1.0),
-        ("force_error_p99_contact_n", s.force_error_p99_contact_n, 1.0),
+        (
+            "force_error_p99_contact_n",
+            s.force_error_p99_contact_n,
+            1.0,
+        ),
         ("overshoot_pct", s.overshoot_pct, 5.0),
         ("settling_ms", s.settling_ms, 150.0),
         ("max_force_n", s.max_force_n, cfg.controller.force_limit_n),
@@ -59,7 +67,8 @@ fn misses(label: &str, cfg: &ExperimentConfig, s: &Summary) -> Vec<String> {
     let track_s = cfg.duration_s - s.first_contact_s - cfg.track.start_delay_s;
     let v = cfg.track.speed_mm_per_s;
     let ramp_s = (v / cfg.controller.track_accel_mm_per_s2).min(track_s);
-    let expected = v * (track_s - ramp_s) + 0.5 * cfg.controller.track_accel_mm_per_s2 * ramp_s * ramp_s;
+    let expected =
+        v * (track_s - ramp_s) + 0.5 * cfg.controller.track_accel_mm_per_s2 * ramp_s * ramp_s;
     if !(s.tracked_distance_mm >= 0.8 * expected) {
         out.push(format!(
             "{label}: tracked {:.1} of {expected:.1} mm",
@@ -115,7 +124,10 @@ fn matrix(cases: &[(&str, Vec<String>)], seed: u64) -> (Vec<String>, usize, [f64
     let mut jobs = Vec::new();
     for (base, case) in cases {
         for noise in ["0.1", "0.3"] {
-            for (scale, spread) in [("0.7", "[0.1, -0.1, 0.05, -0.05]"), ("1.3", "[-0.1, 0.1, -0.05, 0.05]")] {
+            for (scale, spread) in [
+                ("0.7", "[0.1, -0.1, 0.05, -0.05]"),
+                ("1.3", "[-0.1, 0.1, -0.05, 0.05]"),
+            ] {
                 for m in mismatches(seed) {
                     let mut o = case.clone();
                     o.push(format!("sensor.noise_std_n={noise}"));
@@ -169,7 +181,11 @@ fn paper_cases() -> Vec<(&'static str, Vec<String>)> {
         .iter()
         .map(|f| {
             let name: &'static str = Box::leak(format!("{f}.toml").into_boxed_str());
-            let duration = if *f == "fig6d" { "duration_s=12" } else { "duration_s=8" };
+            let duration = if *f == "fig6d" {
+                "duration_s=12"
+            } else {
+                "duration_s=8"
+            };
             (name, strings(&[duration]))
         })
         .collect()
@@ -178,8 +194,16 @@ fn paper_cases() -> Vec<(&'static str, Vec<String>)> {
 #[test]
 fn paper_experiments_meet_targets_with_a_real_sensor_and_a_mismatched_controller() {
     let (all, n, worst) = matrix(&paper_cases(), 13);
-    eprintln!("{n} runs; worst p99 (contact) {:.3} N, overshoot {:.2} %, settling {} ms, force/limit {:.3}", worst[0], worst[1], worst[2], worst[3]);
-    assert!(all.is_empty(), "{} of {n} missed:\n{}", all.len(), all.join("\n"));
+    eprintln!(
+        "{n} runs; worst p99 (contact) {:.3} N, overshoot {:.2} %, settling {} ms, force/limit {:.3}",
+        worst[0], worst[1], worst[2], worst[3]
+    );
+    assert!(
+        all.is_empty(),
+        "{} of {n} missed:\n{}",
+        all.len(),
+        all.join("\n")
+    );
 }
 
 #[test]
@@ -221,8 +245,16 @@ fn untuned_surfaces_and_fast_tracking_meet_targets_with_a_real_sensor() {
         ]),
     ));
     let (all, n, worst) = matrix(&cases, 31);
-    eprintln!("{n} runs; worst p99 (contact) {:.3} N, overshoot {:.2} %, settling {} ms, force/limit {:.3}", worst[0], worst[1], worst[2], worst[3]);
-    assert!(all.is_empty(), "{} of {n} missed:\n{}", all.len(), all.join("\n"));
+    eprintln!(
+        "{n} runs; worst p99 (contact) {:.3} N, overshoot {:.2} %, settling {} ms, force/limit {:.3}",
+        worst[0], worst[1], worst[2], worst[3]
+    );
+    assert!(
+        all.is_empty(),
+        "{} of {n} missed:\n{}",
+        all.len(),
+        all.join("\n")
+    );
 }
 
 /// Negative control of the gravity compensation: the tool turns 20° while approaching
@@ -232,7 +264,12 @@ fn untuned_surfaces_and_fast_tracking_meet_targets_with_a_real_sensor() {
 #[test]
 fn gravity_compensation_off_shows_in_the_error() {
     for base in ["fig6b.toml", "fig7c.toml"] {
-        let tilt = ["approach.theta_rad=0.35", "approach.gap_mm=4", "sensor.noise_std_n=0.3", "duration_s=6"];
+        let tilt = [
+            "approach.theta_rad=0.35",
+            "approach.gap_mm=4",
+            "sensor.noise_std_n=0.3",
+            "duration_s=6",
+        ];
         let (cfg, on) = run(base, &strings(&tilt));
         let m = misses(&format!("{base} on"), &cfg, &on);
         assert!(m.is_empty(), "{}", m.join("\n"));
@@ -240,7 +277,8 @@ fn gravity_compensation_off_shows_in_the_error() {
         off.push("controller.gravity_compensation=false".into());
         let (_, off) = run(base, &off);
         assert!(
-            !off.verdict.passed && off.force_error_p99_contact_n > 3.0 * on.force_error_p99_contact_n,
+            !off.verdict.passed
+                && off.force_error_p99_contact_n > 3.0 * on.force_error_p99_contact_n,
             "{base}: compensation off {:?} vs on {:?}",
             off.verdict,
             on.force_error_p99_contact_n
@@ -258,9 +296,18 @@ fn contact_detection_is_not_fooled_by_noise() {
         let seed_set = format!("seed={seed}");
         let (_, s) = run(
             "fig7c.toml",
-            &strings(&["sensor.noise_std_n=0.3", "approach.target_depth_mm=-1", "duration_s=5", &seed_set]),
+            &strings(&[
+                "sensor.noise_std_n=0.3",
+                "approach.target_depth_mm=-1",
+                "duration_s=5",
+                &seed_set,
+            ]),
         );
-        assert!(!s.contact_reached && !s.verdict.passed, "seed {seed}: {:?}", s.verdict);
+        assert!(
+            !s.contact_reached && !s.verdict.passed,
+            "seed {seed}: {:?}",
+            s.verdict
+        );
         let why = s.verdict.failures.join("; ");
         assert!(
             why.contains("never touched the surface: the approach reached its target"),
@@ -282,7 +329,11 @@ fn contact_detection_is_not_fooled_by_noise() {
 /// `identify` recovers the tool and the bias at 0.3 N σ for tools it was not built around.
 #[test]
 fn identify_recovers_mass_centre_of_mass_and_bias_at_0_3_n_noise() {
-    let tools = [(0.6, [4.0, 0.0, -45.0]), (1.2, [-12.0, 0.0, -80.0]), (0.3, [20.0, 0.0, -30.0])];
+    let tools = [
+        (0.6, [4.0, 0.0, -45.0]),
+        (1.2, [-12.0, 0.0, -80.0]),
+        (0.3, [20.0, 0.0, -30.0]),
+    ];
     for (seed, (mass, com)) in tools.iter().enumerate() {
         let mut cfg = load("fig6b.toml", &strings(&["sensor.noise_std_n=0.3"]));
         cfg.seed = 100 + seed as u64;
@@ -293,14 +344,57 @@ fn identify_recovers_mass_centre_of_mass_and_bias_at_0_3_n_noise() {
         let start = Pose::new(p[0], p[1], p[2] + 30.0, 0.0);
         let (mut sim, _) = cfg.world().build(start, cfg.seed).unwrap();
         let ws = cfg.arm.workspace();
-        let id = identify(&mut sim, &ws, start, [0.0, 0.0, -9810.0], 1e-3, |a| a.advance(1_000_000)).unwrap();
+        let id = identify(&mut sim, &ws, start, [0.0, 0.0, -9810.0], 1e-3, |a| {
+            a.advance(1_000_000)
+        })
+        .unwrap();
         let t = id.tool;
-        assert!((t.mass_kg - mass).abs() <= 0.03 * mass + 0.005, "mass {} vs {mass}", t.mass_kg);
+        assert!(
+            (t.mass_kg - mass).abs() <= 0.03 * mass + 0.005,
+            "mass {} vs {mass}",
+            t.mass_kg
+        );
         for i in [0, 2] {
-            assert!((t.com_mm[i] - com[i]).abs() <= 3.0, "com {:?} vs {com:?}", t.com_mm);
+            assert!(
+                (t.com_mm[i] - com[i]).abs() <= 3.0,
+                "com {:?} vs {com:?}",
+                t.com_mm
+            );
         }
         for i in 0..3 {
-            assert!((t.sensor_bias_n[i] - cfg.sensor.bias_n[i]).abs() <= 0.15, "bias {:?}", t.sensor_bias_n);
+            assert!(
+                (t.sensor_bias_n[i] - cfg.sensor.bias_n[i]).abs() <= 0.15,
+                "bias {:?}",
+                t.sensor_bias_n
+            );
+        }
+    }
+}
+
+/// Known limit (measured, not a target met): on a very soft surface (5 N/mm) the contact
+/// mode is the arm's own, lightly damped one near the sensor filter's cut-off; with the
+/// payload's inertia on the sensor and one period of latency, the first touch settles in
+/// more than 150 ms (resin base 205–243 ms at 0.1–0.3 N σ) and the aluminium base at 40 N
+/// rings at ≥ 0.2 N σ. What still holds, asserted: the true force stays under the limit.
+#[test]
+fn very_soft_surface_with_a_real_sensor_known_limit() {
+    for base in ["fig6b.toml", "fig7d.toml"] {
+        for noise in ["0.1", "0.3"] {
+            let o = strings(&[
+                "surface.stiffness_n_per_mm=5",
+                &format!("sensor.noise_std_n={noise}"),
+                "duration_s=8",
+            ]);
+            let (cfg, s) = run(base, &o);
+            eprintln!(
+                "{base} 5 N/mm σ {noise}: p99 {:.2} N, overshoot {:.1} %, settling {} ms, max {:.1} N",
+                s.force_error_p99_contact_n, s.overshoot_pct, s.settling_ms, s.max_force_n
+            );
+            assert!(
+                s.max_force_n <= cfg.controller.force_limit_n,
+                "{base} σ {noise}: {:.1} N",
+                s.max_force_n
+            );
         }
     }
 }

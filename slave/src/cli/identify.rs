@@ -45,14 +45,16 @@ struct IdentifySummary {
 impl IdentifyArgs {
     /// Runs the routine and prints its result.
     pub fn run(self) -> Result<ExitCode, String> {
-        let arm: ArmConfig =
-            h4_shared::config::load(&self.arm, &[]).map_err(|e| e.to_string())?;
+        let arm: ArmConfig = h4_shared::config::load(&self.arm, &[]).map_err(|e| e.to_string())?;
         let mut cfg: ExperimentConfig =
             h4_shared::config::load(&self.world, &self.set).map_err(|e| e.to_string())?;
         cfg.arm = arm;
         let p = cfg.surface.contact_point_mm;
         let start = Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm + 30.0, 0.0);
-        let (mut sim, _) = cfg.world().build(start, cfg.seed).map_err(|e| e.to_string())?;
+        let (mut sim, _) = cfg
+            .world()
+            .build(start, cfg.seed)
+            .map_err(|e| e.to_string())?;
         let ws = cfg.arm.workspace();
         let g = cfg.controller.gravity_mm_per_s2;
         let result = identify(&mut sim, &ws, start, g, 1e-3, |a| a.advance(1_000_000))

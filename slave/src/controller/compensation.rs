@@ -62,21 +62,24 @@ impl ToolCompensation {
     }
 
     /// The raw reading `raw` (sensor frame) with the identified bias and the tool's weight
-    /// and inertia at `theta_rad` taken off (with `gravity_compensation` off: as read). In
-    /// contact (`in_contact`) the command moves into the surface, not the tool: only the
+    /// and inertia at `theta_rad` taken off (with `gravity_compensation` off: as read). The
+    /// inertia only on the force-guided approach (`weight_only` false): in contact the
+    /// command moves into the surface, not the tool, and a position-mode command's
+    /// accelerations reach the tool through the servos' lag, which the model does not know
+    /// (taking them off as commanded left a safe stop's release pressing); there only the
     /// weight is taken off.
     pub(super) fn remove(
         &self,
         raw: Vector4<f64>,
         theta_rad: f64,
-        in_contact: bool,
+        weight_only: bool,
         p: &ControllerParams,
         dt: f64,
     ) -> Vector4<f64> {
         if !(p.gravity_compensation && self.tool.identified) {
             return raw;
         }
-        let a = if in_contact {
+        let a = if weight_only {
             [0.0; 3]
         } else {
             self.accel(p.command_latency_cycles as usize, dt)

@@ -236,15 +236,13 @@ impl SlaveController {
             self.initialise(pose_fk, input.actuators_mm);
         }
         let theta = pose_fk[3];
-        let raw = self
-            .comp
-            .remove(
-                Vector4::from(input.wrench),
-                theta,
-                self.contact.in_contact,
-                &self.p,
-                dt,
-            );
+        let raw = self.comp.remove(
+            Vector4::from(input.wrench),
+            theta,
+            self.contact.in_contact || input.command.mode != Mode::ForceGuided,
+            &self.p,
+            dt,
+        );
         if self.tare.taring(self.p.tare_cycles) {
             return self.tare_step(pose_fk, raw);
         }

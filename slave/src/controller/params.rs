@@ -124,7 +124,7 @@ impl Default for ControllerParams {
             tare_cycles: 100,
             gravity_compensation: true,
             gravity_mm_per_s2: [0.0, 0.0, -9810.0],
-            command_latency_cycles: 1,
+            command_latency_cycles: 0,
             contact_noise_sigmas: 8.0,
             safe_stop_ramp_s: 0.2,
             safe_stop_retract_mm: 3.0,
@@ -199,7 +199,13 @@ impl Section for ControllerParams {
             check_range(&field(name), value, min, max, unit)?;
         }
         for (i, g) in self.gravity_mm_per_s2.iter().enumerate() {
-            check_range(&field(&format!("gravity_mm_per_s2[{i}]")), *g, -1e5, 1e5, "mm/s²")?;
+            check_range(
+                &field(&format!("gravity_mm_per_s2[{i}]")),
+                *g,
+                -1e5,
+                1e5,
+                "mm/s²",
+            )?;
         }
         Ok(())
     }

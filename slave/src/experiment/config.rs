@@ -263,7 +263,13 @@ impl Section for TrackConfig {
 impl Section for ApproachConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         check_range(&format!("{prefix}gap_mm"), self.gap_mm, 0.0, 100.0, "mm")?;
-        check_range(&format!("{prefix}theta_rad"), self.theta_rad, -1.0, 1.0, "rad")?;
+        check_range(
+            &format!("{prefix}theta_rad"),
+            self.theta_rad,
+            -1.0,
+            1.0,
+            "rad",
+        )?;
         check_range(
             &format!("{prefix}target_depth_mm"),
             self.target_depth_mm,

@@ -186,17 +186,32 @@ pub(super) fn judge(cfg: &ExperimentConfig, trace: &Trace, summary: &Summary) ->
     let t = &cfg.targets;
     // `!(x <= limit)`: a NaN figure counts as a miss.
     let checks = [
-        ("force_error_p99_n", summary.force_error_p99_n, t.force_error_p99_n, "N"),
+        (
+            "force_error_p99_n",
+            summary.force_error_p99_n,
+            t.force_error_p99_n,
+            "N",
+        ),
         (
             "force_error_p99_contact_n",
             summary.force_error_p99_contact_n,
             t.force_error_p99_contact_n,
             "N",
         ),
-        ("force_error_max_n", summary.force_error_max_n, t.force_error_max_n, "N"),
+        (
+            "force_error_max_n",
+            summary.force_error_max_n,
+            t.force_error_max_n,
+            "N",
+        ),
         ("overshoot_pct", summary.overshoot_pct, t.overshoot_pct, "%"),
         ("settling_ms", summary.settling_ms, t.settling_ms, "ms"),
-        ("contact_lost_ms", summary.contact_lost_ms, t.contact_lost_ms, "ms"),
+        (
+            "contact_lost_ms",
+            summary.contact_lost_ms,
+            t.contact_lost_ms,
+            "ms",
+        ),
         (
             "max_force_n",
             summary.max_force_n,

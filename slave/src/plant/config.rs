@@ -46,12 +46,12 @@ pub struct PlantConfig {
     /// Centre of mass of that payload in the sensor's frame (which turns with θ about y),
     /// mm.
     pub payload_com_mm: [f64; 3],
-    /// Gravity in the base frame, mm/s² (the machine's vertical axis is z: `[0, 0, −9810]`;
-    /// all zeros switches the weight off).
+    /// Gravity in the base frame, mm/s² (the machine's vertical axis is z: `[0, 0, −9810]`
+    /// in the experiment files; the default, all zeros, is the ideal weightless plant).
     pub gravity_mm_per_s2: [f64; 3],
     /// Read-to-command latency: a command written takes effect this long after the sensor
-    /// sample it was computed from was read, s (0 to 0.1; the paper's dSpace loop: one
-    /// 1 ms period).
+    /// sample it was computed from was read, s (0 to 0.1; the paper's dSpace loop and the
+    /// experiment files: one 1 ms period; the default 0 is the ideal plant).
     pub command_latency_s: f64,
 }
 
@@ -74,10 +74,10 @@ impl Default for PlantConfig {
             tool_inertia_kg_mm2: 1000.0,
             platform_damping_n_s_per_mm: 0.02,
             encoder_resolution_mm: 0.0005,
-            payload_mass_kg: 0.6,
-            payload_com_mm: [4.0, 0.0, -45.0],
-            gravity_mm_per_s2: [0.0, 0.0, -9810.0],
-            command_latency_s: 0.001,
+            payload_mass_kg: 0.0,
+            payload_com_mm: [0.0; 3],
+            gravity_mm_per_s2: [0.0; 3],
+            command_latency_s: 0.0,
         }
     }
 }
@@ -114,10 +114,22 @@ impl Section for PlantConfig {
             check_range(&field(&format!("stiffness_spread[{i}]")), *v, -0.5, 0.5, "")?;
         }
         for (i, v) in self.payload_com_mm.iter().enumerate() {
-            check_range(&field(&format!("payload_com_mm[{i}]")), *v, -500.0, 500.0, "mm")?;
+            check_range(
+                &field(&format!("payload_com_mm[{i}]")),
+                *v,
+                -500.0,
+                500.0,
+                "mm",
+            )?;
         }
         for (i, v) in self.gravity_mm_per_s2.iter().enumerate() {
-            check_range(&field(&format!("gravity_mm_per_s2[{i}]")), *v, -1e5, 1e5, "mm/s²")?;
+            check_range(
+                &field(&format!("gravity_mm_per_s2[{i}]")),
+                *v,
+                -1e5,
+                1e5,
+                "mm/s²",
+            )?;
         }
         Ok(())
     }

@@ -109,7 +109,12 @@ impl SimArm {
         }
         // Gravity's velocity change per period, in the plane's frame.
         let g = cfg.gravity_mm_per_s2;
-        let gdt = [dot3(&g, &nrm) * dt, dot3(&g, &t1) * dt, dot3(&g, &t2) * dt, 0.0];
+        let gdt = [
+            dot3(&g, &nrm) * dt,
+            dot3(&g, &t1) * dt,
+            dot3(&g, &t2) * dt,
+            0.0,
+        ];
         // Velocity before the contact forces of the first period.
         let mut w = [0.0f64; 4];
         for c in 0..4 {

@@ -162,8 +162,7 @@ impl SimArm {
         if !positive(sensor_cfg.sample_rate_hz) {
             return Err(SimError::BadParameter("sample_rate_hz"));
         }
-        if !(cfg.command_latency_s.is_finite() && (0.0..=0.1).contains(&cfg.command_latency_s))
-        {
+        if !(cfg.command_latency_s.is_finite() && (0.0..=0.1).contains(&cfg.command_latency_s)) {
             return Err(SimError::BadParameter("command_latency_s"));
         }
         let rest_load = sensor_load(
@@ -453,6 +452,8 @@ mod tests {
             quantization_n_mm: 0.0,
             bias_n: [0.0; 3],
             bias_n_mm: 0.0,
+            bias_drift_n_per_sqrt_s: 0.0,
+            bias_drift_n_mm_per_sqrt_s: 0.0,
             ..SensorConfig::default()
         }
     }
@@ -575,6 +576,88 @@ mod tests {
         assert!(peak_f > 50.0, "the contact was not loaded: {peak_f} N");
         assert!(worst_f < 1e-6 * peak_f, "forces differ by {worst_f} N");
         assert!(worst_x < 1e-9, "poses differ by {worst_x} mm");
+    }
+
+    /// The sensor carries the payload: at rest, tilted by θ, it reads the payload's weight
+    /// in its own (turned) frame and the weight's moment about it, plus its bias; and the
+    /// platform sags under the weight (gravity is in the dynamics too).
+    #[test]
+    fn sensor_reads_the_payload_weight_in_its_frame() {
+        let theta: f64 = 0.3;
+        let cfg = PlantConfig {
+            payload_mass_kg: 0.5,
+            payload_com_mm: [10.0, 0.0, -40.0],
+            gravity_mm_per_s2: [0.0, 0.0, -9810.0],
+            ..PlantConfig::default()
+        };
+        let start = Pose::new(0.0, 0.0, -250.0, theta);
+        let mut arm = SimArm::new(
+            H4Params::PROTOTYPE,
+            [100.0; 4],
+            cfg,
+            quiet_sensor(),
+            plane(-400.0, 200.0),
+            start,
+            1,
+        )
+        .unwrap();
+        arm.advance(200_000_000);
+        let r = arm.read().wrench;
+        let w = 0.5 * 9.81;
+        let (s, c) = theta.sin_cos();
+        // Gravity (0, 0, −w) in the sensor's frame: (s·w, 0, −c·w).
+        let (px, pz) = (s * w, -c * w);
+        assert!(
+            (r[0] - px).abs() < 0.07 && (r[2] - pz).abs() < 0.07,
+            "{r:?}"
+        );
+        let my = -40.0 * px - 10.0 * pz;
+        assert!((r[3] - my).abs() < 1.5, "{r:?} vs My {my}");
+        assert!(
+            arm.true_pose()[2] < -250.0 + 1e-4,
+            "no sag: {:?}",
+            arm.true_pose()
+        );
+    }
+
+    /// A command takes effect `command_latency_s` after it is written: with one period, the
+    /// carriages have not moved at the end of the period it was written in, and have after
+    /// the next one.
+    #[test]
+    fn commands_act_one_latency_later() {
+        let cfg = PlantConfig {
+            command_latency_s: 0.001,
+            ..PlantConfig::default()
+        };
+        let params = H4Params::PROTOTYPE;
+        let start = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let mut arm = SimArm::new(
+            params,
+            [100.0; 4],
+            cfg,
+            quiet_sensor(),
+            plane(-400.0, 200.0),
+            start,
+            1,
+        )
+        .unwrap();
+        let l0 = arm.read().actuators_mm;
+        let l = params
+            .ik_checked(&Pose::new(0.0, 0.0, -249.9, 0.0))
+            .unwrap();
+        arm.command(&[l[0], l[1], l[2], l[3]]);
+        arm.advance(1_000_000);
+        let after_one = arm.read().actuators_mm;
+        arm.advance(1_000_000);
+        let after_two = arm.read().actuators_mm;
+        assert!(
+            (after_one[0] - l0[0]).abs() < 1e-3,
+            "moved early: {after_one:?}"
+        );
+        assert!(
+            (after_two[0] - l0[0]).abs() > 5e-3,
+            "never moved: {after_two:?}"
+        );
     }
 
     #[test]

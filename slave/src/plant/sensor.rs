@@ -47,8 +47,8 @@ impl Default for SensorConfig {
             quantization_n_mm: 1.33,
             bias_n: [0.3, -0.2, 0.4],
             bias_n_mm: 3.0,
-            bias_drift_n_per_sqrt_s: 0.02,
-            bias_drift_n_mm_per_sqrt_s: 0.5,
+            bias_drift_n_per_sqrt_s: 0.0,
+            bias_drift_n_mm_per_sqrt_s: 0.0,
             sample_rate_hz: 1000.0,
             filter_cutoff_hz: 80.0,
         }
@@ -138,7 +138,12 @@ impl ForceSensor {
         let sqrt_period_s = (self.period_ns as f64 * 1e-9).sqrt();
         for i in 0..4 {
             let (bias, std, quant, drift) = if i < 3 {
-                (s.bias_n[i], s.noise_std_n, s.quantization_n, s.bias_drift_n_per_sqrt_s)
+                (
+                    s.bias_n[i],
+                    s.noise_std_n,
+                    s.quantization_n,
+                    s.bias_drift_n_per_sqrt_s,
+                )
             } else {
                 (
                     s.bias_n_mm,
