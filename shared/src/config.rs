@@ -239,6 +239,39 @@ pub struct ArmConfig {
     pub actuator_stiffness_n_per_mm: [f64; 4],
     /// Workspace limits.
     pub workspace: WorkspaceLimits,
+    /// The tool beyond the force sensor as `h4-slave identify` estimated it (the
+    /// controller's gravity and inertia compensation uses it).
+    pub tool: ToolModel,
+}
+
+/// The tool beyond the force sensor, identified from free-space poses (`h4-slave identify`):
+/// its weight and inertia load the sensor; the controller subtracts them.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ToolModel {
+    /// Whether the fields below were identified (false: the controller compensates nothing
+    /// beyond its start-up tare).
+    pub identified: bool,
+    /// Mass beyond the sensor, kg (0 to 100).
+    pub mass_kg: f64,
+    /// Its centre of mass in the sensor's frame, mm (y is not observable from `My`: 0).
+    pub com_mm: [f64; 3],
+    /// The sensor's bias at identification, `[Fx, Fy, Fz]` N.
+    pub sensor_bias_n: [f64; 3],
+    /// The sensor's bias on `My` at identification, N·mm.
+    pub sensor_bias_n_mm: f64,
+}
+
+impl Default for ToolModel {
+    fn default() -> Self {
+        ToolModel {
+            identified: false,
+            mass_kg: 0.0,
+            com_mm: [0.0; 3],
+            sensor_bias_n: [0.0; 3],
+            sensor_bias_n_mm: 0.0,
+        }
+    }
 }
 
 impl Default for ArmConfig {
@@ -247,6 +280,7 @@ impl Default for ArmConfig {
             geometry: GeometryConfig::Preset(GeometryPreset::Prototype),
             actuator_stiffness_n_per_mm: [100.0; 4],
             workspace: WorkspaceLimits::default(),
+            tool: ToolModel::default(),
         }
     }
 }
@@ -301,6 +335,37 @@ impl Section for ArmConfig {
                 "N/mm",
             )?;
         }
+        let t = &self.tool;
+        check_range(
+            &format!("{prefix}tool.mass_kg"),
+            t.mass_kg,
+            0.0,
+            100.0,
+            "kg",
+        )?;
+        for i in 0..3 {
+            check_range(
+                &format!("{prefix}tool.com_mm[{i}]"),
+                t.com_mm[i],
+                -1e3,
+                1e3,
+                "mm",
+            )?;
+            check_range(
+                &format!("{prefix}tool.sensor_bias_n[{i}]"),
+                t.sensor_bias_n[i],
+                -1e3,
+                1e3,
+                "N",
+            )?;
+        }
+        check_range(
+            &format!("{prefix}tool.sensor_bias_n_mm"),
+            t.sensor_bias_n_mm,
+            -1e5,
+            1e5,
+            "N·mm",
+        )?;
         let w = &self.workspace;
         check_range(
             &format!("{prefix}workspace.theta_max_rad"),

@@ -20,6 +20,7 @@ pub mod arm;
 pub mod controller;
 pub mod experiment;
 pub mod filter;
+pub mod identify;
 pub mod kin_tool;
 pub mod plant;
 pub mod report;

@@ -24,6 +24,9 @@ enum Command {
     /// Runs one autonomous force-tracking experiment on the simulated clock and prints its
     /// summary as JSON (fields in docs/slave-experiments.md).
     Experiment(cli::experiment::ExperimentArgs),
+    /// Identifies the tool beyond the force sensor (mass, centre of mass, sensor bias) from
+    /// a few poses in free space on the simulated arm; --write puts it into the arm file.
+    Identify(cli::identify::IdentifyArgs),
     /// Runs the slave process: the 1 kHz force loop on the simulated arm, commanded by a
     /// master over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
     Run(Box<cli::run::RunArgs>),
@@ -38,6 +41,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Kin(args) => args.run(),
         Command::Experiment(args) => args.run(),
+        Command::Identify(args) => args.run(),
         Command::Run(args) => args.run(),
         Command::Report(args) => args
             .run()

@@ -56,7 +56,7 @@ impl SlaveWorld {
             initial_pose,
             seed,
         )?;
-        let ctrl = SlaveController::new(ws, assumed, self.controller);
+        let ctrl = SlaveController::new(ws, assumed, self.controller).with_tool(self.arm.tool);
         Ok((arm, ctrl))
     }
 }

@@ -69,6 +69,19 @@ fn misses(label: &str, cfg: &ExperimentConfig, s: &Summary) -> Vec<String> {
     out
 }
 
+/// The ideal sensor of the first landing (the README's ideal-sensor column): no payload on
+/// the sensor, no weight, no read-to-command latency, no bias drift (and so nothing to
+/// compensate).
+const IDEAL: [&str; 7] = [
+    "plant.payload_mass_kg=0",
+    "plant.gravity_mm_per_s2=[0,0,0]",
+    "plant.command_latency_s=0",
+    "controller.command_latency_cycles=0",
+    "sensor.bias_drift_n_per_sqrt_s=0",
+    "sensor.bias_drift_n_mm_per_sqrt_s=0",
+    "controller.gravity_compensation=false",
+];
+
 const PAPER: [&str; 6] = [
     "fig6b.toml",
     "fig6c.toml",
@@ -122,13 +135,18 @@ fn untuned_planes_cylinders_spheres_stiff_soft_and_dry_surfaces_meet_targets() {
 /// stiffnesses. Needs millimetres of travel into the surface and has the contact mode (the
 /// tool between the arm's and the surface's stiffness) right at the sensor filter's
 /// cut-off: what the gain schedule and the normal acceleration limit are for.
+/// With the ideal sensor (no payload on it, no latency; issue 13's realistic sensor misses
+/// here: slave/tests/realistic_sensor.rs, `very_soft_surface_with_a_real_sensor_known_limit`).
 fn soft_surface_misses(k: &str) -> Vec<String> {
     let mut all = Vec::new();
     for base in ["fig6b.toml", "fig7d.toml"] {
         for scale in ["0.7", "1.3"] {
             let set = format!("plant.stiffness_scale={scale}");
             let stiff = format!("surface.stiffness_n_per_mm={k}");
-            let (cfg, s) = run(base, &[&stiff, &set]);
+            let (cfg, s) = run(
+                base,
+                &[&stiff, &set, IDEAL[0], IDEAL[1], IDEAL[2], IDEAL[3]],
+            );
             all.extend(misses(&format!("{base} {k} N/mm ×{scale}"), &cfg, &s));
         }
     }
@@ -213,8 +231,9 @@ fn tracking_along_y_on_aluminium_meets_targets() {
 /// let the hot gain through: the tool mass is told 100× too light (the gain schedule then
 /// sees the contact mode far above the sensor filter and keeps kp) and the normal
 /// acceleration limit is out of the way. Negative control: the same runs with the limit out
-/// of the way (500 N) peak at 25 % or more above the 80 N limit in every one of them
-/// (measured: 107–135 N at ×0.7, 168–211 N at ×1.3), so the scenario does threaten the limit
+/// of the way (500 N) peak above the 80 N limit (by 5 % or more) in every one of them
+/// (measured before issue 13: 107–135 N at ×0.7, 168–211 N at ×1.3; with its noise-aware
+/// contact detection from 88 N at ×0.7), so the scenario does threaten the limit
 /// and the guard is what holds it. (Not a proof for every mistuning: see
 /// docs/slave-results.md, "Known limits".)
 const HOT_KP: &str = "controller.kp=3";
@@ -227,7 +246,21 @@ fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
         for seed in 1..=8 {
             let set = format!("plant.stiffness_scale={scale}");
             let seed_set = format!("seed={seed}");
-            let hot = [HOT_KP, HOT_MASS, HOT_ACCEL, "duration_s=6", &set, &seed_set];
+            // On the ideal sensor: with issue 13's (payload on the sensor, latency) the
+            // unguarded hot loop no longer rings past the limit (30 N at ×0.7, seed 1),
+            // and the control would prove nothing.
+            let hot = [
+                HOT_KP,
+                HOT_MASS,
+                HOT_ACCEL,
+                "duration_s=6",
+                &set,
+                &seed_set,
+                IDEAL[0],
+                IDEAL[1],
+                IDEAL[2],
+                IDEAL[3],
+            ];
             let (cfg, guarded) = run("fig7c.toml", &hot);
             let limit_n = cfg.controller.force_limit_n;
             assert!(
@@ -239,7 +272,7 @@ fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
             unguarded_set.push("controller.force_limit_n=500");
             let (_, unguarded) = run("fig7c.toml", &unguarded_set);
             assert!(
-                unguarded.max_force_n > 1.25 * limit_n,
+                unguarded.max_force_n > 1.05 * limit_n,
                 "×{scale} seed {seed}: the hot loop does not threaten the limit: {:.1} N",
                 unguarded.max_force_n
             );

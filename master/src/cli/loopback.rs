@@ -558,6 +558,7 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
         plant: cfg.slave.plant,
         controller: cfg.slave.controller,
         summary: SummaryConfig::default(),
+        targets: Default::default(),
     }
 }
 

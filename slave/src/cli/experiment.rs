@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use h4_shared::process::ExitStatus;
 use h4_shared::recording::Recorder;
 
 /// Run one autonomous force-tracking experiment on the simulated clock.
@@ -39,6 +40,13 @@ impl ExperimentArgs {
             rec.finish().map_err(|e| e.to_string())?;
         }
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
-        Ok(ExitCode::SUCCESS)
+        if summary.verdict.passed {
+            Ok(ExitStatus::Ok.into())
+        } else {
+            for why in &summary.verdict.failures {
+                eprintln!("h4-slave experiment: {}: {why}", self.file.display());
+            }
+            Ok(ExitStatus::VerdictFailed.into())
+        }
     }
 }

@@ -14,6 +14,10 @@ use super::params::ControllerParams;
 const CONTACT_ONSET_FRACTION: f64 = 0.375;
 /// Consecutive cycles above the onset level that count as contact.
 const CONTACT_ONSET_CYCLES: u32 = 3;
+/// Acceleration of the approach from rest, mm/s²: a velocity step would shake the tool
+/// (0.6 kg × 2 mm/s in one 1 ms cycle: 1.2 N on the sensor, a false touch); at this rate the
+/// tool's inertia shows ≈ 0.03 N and the default 2 mm/s are reached in 40 ms.
+const APPROACH_ACCEL_MM_PER_S2: f64 = 50.0;
 
 /// Whether the tool is in contact, and the counters that decide it.
 #[derive(Clone, Copy, Debug)]
@@ -29,6 +33,8 @@ pub(super) struct ContactState {
     onset_cycles: u32,
     /// Cycles since the touch.
     pub(super) contact_cycles: u32,
+    /// The approach's current speed (ramped up from rest), mm/s.
+    approach_speed_mm_per_s: f64,
 }
 
 impl ContactState {
@@ -40,6 +46,7 @@ impl ContactState {
             below_cycles: 0,
             onset_cycles: 0,
             contact_cycles: 0,
+            approach_speed_mm_per_s: 0.0,
         }
     }
 
@@ -47,21 +54,35 @@ impl ContactState {
     pub(super) fn leave(&mut self) {
         self.in_contact = false;
         self.lost = false;
+        self.approach_speed_mm_per_s = 0.0;
     }
 
-    /// While approaching: whether the force magnitude `f_mag` makes this cycle the touch.
-    /// Contact: the force crosses the threshold, or it has stayed above 3/8 of it for a few
-    /// cycles in a row (a soft surface, on which the force builds up slowly: 0.8 N takes
-    /// ≈ 80 ms of the approach on 5 N/mm). A stiff surface crosses the threshold itself
-    /// within a cycle or two. On a touch the state is in contact, its counters restarted.
-    pub(super) fn touches(&mut self, f_mag: f64, threshold_n: f64) -> bool {
-        if f_mag > CONTACT_ONSET_FRACTION * threshold_n {
+    /// While approaching: whether the force against the approach, `f_push` (the force
+    /// along the opposite of the motion), makes this cycle the touch, `noise_n` being the
+    /// standard deviation of the sensor's noise along it (measured while taring). Contact:
+    /// the force crosses the threshold (at least `noise_sigmas` × the noise), or it has
+    /// stayed above 3/8 of it (at least 5/8 of `noise_sigmas` × the noise) for a few cycles
+    /// in a row (a soft surface, on which the force builds up slowly: 0.8 N takes ≈ 80 ms
+    /// of the approach on 5 N/mm). A stiff surface crosses the threshold itself within a
+    /// cycle or two. Only the force against the motion counts: the noise of the two other
+    /// axes cannot add to it. On a touch the state is in contact, its counters restarted.
+    pub(super) fn touches(
+        &mut self,
+        f_push: f64,
+        threshold_n: f64,
+        noise_n: f64,
+        noise_sigmas: f64,
+    ) -> bool {
+        let level = threshold_n.max(noise_sigmas * noise_n);
+        let onset = (CONTACT_ONSET_FRACTION * threshold_n).max(0.625 * noise_sigmas * noise_n);
+        if f_push > onset {
             self.onset_cycles = self.onset_cycles.saturating_add(1);
         } else {
             self.onset_cycles = 0;
         }
-        if f_mag > threshold_n || self.onset_cycles >= CONTACT_ONSET_CYCLES {
+        if f_push > level || self.onset_cycles >= CONTACT_ONSET_CYCLES {
             self.onset_cycles = 0;
+            self.approach_speed_mm_per_s = 0.0;
             self.in_contact = true;
             self.lost = false;
             self.below_cycles = 0;
@@ -72,17 +93,40 @@ impl ContactState {
         }
     }
 
+    /// The unit direction of the next approach step from `next`: towards `target`, or
+    /// (after a loss) along the opposite of the last `normal`; zero at the target.
+    pub(super) fn approach_direction(
+        &self,
+        next: &Pose,
+        target: &[f64; 4],
+        normal: &Vector3<f64>,
+    ) -> Vector3<f64> {
+        if self.lost && normal.norm() > 0.5 {
+            return -normal.normalize();
+        }
+        let d = Vector3::new(
+            target[0] - next[0],
+            target[1] - next[1],
+            target[2] - next[2],
+        );
+        let dn = d.norm();
+        if dn > 1e-9 { d / dn } else { Vector3::zeros() }
+    }
+
     /// One approach step from `next` at the approach speed: towards the commanded point
     /// `target`, or (after a loss) along the last `normal`. Returns the state to report.
     pub(super) fn approach(
-        &self,
+        &mut self,
         next: &mut Pose,
         target: &[f64; 4],
         normal: &Vector3<f64>,
         p: &ControllerParams,
         dt: f64,
     ) -> Status {
-        let step = p.approach_speed_mm_per_s * dt;
+        self.approach_speed_mm_per_s = (self.approach_speed_mm_per_s
+            + APPROACH_ACCEL_MM_PER_S2 * dt)
+            .min(p.approach_speed_mm_per_s);
+        let step = self.approach_speed_mm_per_s * dt;
         let mv = if self.lost && normal.norm() > 0.5 {
             -normal * step
         } else {

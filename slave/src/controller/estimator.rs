@@ -15,6 +15,10 @@ const TRUSTED_UPDATES: u32 = 10;
 /// Touch-down estimate: the force along the normal below which the approach counts as not
 /// yet touching (≈ 2.5 × the filtered noise: the fit averages the noise), N.
 const TOUCHDOWN_FLOOR_N: f64 = 0.1;
+/// Touch-down estimate: the build-up starts this many standard deviations of the sensor's
+/// noise above zero at least (below it a noisy approach looks like a build-up of many
+/// cycles, and the fit of noise gave a bogus stiffness: 19 % overshoot on steel at 0.3 N σ).
+const TOUCHDOWN_NOISE_SIGMAS: f64 = 4.0;
 /// Touch-down estimate: fewest cycles of force build-up before contact.
 const TOUCHDOWN_MIN_CYCLES: usize = 10;
 
@@ -29,7 +33,15 @@ pub(super) struct StiffnessEstimator {
     p_rls: f64,
     /// Updates on this contact.
     updates: u32,
+    /// Smallest force increment that updates the estimate on this contact: the larger of
+    /// `estimator_excitation_n` and [`EXCITATION_NOISE_SIGMAS`] × the sensor's noise, N.
+    excitation_n: f64,
 }
+
+/// Force increments within this many standard deviations of the sensor's noise (along the
+/// normal, measured while taring) do not update the estimate: at 0.3 N σ raw noise they
+/// would drag it to its bound.
+const EXCITATION_NOISE_SIGMAS: f64 = 6.0;
 
 impl StiffnessEstimator {
     /// Before any data: the initial stiffness of `p`.
@@ -40,6 +52,7 @@ impl StiffnessEstimator {
             c_tot: c_env,
             p_rls: 100.0,
             updates: 0,
+            excitation_n: p.estimator_excitation_n,
         }
     }
 
@@ -50,20 +63,27 @@ impl StiffnessEstimator {
 
     /// At a touch: the least squares restart from the current estimate, `c_arm` being the
     /// arm's compliance along the new normal `n`; with estimation on, seeded from the force
-    /// build-up before the touch (`cycles`: the controller's cycles so far).
+    /// build-up before the touch (`cycles`: the controller's cycles so far); `noise_n` is
+    /// the sensor's noise along `n`.
     pub(super) fn touch(
         &mut self,
         window: &MotionWindow,
         n: &Vector3<f64>,
         c_arm: f64,
         cycles: u64,
+        noise_n: f64,
         p: &ControllerParams,
     ) {
+        self.excitation_n = p
+            .estimator_excitation_n
+            .max(EXCITATION_NOISE_SIGMAS * noise_n);
         self.p_rls = 100.0;
         self.updates = 0;
         self.c_tot = c_arm + self.c_env;
         if p.estimate_env_stiffness {
-            self.seed_from_touchdown(window, n, c_arm, cycles, p);
+            // The build-up starts where the force leaves the noise, not the fixed floor.
+            let floor_n = TOUCHDOWN_FLOOR_N.max(TOUCHDOWN_NOISE_SIGMAS * noise_n);
+            self.seed_from_touchdown(window, n, c_arm, cycles, floor_n, p);
         }
     }
 
@@ -89,7 +109,7 @@ impl StiffnessEstimator {
         let d_p = n[0] * (xf[0] - xo[0]) + n[1] * (xf[1] - xo[1]) + n[2] * (xf[2] - xo[2]);
         // Pushing in can only raise the force: increments of the other sign are lag or
         // noise and would drag the estimate through zero.
-        if d_f.abs() > p.estimator_excitation_n && -d_p * d_f > 0.0 {
+        if d_f.abs() > self.excitation_n && -d_p * d_f > 0.0 {
             let lam = p.estimator_forgetting.clamp(0.5, 1.0);
             let y = -d_p;
             let g = self.p_rls * d_f / (lam + d_f * self.p_rls * d_f);
@@ -114,10 +134,11 @@ impl StiffnessEstimator {
         n: &Vector3<f64>,
         c_arm: f64,
         cycles: u64,
+        floor_n: f64,
         p: &ControllerParams,
     ) {
         let at = |back: usize| window.back(back);
-        let onset = (1..WINDOW_MAX).find(|&back| window.f[at(back)].dot(n) < TOUCHDOWN_FLOOR_N);
+        let onset = (1..WINDOW_MAX).find(|&back| window.f[at(back)].dot(n) < floor_n);
         let Some(samples) = onset else {
             return;
         };

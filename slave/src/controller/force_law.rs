@@ -46,13 +46,20 @@ impl SetpointPrefilter {
     }
 }
 
-/// The force law's state: the last error and the last step along the normal.
+/// Steps into the surface kept for the latency's prediction (latency up to this many cycles).
+const IN_FLIGHT_MAX: usize = 11;
+
+/// The force law's state: the last error, the last step along the normal, and the steps
+/// sent but not yet acting (the read-to-command latency).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct ForceLaw {
     /// Last cycle's force error, N.
     pub(super) e_prev_n: f64,
     /// Last cycle's step along the normal, mm.
     depth_step_mm: f64,
+    /// The steps into the surface sent in the last cycles, newest at `head`, mm.
+    in_flight_mm: [f64; IN_FLIGHT_MAX],
+    head: usize,
 }
 
 /// What the force law reads this cycle.
@@ -85,6 +92,8 @@ impl ForceLaw {
         ForceLaw {
             e_prev_n: 0.0,
             depth_step_mm: 0.0,
+            in_flight_mm: [0.0; IN_FLIGHT_MAX],
+            head: 0,
         }
     }
 
@@ -92,6 +101,25 @@ impl ForceLaw {
     pub(super) fn touch(&mut self) {
         self.e_prev_n = 0.0;
         self.depth_step_mm = 0.0;
+        self.in_flight_mm = [0.0; IN_FLIGHT_MAX];
+    }
+
+    /// Books the step into the surface actually sent this cycle, mm.
+    pub(super) fn sent(&mut self, d_depth_mm: f64) {
+        self.head = (self.head + 1) % IN_FLIGHT_MAX;
+        self.in_flight_mm[self.head] = d_depth_mm;
+    }
+
+    /// The force the steps of the last `latency_cycles` cycles will add once they act
+    /// (they left after the reading this cycle's force came from): their depth over the
+    /// compliance `c`, N (a Smith predictor of the latency).
+    fn in_flight_force_n(&self, latency_cycles: u32, c: f64) -> f64 {
+        let l = (latency_cycles as usize).min(IN_FLIGHT_MAX - 1);
+        let mut depth = 0.0;
+        for back in 0..l {
+            depth += self.in_flight_mm[(self.head + IN_FLIGHT_MAX - back) % IN_FLIGHT_MAX];
+        }
+        depth / c.max(1e-9)
     }
 
     /// One cycle from `inp`; `guard` is the oscillation guard (fed this cycle's error).
@@ -104,7 +132,7 @@ impl ForceLaw {
         dt: f64,
     ) -> ForceLawStep {
         let ForceLawInputs { f_n, sp, d_sp, c } = *inp;
-        let e = sp - f_n;
+        let e = sp - (f_n + self.in_flight_force_n(p.command_latency_cycles, c));
         let de = e - self.e_prev_n;
         guard.observe(de);
         let mut d_depth = c

@@ -42,6 +42,7 @@
 //! 5. the next commanded pose is checked against the workspace and committed.
 
 mod arm_model;
+mod compensation;
 mod contact;
 mod deflection;
 mod estimator;
@@ -61,11 +62,13 @@ mod window;
 pub use interface::{ControllerInput, ControllerOutput, Rejection, SlaveCommand, Status};
 pub use params::ControllerParams;
 
+use h4_shared::config::ToolModel;
 use h4_shared::kinematics::{ActuatorStiffness, Pose, Workspace};
 use h4_shared::wire::Mode;
 use nalgebra::{Vector3, Vector4};
 
 use arm_model::{ArmModel, CycleCompliance, along_normal};
+use compensation::{ToolCompensation, to_base};
 use contact::ContactState;
 use deflection::DeflectionComp;
 use estimator::StiffnessEstimator;
@@ -115,6 +118,7 @@ pub struct SlaveController {
     /// The actuator commands of the commanded pose with the compensation, mm.
     l_cmd: [f64; 4],
     tare: SensorTare,
+    comp: ToolCompensation,
     window: MotionWindow,
     safe: SafeStop,
     position: PositionTrajectory,
@@ -148,6 +152,7 @@ impl SlaveController {
             x_cmd: Pose::zeros(),
             l_cmd: [0.0; 4],
             tare: SensorTare::new(),
+            comp: ToolCompensation::new(ToolModel::default()),
             window: MotionWindow::new(params.sensor_filter_cutoff_hz),
             safe: SafeStop::new(),
             position: PositionTrajectory::new(),
@@ -176,6 +181,13 @@ impl SlaveController {
                 rejection: None,
             },
         }
+    }
+
+    /// The controller with the identified tool model `tool` (`arm.tool`): its weight and
+    /// inertia are taken off the sensor's reading (with `gravity_compensation` on).
+    pub fn with_tool(mut self, tool: ToolModel) -> Self {
+        self.comp = ToolCompensation::new(tool);
+        self
     }
 
     /// The parameters.
@@ -223,7 +235,14 @@ impl SlaveController {
         if !self.initialised {
             self.initialise(pose_fk, input.actuators_mm);
         }
-        let raw = Vector4::from(input.wrench);
+        let theta = pose_fk[3];
+        let raw = self.comp.remove(
+            Vector4::from(input.wrench),
+            theta,
+            self.contact.in_contact || input.command.mode != Mode::ForceGuided,
+            &self.p,
+            dt,
+        );
         if self.tare.taring(self.p.tare_cycles) {
             return self.tare_step(pose_fk, raw);
         }
@@ -232,7 +251,7 @@ impl SlaveController {
             self.deflection.fade();
         }
         self.window.follow_period(dt_s);
-        let cx = self.measure(pose_fk, raw - self.tare.bias, dt);
+        let cx = self.measure(pose_fk, to_base(raw - self.tare.bias, theta), dt);
         let mut cmd = input.command;
         let safe_stopping = match self.safe.step(
             &input.command,
@@ -289,7 +308,10 @@ impl SlaveController {
     /// A cycle of the sensor's tare: the arm holds still.
     fn tare_step(&mut self, pose_fk: Pose, raw: Vector4<f64>) -> ControllerOutput {
         self.tare.add(raw);
-        let mut out = self.output(pose_fk, raw - self.tare.bias, 0.0, Status::Taring);
+        let w = to_base(raw - self.tare.bias, pose_fk[3]);
+        let mut out = self.output(pose_fk, w, 0.0, Status::Taring);
+        self.comp
+            .push_command([self.x_cmd[0], self.x_cmd[1], self.x_cmd[2]]);
         out.actuators_cmd_mm = self.l_cmd;
         self.last = out;
         out
@@ -346,7 +368,23 @@ impl SlaveController {
         );
         next[3] += dth;
         if !self.contact.in_contact {
-            if self.contact.touches(cx.f_mag, self.p.contact_threshold_n) {
+            let u = self
+                .contact
+                .approach_direction(&next, &cmd.pose, &self.normal.normal);
+            let p = &self.p;
+            // At the target (no direction left) any force counts.
+            let (f_push, noise_n) = if u.norm() > 0.5 {
+                (-cx.f3.dot(&u), self.tare.noise_along(&u))
+            } else {
+                let all = Vector3::new(1.0, 1.0, 1.0);
+                (cx.f_mag, self.tare.noise_along(&all))
+            };
+            if self.contact.touches(
+                f_push,
+                p.contact_threshold_n,
+                noise_n,
+                p.contact_noise_sigmas,
+            ) {
                 self.touch(cx);
             } else {
                 let status =
@@ -382,11 +420,13 @@ impl SlaveController {
         self.shaper.clear();
         self.tracking.reset_speed();
         let c_arm = along_normal(cx.compliance.lambda.as_ref(), &self.normal.normal);
+        let noise_n = self.tare.noise_along(&self.normal.normal);
         self.estimator.touch(
             &self.window,
             &self.normal.normal,
             c_arm,
             self.cycles,
+            noise_n,
             &self.p,
         );
     }
@@ -456,6 +496,7 @@ impl SlaveController {
         } else {
             vt_n.min(self.p.max_speed_mm_per_s)
         };
+        self.force_law.sent(d_depth);
         let mut mv = -n * d_depth;
         mv += self.tracking.advance(target_speed, &self.p, dt);
         let dmax = self.p.max_speed_mm_per_s * dt;
@@ -532,6 +573,7 @@ impl SlaveController {
         let mut out = match self.arm.ws.ik(&target) {
             Ok(l) => {
                 self.x_cmd = next;
+                self.comp.push_command([target[0], target[1], target[2]]);
                 self.l_cmd = [l[0], l[1], l[2], l[3]];
                 self.output(cx.pose_fk, cx.wrench, c, status)
             }

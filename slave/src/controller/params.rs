@@ -69,6 +69,20 @@ pub struct ControllerParams {
     pub sensor_filter_cutoff_hz: f64,
     /// Cycles at start-up averaged (in free space) to estimate the sensor's bias.
     pub tare_cycles: u32,
+    /// Take the identified tool's weight and inertia (`arm.tool`) off the sensor's reading.
+    pub gravity_compensation: bool,
+    /// Gravity in the base frame as the controller knows it, mm/s² (the machine's vertical
+    /// axis).
+    pub gravity_mm_per_s2: [f64; 3],
+    /// The read-to-command latency the controller assumes, cycles (0 to 10): a command
+    /// acts this many cycles after the reading it came from; the force law predicts the
+    /// force of the commands still in flight (a Smith predictor) and the compensation
+    /// takes the acceleration that old.
+    pub command_latency_cycles: u32,
+    /// Contact detection: the force along the approach must exceed this many standard
+    /// deviations of the sensor's noise (measured while taring) besides
+    /// `contact_threshold_n` (3 to 20).
+    pub contact_noise_sigmas: f64,
     /// Safe stop: time to ramp the force to zero, s.
     pub safe_stop_ramp_s: f64,
     /// Safe stop: retraction along the contact normal, mm.
@@ -108,6 +122,10 @@ impl Default for ControllerParams {
             deflection_comp_time_constant_s: 0.03,
             sensor_filter_cutoff_hz: 80.0,
             tare_cycles: 100,
+            gravity_compensation: true,
+            gravity_mm_per_s2: [0.0, 0.0, -9810.0],
+            command_latency_cycles: 0,
+            contact_noise_sigmas: 8.0,
             safe_stop_ramp_s: 0.2,
             safe_stop_retract_mm: 3.0,
             safe_stop_release_max_mm: 50.0,
@@ -121,7 +139,7 @@ impl Section for ControllerParams {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
-        let checks: [(&str, f64, f64, f64, &str); 28] = [
+        let checks: [(&str, f64, f64, f64, &str); 30] = [
             ("force_limit_n", self.force_limit_n, 1.0, 1000.0, "N"),
             ("max_speed_mm_per_s", self.max_speed_mm_per_s, 0.1, 1000.0, "mm/s"),
             ("force_accel_mm_per_s2", self.force_accel_mm_per_s2, 1.0, 1e7, "mm/s²"),
@@ -171,12 +189,23 @@ impl Section for ControllerParams {
             ),
             ("sensor_filter_cutoff_hz", self.sensor_filter_cutoff_hz, 1.0, 1e5, "Hz"),
             ("tare_cycles", f64::from(self.tare_cycles), 1.0, 100_000.0, "cycles"),
+            ("command_latency_cycles", f64::from(self.command_latency_cycles), 0.0, 10.0, "cycles"),
+            ("contact_noise_sigmas", self.contact_noise_sigmas, 3.0, 20.0, ""),
             ("safe_stop_ramp_s", self.safe_stop_ramp_s, 0.0, 60.0, "s"),
             ("safe_stop_retract_mm", self.safe_stop_retract_mm, 0.0, 100.0, "mm"),
             ("safe_stop_release_max_mm", self.safe_stop_release_max_mm, 0.0, 500.0, "mm"),
         ];
         for (name, value, min, max, unit) in checks {
             check_range(&field(name), value, min, max, unit)?;
+        }
+        for (i, g) in self.gravity_mm_per_s2.iter().enumerate() {
+            check_range(
+                &field(&format!("gravity_mm_per_s2[{i}]")),
+                *g,
+                -1e5,
+                1e5,
+                "mm/s²",
+            )?;
         }
         Ok(())
     }

@@ -59,8 +59,12 @@ fn default_start_delay() -> f64 {
 pub struct ApproachConfig {
     /// Start this far above the contact point (along +z), mm.
     pub gap_mm: f64,
-    /// The approach target lies this far below the contact point, mm.
+    /// The approach target lies this far below the contact point, mm (negative: above it,
+    /// the tool never touches; a free-space test).
     pub target_depth_mm: f64,
+    /// The tool's tilt θ about y commanded from the start (the arm starts at θ = 0, tares
+    /// its sensor there and turns while approaching), rad (−1 to 1).
+    pub theta_rad: f64,
 }
 
 impl Default for ApproachConfig {
@@ -68,6 +72,7 @@ impl Default for ApproachConfig {
         ApproachConfig {
             gap_mm: 2.0,
             target_depth_mm: 20.0,
+            theta_rad: 0.0,
         }
     }
 }
@@ -91,6 +96,58 @@ impl Default for SummaryConfig {
             settle_band_fraction: 0.05,
             settle_band_min_n: 0.5,
         }
+    }
+}
+
+/// The targets the run is judged against (`h4-slave experiment` exits 1 when one is
+/// missed); the true force staying at or below `controller.force_limit_n` and the tool
+/// touching its surface are always required.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TargetsConfig {
+    /// Largest `force_error_p99_n` (steady tracking), N.
+    pub force_error_p99_n: f64,
+    /// Largest `force_error_p99_contact_n` (the whole contact), N.
+    pub force_error_p99_contact_n: f64,
+    /// Largest `force_error_max_n` (the whole contact), N.
+    pub force_error_max_n: f64,
+    /// Largest overshoot, %.
+    pub overshoot_pct: f64,
+    /// Longest settling, ms.
+    pub settling_ms: f64,
+    /// Longest time without contact once tracking, ms.
+    pub contact_lost_ms: f64,
+}
+
+impl Default for TargetsConfig {
+    fn default() -> Self {
+        TargetsConfig {
+            force_error_p99_n: 1.0,
+            force_error_p99_contact_n: 1.0,
+            force_error_max_n: 2.0,
+            overshoot_pct: 5.0,
+            settling_ms: 150.0,
+            contact_lost_ms: 0.0,
+        }
+    }
+}
+
+impl Section for TargetsConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let field = |name: &str| format!("{prefix}{name}");
+        #[rustfmt::skip]
+        let checks: [(&str, f64, f64, f64, &str); 6] = [
+            ("force_error_p99_n", self.force_error_p99_n, 0.0, 1e4, "N"),
+            ("force_error_p99_contact_n", self.force_error_p99_contact_n, 0.0, 1e4, "N"),
+            ("force_error_max_n", self.force_error_max_n, 0.0, 1e4, "N"),
+            ("overshoot_pct", self.overshoot_pct, 0.0, 1e4, "%"),
+            ("settling_ms", self.settling_ms, 0.0, 3.6e6, "ms"),
+            ("contact_lost_ms", self.contact_lost_ms, 0.0, 3.6e6, "ms"),
+        ];
+        for (name, value, min, max, unit) in checks {
+            check_range(&field(name), value, min, max, unit)?;
+        }
+        Ok(())
     }
 }
 
@@ -129,6 +186,9 @@ pub struct ExperimentConfig {
     /// The summary.
     #[serde(default)]
     pub summary: SummaryConfig,
+    /// The targets the run is judged against.
+    #[serde(default)]
+    pub targets: TargetsConfig,
 }
 
 impl Validate for ExperimentConfig {
@@ -138,6 +198,7 @@ impl Validate for ExperimentConfig {
         self.track.validate_at("track.")?;
         self.approach.validate_at("approach.")?;
         self.summary.validate_at("summary.")?;
+        self.targets.validate_at("targets.")?;
         self.validate_across()
     }
 }
@@ -203,11 +264,18 @@ impl Section for ApproachConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         check_range(&format!("{prefix}gap_mm"), self.gap_mm, 0.0, 100.0, "mm")?;
         check_range(
+            &format!("{prefix}theta_rad"),
+            self.theta_rad,
+            -1.0,
+            1.0,
+            "rad",
+        )?;
+        check_range(
             &format!("{prefix}target_depth_mm"),
             self.target_depth_mm,
-            0.1,
+            -100.0,
             100.0,
-            "mm",
+            "mm (negative: above the contact point, the tool stays in free space)",
         )
     }
 }

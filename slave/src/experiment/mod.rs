@@ -15,9 +15,10 @@ mod run;
 
 pub use crate::plant::{Axis, ShapeKind, SurfaceConfig};
 pub use config::{
-    ApproachConfig, ExperimentConfig, ForceConfig, ForceStep, SummaryConfig, TrackConfig,
+    ApproachConfig, ExperimentConfig, ForceConfig, ForceStep, SummaryConfig, TargetsConfig,
+    TrackConfig,
 };
-pub use metrics::{EventSummary, Summary};
+pub use metrics::{EventSummary, Summary, Verdict};
 pub use run::run;
 
 use h4_shared::config::ConfigError;

@@ -74,6 +74,10 @@ pub(super) struct Trace {
     pub(super) rejected_cycles: u64,
     /// The controller's latest environment-stiffness estimate, N/mm.
     pub(super) env_estimate_n_per_mm: f64,
+    /// The controller's state at the last cycle.
+    pub(super) last_status: Status,
+    /// The distance from the last commanded pose to the approach target, mm.
+    pub(super) target_distance_mm: f64,
     /// The true pose of the previous cycle.
     prev_pose: Pose,
 }
@@ -90,6 +94,8 @@ impl Trace {
             max_force_n: 0.0,
             rejected_cycles: 0,
             env_estimate_n_per_mm: f64::NAN,
+            last_status: Status::Taring,
+            target_distance_mm: f64::NAN,
             prev_pose: start,
         }
     }
@@ -120,8 +126,12 @@ impl Trace {
         (setpoint, v)
     }
 
-    /// Books the controller's output of cycle `k`.
-    fn controller(&mut self, k: u64, out: &ControllerOutput) {
+    /// Books the controller's output of cycle `k` (`target`: the approach's target).
+    fn controller(&mut self, k: u64, out: &ControllerOutput, target: &[f64; 4]) {
+        self.last_status = out.status;
+        let c = out.commanded_pose;
+        self.target_distance_mm =
+            Vector3::new(target[0] - c[0], target[1] - c[1], target[2] - c[2]).norm();
         if out.rejection.is_some() {
             self.rejected_cycles += 1;
         }
@@ -159,7 +169,12 @@ pub fn run(
     cfg.validate()?;
     let p = cfg.surface.contact_point_mm;
     let start = Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let target = [p[0], p[1], p[2] - cfg.approach.target_depth_mm, 0.0];
+    let target = [
+        p[0],
+        p[1],
+        p[2] - cfg.approach.target_depth_mm,
+        cfg.approach.theta_rad,
+    ];
     let (mut arm, mut ctrl) = cfg.world().build(start, cfg.seed)?;
     let channels = match recorder.as_deref_mut() {
         Some(r) => Some(Channels::add(r)?),
@@ -185,7 +200,7 @@ pub fn run(
             },
         };
         let out = ctrl.step(&input, 1e-3);
-        trace.controller(k, &out);
+        trace.controller(k, &out, &target);
         arm.command(&out.actuators_cmd_mm);
         arm.advance(CYCLE_NS);
         let truth = Truth::of(&arm);
@@ -196,5 +211,7 @@ pub fn run(
     }
     let wall_time_s = wall.elapsed().as_secs_f64();
     let env_true = arm.surface().material.stiffness_n_per_mm;
-    Ok(metrics::summarise(cfg, &trace, env_true, wall_time_s))
+    let mut summary = metrics::summarise(cfg, &trace, env_true, wall_time_s);
+    summary.verdict = metrics::judge(cfg, &trace, &summary);
+    Ok(summary)
 }

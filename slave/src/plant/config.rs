@@ -40,6 +40,19 @@ pub struct PlantConfig {
     pub platform_damping_n_s_per_mm: f64,
     /// Encoder resolution, mm.
     pub encoder_resolution_mm: f64,
+    /// Mass beyond the force sensor (the tool and its holder), kg: its weight and inertia
+    /// load the sensor (0 to `tool_mass_kg`, of which it is part).
+    pub payload_mass_kg: f64,
+    /// Centre of mass of that payload in the sensor's frame (which turns with θ about y),
+    /// mm.
+    pub payload_com_mm: [f64; 3],
+    /// Gravity in the base frame, mm/s² (the machine's vertical axis is z: `[0, 0, −9810]`
+    /// in the experiment files; the default, all zeros, is the ideal weightless plant).
+    pub gravity_mm_per_s2: [f64; 3],
+    /// Read-to-command latency: a command written takes effect this long after the sensor
+    /// sample it was computed from was read, s (0 to 0.1; the paper's dSpace loop and the
+    /// experiment files: one 1 ms period; the default 0 is the ideal plant).
+    pub command_latency_s: f64,
 }
 
 impl Default for PlantConfig {
@@ -61,6 +74,10 @@ impl Default for PlantConfig {
             tool_inertia_kg_mm2: 1000.0,
             platform_damping_n_s_per_mm: 0.02,
             encoder_resolution_mm: 0.0005,
+            payload_mass_kg: 0.0,
+            payload_com_mm: [0.0; 3],
+            gravity_mm_per_s2: [0.0; 3],
+            command_latency_s: 0.0,
         }
     }
 }
@@ -71,7 +88,7 @@ impl Section for PlantConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
-        let checks: [(&str, f64, f64, f64, &str); 15] = [
+        let checks: [(&str, f64, f64, f64, &str); 17] = [
             ("stiffness_scale", self.stiffness_scale, 0.1, 10.0, ""),
             ("structural_damping_ratio", self.structural_damping_ratio, 0.0, 1.0, ""),
             ("servo_rate_hz", self.servo_rate_hz, 1000.0, 100_000.0, "Hz"),
@@ -87,12 +104,32 @@ impl Section for PlantConfig {
             ("tool_inertia_kg_mm2", self.tool_inertia_kg_mm2, 1.0, 1e7, "kg·mm²"),
             ("platform_damping_n_s_per_mm", self.platform_damping_n_s_per_mm, 0.0, 100.0, "N·s/mm"),
             ("encoder_resolution_mm", self.encoder_resolution_mm, 0.0, 1.0, "mm"),
+            ("payload_mass_kg", self.payload_mass_kg, 0.0, self.tool_mass_kg, "kg (up to tool_mass_kg)"),
+            ("command_latency_s", self.command_latency_s, 0.0, 0.1, "s"),
         ];
         for (name, value, min, max, unit) in checks {
             check_range(&field(name), value, min, max, unit)?;
         }
         for (i, v) in self.stiffness_spread.iter().enumerate() {
             check_range(&field(&format!("stiffness_spread[{i}]")), *v, -0.5, 0.5, "")?;
+        }
+        for (i, v) in self.payload_com_mm.iter().enumerate() {
+            check_range(
+                &field(&format!("payload_com_mm[{i}]")),
+                *v,
+                -500.0,
+                500.0,
+                "mm",
+            )?;
+        }
+        for (i, v) in self.gravity_mm_per_s2.iter().enumerate() {
+            check_range(
+                &field(&format!("gravity_mm_per_s2[{i}]")),
+                *v,
+                -1e5,
+                1e5,
+                "mm/s²",
+            )?;
         }
         Ok(())
     }

@@ -107,10 +107,18 @@ impl SimArm {
             ld[r] = rate;
             f[r] = k[r] * (l[r] - q[r]) + cs[r] * (ld[r] - qd[r]);
         }
+        // Gravity's velocity change per period, in the plane's frame.
+        let g = cfg.gravity_mm_per_s2;
+        let gdt = [
+            dot3(&g, &nrm) * dt,
+            dot3(&g, &t1) * dt,
+            dot3(&g, &t2) * dt,
+            0.0,
+        ];
         // Velocity before the contact forces of the first period.
         let mut w = [0.0f64; 4];
         for c in 0..4 {
-            w[c] = vb[c] * decay[c]
+            w[c] = vb[c] * decay[c] + gdt[c]
                 - ((a[0][c] * f[0] + a[1][c] * f[1]) + (a[2][c] * f[2] + a[3][c] * f[3]));
         }
         let depth0 = -(nrm[0] * (pose[0] - point_mm[0])
@@ -176,7 +184,7 @@ impl SimArm {
             // (explicit), plus joint/air damping.
             let mut w_next = [0.0f64; 4];
             for c in 0..4 {
-                w_next[c] = vb[c] * decay[c]
+                w_next[c] = vb[c] * decay[c] + gdt[c]
                     - ((a[0][c] * f[0] + a[1][c] * f[1]) + (a[2][c] * f[2] + a[3][c] * f[3]));
             }
             for c in 0..4 {
@@ -272,6 +280,7 @@ impl SimArm {
         }
         let servo = CarriageServo::new(&cfg, dt);
         let damp = cfg.platform_damping_n_s_per_mm;
+        let g = cfg.gravity_mm_per_s2;
         let k = self.k;
         let cs = self.c_struct;
         let inv_mass = [
@@ -331,9 +340,9 @@ impl SimArm {
             vel[3] += gen_f[3] * dt_over_inertia;
             // Translational velocity before the contact forces.
             let mut vs = [
-                vel[0] + gen_f[0] * dt_over_m_tool,
-                vel[1] + gen_f[1] * dt_over_m_tool,
-                vel[2] + gen_f[2] * dt_over_m_tool,
+                vel[0] + gen_f[0] * dt_over_m_tool + g[0] * dt,
+                vel[1] + gen_f[1] * dt_over_m_tool + g[1] * dt,
+                vel[2] + gen_f[2] * dt_over_m_tool + g[2] * dt,
             ];
             // Contact at the tool point.
             let p = Vector3::new(pose[0], pose[1], pose[2]);

@@ -12,8 +12,14 @@
 //!   predicts; the platform with its tool has mass and rotational inertia ([`kernel`]);
 //! * penetration-based contact with an unknown [`Surface`] ([`surface`]) (plane, cylinder or sphere;
 //!   Kelvin–Voigt spring–damper with regularised Coulomb friction);
-//! * a six-axis force/torque sensor reporting `[Fx, Fy, Fz, My]` with Gaussian noise,
-//!   bias, quantisation and a second-order Butterworth low-pass filter ([`sensor`]).
+//! * a six-axis force/torque sensor between the platform and the tool, reporting
+//!   `[Fx, Fy, Fz, My]` in its own frame (which turns with θ about y): the contact wrench
+//!   plus the payload's weight and inertia (`payload_mass_kg` at `payload_com_mm`, gravity
+//!   `gravity_mm_per_s2` along the machine's vertical axis, the platform's acceleration
+//!   over each sample period), with Gaussian noise, a drifting bias, quantisation and a
+//!   second-order Butterworth low-pass filter ([`sensor`]);
+//! * a read-to-command latency: a command takes effect `command_latency_s` after it is
+//!   written (one 1 ms period by default, as in the paper's dSpace loop).
 //!
 //! Units: mm, rad, N, N·mm, seconds; masses are given in kg and converted to N·s²/mm.
 //! Everything is deterministic from the seed; time advances only through
@@ -48,6 +54,43 @@ pub enum SimError {
     BadParameter(&'static str),
 }
 
+/// Most commands in flight (a longer latency than this many writes drops the oldest in
+/// flight, which takes effect at once).
+const PENDING_MAX: usize = 16;
+
+/// Time the plant runs before time 0 to settle under gravity, ns.
+const SETTLE_NS: u64 = 400_000_000;
+
+/// The load on the force sensor `[Fx, Fy, Fz, My]` in its frame (turned by `theta_rad` about
+/// y from the base frame): the contact wrench `contact` (base frame) plus a payload of
+/// `mass_kg` at `com_mm` (sensor frame) under `g_minus_a_mm_per_s2` (gravity minus the
+/// platform's acceleration, base frame). The same model the controller's compensation and
+/// `h4-slave identify` fit.
+pub fn sensor_load(
+    contact: &Vector4<f64>,
+    theta_rad: f64,
+    mass_kg: f64,
+    com_mm: [f64; 3],
+    g_minus_a_mm_per_s2: [f64; 3],
+) -> Vector4<f64> {
+    let (s, c) = theta_rad.sin_cos();
+    let m = mass_kg * 1e-3;
+    let fb = [
+        contact[0] + m * g_minus_a_mm_per_s2[0],
+        contact[1] + m * g_minus_a_mm_per_s2[1],
+        contact[2] + m * g_minus_a_mm_per_s2[2],
+    ];
+    // The payload's load in the sensor's frame (x and z: My needs no more).
+    let px = m * (c * g_minus_a_mm_per_s2[0] - s * g_minus_a_mm_per_s2[2]);
+    let pz = m * (s * g_minus_a_mm_per_s2[0] + c * g_minus_a_mm_per_s2[2]);
+    Vector4::new(
+        c * fb[0] - s * fb[2],
+        fb[1],
+        s * fb[0] + c * fb[2],
+        contact[3] + com_mm[2] * px - com_mm[0] * pz,
+    )
+}
+
 /// The simulated H-4 arm.
 #[derive(Clone, Debug)]
 pub struct SimArm {
@@ -80,6 +123,13 @@ pub struct SimArm {
     contact_damping: f64,
     penetration_mm: f64,
     sensor: ForceSensor,
+    /// The platform's velocity at the last sensor sample (for its acceleration), mm/s.
+    vel_at_sample: [f64; 3],
+    /// Commands written, not yet in effect: (time they take effect, ns; set-points).
+    pending: [(u64, [f64; 4]); PENDING_MAX],
+    pending_len: usize,
+    /// Read-to-command latency, ns.
+    latency_ns: u64,
     kinematics_faults: u64,
     /// Tests only: run planes through the generic kernel (to compare the two).
     #[cfg(test)]
@@ -112,6 +162,16 @@ impl SimArm {
         if !positive(sensor_cfg.sample_rate_hz) {
             return Err(SimError::BadParameter("sample_rate_hz"));
         }
+        if !(cfg.command_latency_s.is_finite() && (0.0..=0.1).contains(&cfg.command_latency_s)) {
+            return Err(SimError::BadParameter("command_latency_s"));
+        }
+        let rest_load = sensor_load(
+            &Vector4::zeros(),
+            initial_pose[3],
+            cfg.payload_mass_kg,
+            cfg.payload_com_mm,
+            cfg.gravity_mm_per_s2,
+        );
         let substep_ns = (1e9 / cfg.servo_rate_hz).round() as u64;
         let substep_s = substep_ns as f64 * 1e-9;
         let l = params.ik_checked(&initial_pose)?;
@@ -160,13 +220,40 @@ impl SimArm {
             contact_wrench: Vector4::zeros(),
             contact_damping: 0.0,
             penetration_mm: 0.0,
-            sensor: ForceSensor::new(sensor_cfg, seed),
+            sensor: ForceSensor::new(sensor_cfg, seed, &rest_load),
+            vel_at_sample: [0.0; 3],
+            pending: [(0, [0.0; 4]); PENDING_MAX],
+            pending_len: 0,
+            latency_ns: (cfg.command_latency_s * 1e9).round() as u64,
             kinematics_faults: 0,
             #[cfg(test)]
             generic_kernel: false,
         };
         arm.update_contact_damping();
+        arm.settle_under_gravity();
         Ok(arm)
+    }
+
+    /// With gravity on, the platform starts sagged under its weight: the plant runs
+    /// [`SETTLE_NS`] with the initial command held (the servos take the weight), then the
+    /// clock, the sensor's filters and its acceleration reference restart from that rest.
+    fn settle_under_gravity(&mut self) {
+        if self.cfg.gravity_mm_per_s2.iter().all(|g| *g == 0.0) {
+            return;
+        }
+        self.advance_physics(SETTLE_NS);
+        self.time_ns = 0;
+        self.remainder_ns = 0;
+        self.substep_counter = 0;
+        self.vel_at_sample = [self.vel[0], self.vel[1], self.vel[2]];
+        let load = sensor_load(
+            &self.contact_wrench,
+            self.pose[3],
+            self.cfg.payload_mass_kg,
+            self.cfg.payload_com_mm,
+            self.cfg.gravity_mm_per_s2,
+        );
+        self.sensor.restart(&load);
     }
 
     fn update_contact_damping(&mut self) {
@@ -218,8 +305,44 @@ impl SimArm {
         self.kinematics_faults
     }
 
-    /// Steps the servo, structure, contact and sensor physics by `dt_ns` of simulated time.
+    /// Steps the servo, structure, contact and sensor physics by `dt_ns` of simulated time;
+    /// the commands written take effect as their latency runs out.
     pub fn advance(&mut self, dt_ns: u64) {
+        let mut left = dt_ns;
+        while self.pending_len > 0 {
+            let now = self.time_ns + self.remainder_ns;
+            let due = self.pending[0].0;
+            if due > now + left {
+                break;
+            }
+            let seg = due.saturating_sub(now);
+            self.advance_physics(seg);
+            left -= seg;
+            self.command = self.pending[0].1;
+            self.pending.copy_within(1..self.pending_len, 0);
+            self.pending_len -= 1;
+        }
+        self.advance_physics(left);
+    }
+
+    /// The load on the sensor now (the platform's acceleration since the last sample).
+    fn sensor_load_now(&mut self) -> Vector4<f64> {
+        let period_s = self.sensor.period_ns as f64 * 1e-9;
+        let mut g_minus_a = self.cfg.gravity_mm_per_s2;
+        for (a, g) in g_minus_a.iter_mut().enumerate() {
+            *g -= (self.vel[a] - self.vel_at_sample[a]) / period_s;
+            self.vel_at_sample[a] = self.vel[a];
+        }
+        sensor_load(
+            &self.contact_wrench,
+            self.pose[3],
+            self.cfg.payload_mass_kg,
+            self.cfg.payload_com_mm,
+            g_minus_a,
+        )
+    }
+
+    fn advance_physics(&mut self, dt_ns: u64) {
         let total = self.remainder_ns + dt_ns;
         let mut steps = total / self.substep_ns;
         self.remainder_ns = total % self.substep_ns;
@@ -245,7 +368,8 @@ impl SimArm {
                 self.substep_counter = 0;
             }
             if self.time_ns >= self.sensor.next_sample_ns {
-                self.sensor.sample(&self.contact_wrench);
+                let load = self.sensor_load_now();
+                self.sensor.sample(&load);
                 self.sensor.next_sample_ns += self.sensor.period_ns;
             }
         }
@@ -283,9 +407,21 @@ impl ArmDriver for SimArm {
     }
 
     fn command(&mut self, actuators_mm: &[f64; 4]) {
-        if actuators_mm.iter().all(|a| a.is_finite()) {
-            self.command = *actuators_mm;
+        if !actuators_mm.iter().all(|a| a.is_finite()) {
+            return;
         }
+        if self.latency_ns == 0 {
+            self.command = *actuators_mm;
+            return;
+        }
+        if self.pending_len == PENDING_MAX {
+            self.command = self.pending[0].1;
+            self.pending.copy_within(1..PENDING_MAX, 0);
+            self.pending_len -= 1;
+        }
+        let due = self.time_ns + self.remainder_ns + self.latency_ns;
+        self.pending[self.pending_len] = (due, *actuators_mm);
+        self.pending_len += 1;
     }
 }
 
@@ -316,6 +452,8 @@ mod tests {
             quantization_n_mm: 0.0,
             bias_n: [0.0; 3],
             bias_n_mm: 0.0,
+            bias_drift_n_per_sqrt_s: 0.0,
+            bias_drift_n_mm_per_sqrt_s: 0.0,
             ..SensorConfig::default()
         }
     }
@@ -438,6 +576,88 @@ mod tests {
         assert!(peak_f > 50.0, "the contact was not loaded: {peak_f} N");
         assert!(worst_f < 1e-6 * peak_f, "forces differ by {worst_f} N");
         assert!(worst_x < 1e-9, "poses differ by {worst_x} mm");
+    }
+
+    /// The sensor carries the payload: at rest, tilted by θ, it reads the payload's weight
+    /// in its own (turned) frame and the weight's moment about it, plus its bias; and the
+    /// platform sags under the weight (gravity is in the dynamics too).
+    #[test]
+    fn sensor_reads_the_payload_weight_in_its_frame() {
+        let theta: f64 = 0.3;
+        let cfg = PlantConfig {
+            payload_mass_kg: 0.5,
+            payload_com_mm: [10.0, 0.0, -40.0],
+            gravity_mm_per_s2: [0.0, 0.0, -9810.0],
+            ..PlantConfig::default()
+        };
+        let start = Pose::new(0.0, 0.0, -250.0, theta);
+        let mut arm = SimArm::new(
+            H4Params::PROTOTYPE,
+            [100.0; 4],
+            cfg,
+            quiet_sensor(),
+            plane(-400.0, 200.0),
+            start,
+            1,
+        )
+        .unwrap();
+        arm.advance(200_000_000);
+        let r = arm.read().wrench;
+        let w = 0.5 * 9.81;
+        let (s, c) = theta.sin_cos();
+        // Gravity (0, 0, −w) in the sensor's frame: (s·w, 0, −c·w).
+        let (px, pz) = (s * w, -c * w);
+        assert!(
+            (r[0] - px).abs() < 0.07 && (r[2] - pz).abs() < 0.07,
+            "{r:?}"
+        );
+        let my = -40.0 * px - 10.0 * pz;
+        assert!((r[3] - my).abs() < 1.5, "{r:?} vs My {my}");
+        assert!(
+            arm.true_pose()[2] < -250.0 + 1e-4,
+            "no sag: {:?}",
+            arm.true_pose()
+        );
+    }
+
+    /// A command takes effect `command_latency_s` after it is written: with one period, the
+    /// carriages have not moved at the end of the period it was written in, and have after
+    /// the next one.
+    #[test]
+    fn commands_act_one_latency_later() {
+        let cfg = PlantConfig {
+            command_latency_s: 0.001,
+            ..PlantConfig::default()
+        };
+        let params = H4Params::PROTOTYPE;
+        let start = Pose::new(0.0, 0.0, -250.0, 0.0);
+        let mut arm = SimArm::new(
+            params,
+            [100.0; 4],
+            cfg,
+            quiet_sensor(),
+            plane(-400.0, 200.0),
+            start,
+            1,
+        )
+        .unwrap();
+        let l0 = arm.read().actuators_mm;
+        let l = params
+            .ik_checked(&Pose::new(0.0, 0.0, -249.9, 0.0))
+            .unwrap();
+        arm.command(&[l[0], l[1], l[2], l[3]]);
+        arm.advance(1_000_000);
+        let after_one = arm.read().actuators_mm;
+        arm.advance(1_000_000);
+        let after_two = arm.read().actuators_mm;
+        assert!(
+            (after_one[0] - l0[0]).abs() < 1e-3,
+            "moved early: {after_one:?}"
+        );
+        assert!(
+            (after_two[0] - l0[0]).abs() > 5e-3,
+            "never moved: {after_two:?}"
+        );
     }
 
     #[test]

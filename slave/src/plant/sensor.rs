@@ -1,6 +1,7 @@
-//! The six-axis force/torque sensor: `[Fx, Fy, Fz, My]` of the true contact wrench with
-//! Gaussian noise, a constant bias, quantisation and a second-order Butterworth low-pass
-//! filter, sampled at its own rate on the simulated clock.
+//! The six-axis force/torque sensor: `[Fx, Fy, Fz, My]` of the load on it (the contact
+//! wrench plus the payload's weight and inertia, in the sensor's frame) with Gaussian
+//! noise, a bias that drifts (a random walk), quantisation and a second-order Butterworth
+//! low-pass filter, sampled at its own rate on the simulated clock.
 
 use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::rng::Rng;
@@ -25,6 +26,11 @@ pub struct SensorConfig {
     pub bias_n: [f64; 3],
     /// Constant bias on My, N·mm.
     pub bias_n_mm: f64,
+    /// Bias drift of each force axis: a random walk of this standard deviation per √s, N
+    /// (strain-gauge thermal drift).
+    pub bias_drift_n_per_sqrt_s: f64,
+    /// Bias drift of My, N·mm per √s.
+    pub bias_drift_n_mm_per_sqrt_s: f64,
     /// Sample rate of the A/D read-out, Hz.
     pub sample_rate_hz: f64,
     /// Cut-off of the 2nd-order Butterworth low-pass filter, Hz (≥ 0.45 × the sample rate
@@ -41,6 +47,8 @@ impl Default for SensorConfig {
             quantization_n_mm: 1.33,
             bias_n: [0.3, -0.2, 0.4],
             bias_n_mm: 3.0,
+            bias_drift_n_per_sqrt_s: 0.0,
+            bias_drift_n_mm_per_sqrt_s: 0.0,
             sample_rate_hz: 1000.0,
             filter_cutoff_hz: 80.0,
         }
@@ -53,12 +61,14 @@ impl Section for SensorConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
-        let checks: [(&str, f64, f64, f64, &str); 7] = [
+        let checks: [(&str, f64, f64, f64, &str); 9] = [
             ("noise_std_n", self.noise_std_n, 0.0, 10.0, "N"),
             ("noise_std_n_mm", self.noise_std_n_mm, 0.0, 1000.0, "N·mm"),
             ("quantization_n", self.quantization_n, 0.0, 5.0, "N"),
             ("quantization_n_mm", self.quantization_n_mm, 0.0, 100.0, "N·mm"),
             ("bias_n_mm", self.bias_n_mm, -1e4, 1e4, "N·mm"),
+            ("bias_drift_n_per_sqrt_s", self.bias_drift_n_per_sqrt_s, 0.0, 10.0, "N/√s"),
+            ("bias_drift_n_mm_per_sqrt_s", self.bias_drift_n_mm_per_sqrt_s, 0.0, 1000.0, "N·mm/√s"),
             ("sample_rate_hz", self.sample_rate_hz, 100.0, 100_000.0, "Hz"),
             ("filter_cutoff_hz", self.filter_cutoff_hz, 1.0, 1e5, "Hz"),
         ];
@@ -78,6 +88,8 @@ pub(super) struct ForceSensor {
     cfg: SensorConfig,
     rng: Rng,
     filters: [Butterworth2; 4],
+    /// The drift of the bias so far, N and N·mm.
+    drift: [f64; 4],
     /// The latest filtered reading `[Fx, Fy, Fz, My]`, bias included, N and N·mm.
     pub(super) filtered: [f64; 4],
     /// Sample period, ns.
@@ -87,41 +99,69 @@ pub(super) struct ForceSensor {
 }
 
 impl ForceSensor {
-    /// A sensor at rest (its filters settled on the bias), its noise drawn from `seed`.
-    /// `cfg.sample_rate_hz` must be positive.
-    pub(super) fn new(cfg: SensorConfig, seed: u64) -> Self {
+    /// A sensor at rest under the load `load` (its filters settled on it plus the bias),
+    /// its noise drawn from `seed`. `cfg.sample_rate_hz` must be positive.
+    pub(super) fn new(cfg: SensorConfig, seed: u64, load: &Vector4<f64>) -> Self {
         let period_ns = (1e9 / cfg.sample_rate_hz).round().max(1.0) as u64;
         let mut sensor = ForceSensor {
             cfg,
             rng: Rng::fork(seed, 0x5E45),
             filters: [Butterworth2::new(cfg.filter_cutoff_hz, cfg.sample_rate_hz); 4],
             filtered: [0.0; 4],
+            drift: [0.0; 4],
             period_ns,
             next_sample_ns: 0,
         };
         for (i, f) in sensor.filters.iter_mut().enumerate() {
-            let b = if i < 3 { cfg.bias_n[i] } else { cfg.bias_n_mm };
+            let b = if i < 3 { cfg.bias_n[i] } else { cfg.bias_n_mm } + load[i];
             f.reset(b);
             sensor.filtered[i] = b;
         }
         sensor
     }
 
-    /// One sample of the true `contact_wrench`.
-    pub(super) fn sample(&mut self, contact_wrench: &Vector4<f64>) {
+    /// Restarts the clock at 0 with the filters settled on `load` plus the bias (drift so
+    /// far kept).
+    pub(super) fn restart(&mut self, load: &Vector4<f64>) {
+        let cfg = self.cfg;
+        for (i, f) in self.filters.iter_mut().enumerate() {
+            let b = if i < 3 { cfg.bias_n[i] } else { cfg.bias_n_mm } + load[i] + self.drift[i];
+            f.reset(b);
+            self.filtered[i] = b;
+        }
+        self.next_sample_ns = 0;
+    }
+
+    /// One sample of the true `load` (`[Fx, Fy, Fz, My]` in the sensor's frame).
+    pub(super) fn sample(&mut self, load: &Vector4<f64>) {
         let s = &self.cfg;
+        let sqrt_period_s = (self.period_ns as f64 * 1e-9).sqrt();
         for i in 0..4 {
-            let (bias, std, quant) = if i < 3 {
-                (s.bias_n[i], s.noise_std_n, s.quantization_n)
+            let (bias, std, quant, drift) = if i < 3 {
+                (
+                    s.bias_n[i],
+                    s.noise_std_n,
+                    s.quantization_n,
+                    s.bias_drift_n_per_sqrt_s,
+                )
             } else {
-                (s.bias_n_mm, s.noise_std_n_mm, s.quantization_n_mm)
+                (
+                    s.bias_n_mm,
+                    s.noise_std_n_mm,
+                    s.quantization_n_mm,
+                    s.bias_drift_n_mm_per_sqrt_s,
+                )
             };
+            if drift > 0.0 {
+                self.drift[i] += drift * sqrt_period_s * self.rng.normal();
+            }
+            let bias = bias + self.drift[i];
             let noise = if std > 0.0 {
                 std * self.rng.normal()
             } else {
                 0.0
             };
-            let mut raw = contact_wrench[i] + bias + noise;
+            let mut raw = load[i] + bias + noise;
             if quant > 0.0 {
                 raw = quantize(raw, quant);
             }
