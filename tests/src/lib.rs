@@ -1,4 +1,11 @@
-//! Helpers shared by the behaviour tests: the reference kinematics vectors.
+//! Helpers shared by the behaviour tests: the reference kinematics vectors; two hosts on one
+//! machine ([`netns`]), a relay that impairs the network between them ([`relay`]) and the
+//! real processes ([`procs`]) and their recordings ([`record`]).
+
+pub mod netns;
+pub mod procs;
+pub mod record;
+pub mod relay;
 
 use h4_shared::H4Params;
 use serde::Deserialize;

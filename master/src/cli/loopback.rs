@@ -16,6 +16,7 @@ use h4_slave::experiment::{
     ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
+use h4_transport::impaired::ImpairArgs;
 use h4_transport::open::TransportArgs;
 use serde::Serialize;
 
@@ -56,6 +57,10 @@ pub struct LoopbackArgs {
     /// otherwise a warning and normal scheduling).
     #[arg(long)]
     pub fifo_priority: Option<i32>,
+    /// Link impairment, passed to both processes (each impairs what it sends: round trip
+    /// R ms is delay_ms=R/2).
+    #[command(flatten)]
+    pub impair: ImpairArgs,
 }
 
 /// What `loopback` prints.
@@ -130,6 +135,7 @@ impl LoopbackArgs {
             .arg("--config")
             .arg(&world)
             .args(transport.to_args())
+            .args(self.impair.to_args())
             .arg("--passivity-config")
             .arg(&passivity)
             .arg("--watchdog-ms")
@@ -179,6 +185,7 @@ impl LoopbackArgs {
             config: self.config.clone(),
             set: self.set.clone(),
             transport,
+            impair: self.impair.clone(),
             run: LoopArgs {
                 duration_s: Some(duration_s),
                 summary: None,
