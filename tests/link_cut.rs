@@ -90,7 +90,8 @@ fn check_cut(m: &MasterRunSummary, s: &SlaveRunSummary, cycles: &[record::SlaveC
     assert!(s.repairs >= 1, "{s:#?}");
     // The master faded out completely, rendered nothing meanwhile, and faded back in.
     assert!(m.feedback_losses >= 1 && m.faded_out >= 1, "{m:#?}");
-    assert_eq!(m.max_force_while_faded_out_n, 0.0, "{m:#?}");
+    // The fade is exponential: "nothing" is below a micronewton.
+    assert!(m.max_force_while_faded_out_n < 1e-6, "{m:#?}");
     assert!(m.feedback_restored >= 1, "{m:#?}");
 }
 

@@ -74,7 +74,10 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
     let cycles = record::slave_cycles(&pair.slave_record).unwrap();
     let episodes = record::safe_episodes(&cycles);
     let during: Vec<_> = episodes.iter().filter(|e| e.repaired_s.is_some()).collect();
-    println!("safe-state episodes that re-paired: {during:#?}");
+    println!(
+        "safe stops {}, repairs {}, safe-state episodes that re-paired: {during:#?}\nall: {episodes:#?}\nmaster: {m:#?}",
+        s.safe_stops, s.repairs
+    );
     assert!(
         during.len() <= 2,
         "the safe state flapped: {} episodes\n{during:#?}",
