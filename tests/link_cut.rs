@@ -32,8 +32,6 @@ use h4_tests::relay::{Proto, Relay};
 use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
-/// The session's `coupling.force_limit_n`.
-const COUPLING_LIMIT_N: f64 = 30.0;
 
 fn overrides() -> Vec<String> {
     // The resin wall; the operator pushes from 0.5 s and holds until 6 s.
@@ -44,8 +42,14 @@ fn overrides() -> Vec<String> {
 }
 
 /// The criteria for one cut of `cut_s` seconds.
-fn check_cut(m: &MasterRunSummary, s: &SlaveRunSummary, cycles: &[record::SlaveCycle], cut_s: f64) {
-    let why = procs::judge(m, s, COUPLING_LIMIT_N);
+fn check_cut(
+    m: &MasterRunSummary,
+    s: &SlaveRunSummary,
+    cycles: &[record::SlaveCycle],
+    cut_s: f64,
+) {
+    let session = procs::session(SESSION, &overrides()).unwrap();
+    let why = procs::judge(m, s, &session);
     assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");
     // The cut's episode: the re-paired one with the longest outage (a host stall can add
     // short ones; the end of the run adds one that never re-pairs).

@@ -11,16 +11,20 @@
 //!
 //! Each cell is the wall-push session cut to 7 s (approach, push with 6 N, hold, release).
 //! Criteria, from physical evidence in both summaries (`h4_tests::procs::judge`): every force
-//! finite, the slave's true contact force within its controller's limit, the rendered force
-//! within the coupling's limit, both passivity observers ≥ −1 mJ, round trips completed —
-//! the energy floor and force limits of the simulated matrix (`tests/delay_matrix.rs`); its
+//! finite, the slave's true contact force within `detector.force_limit_n` (100 N), the
+//! rendered force within `coupling.force_limit_n`, both passivity observers ≥ −1 mJ, round
+//! trips completed — the energy floor and force limits of the simulated matrix
+//! (`tests/delay_matrix.rs`; the table also shows the slave guard's own 80 N limit); its
 //! oscillation detector needs the per-cycle trace and is not applied to processes (as in
 //! `loopback`). Controls: the measured round trip is at least the cell's (the impairment is
 //! really there); loss cells lost messages; and a negative control (passivity and the local
 //! model off, aluminium, 250 ms) must fail the same criteria.
 //!
-//! Cells run three at a time (each is two 1 kHz loops at ~15–20 % of a core); nothing
-//! asserts a wall-clock duration. ≈ 2 min on 2 cores.
+//! Both loops run under `--fifo-priority 10` (as in `tests/processes.rs`). Cells run two at a
+//! time (each is two 1 kHz loops at ~15–20 % of a core); a cell that fails while a loop was
+//! starved (> 1 % deadlines missed, `loopback`'s `realtime_ok`) is run again, at most three
+//! times, and reported as starved if it never ran fed. Nothing asserts a wall-clock duration.
+//! ≈ 2.5 min on 2 cores.
 //! `cargo test --release -p h4-tests --test real_delay_matrix -- --nocapture` prints the table.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -38,11 +42,11 @@ use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
 const DURATION_S: f64 = 7.0;
-/// The session's `coupling.force_limit_n`.
-const COUPLING_LIMIT_N: f64 = 30.0;
 const RTT_MS: [f64; 4] = [0.0, 50.0, 250.0, 1000.0];
 const LOSS: [f64; 2] = [0.0, 0.05];
-const CONCURRENT: usize = 3;
+const CONCURRENT: usize = 2;
+/// Runs of a cell at most: a cell that fails while a loop was starved is run again.
+const ATTEMPTS: usize = 3;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Wall {
@@ -109,6 +113,12 @@ struct Outcome {
     slave: SlaveRunSummary,
     /// Messages lost on the way (impairment counters or the relay's), both directions.
     lost: u64,
+    /// Either loop missed more than 1 % of its deadlines.
+    starved: bool,
+    /// Runs it took.
+    attempts: usize,
+    /// The session's `coupling.force_limit_n`, N.
+    coupling_limit_n: f64,
 }
 
 /// `impair (…): sent N, delivered N, lost L, blacked out B, …` lines of a process's stderr:
@@ -148,7 +158,8 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         .arg("--passivity-config")
         .arg(&passivity)
         .arg("--summary")
-        .arg(&slave_summary);
+        .arg(&slave_summary)
+        .args(["--fifo-priority", "10"]);
     let mut master_cmd = match &hosts {
         Some(h) => h.command(Host::Master, master_bin),
         None => Command::new(master_bin),
@@ -161,7 +172,8 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         .args(["--duration-s", &DURATION_S.to_string()])
         .args(["--wait-for-slave-s", "30"])
         .arg("--summary")
-        .arg(&master_summary);
+        .arg(&master_summary)
+        .args(["--fifo-priority", "10"]);
     let prefix = format!("{}-{}", scratch.prefix, tag);
     let slave_port = 7447;
     let relay = match &hosts {
@@ -219,11 +231,29 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
     drop(hosts);
     Ok(Outcome {
         cell,
-        reasons: procs::judge(&m, &s, COUPLING_LIMIT_N),
+        reasons: procs::judge(&m, &s, &procs::session(SESSION, &cell.overrides())?),
+        starved: procs::starved(&m, &s),
         master: m,
         slave: s,
         lost,
+        attempts: 1,
+        coupling_limit_n: procs::session(SESSION, &cell.overrides())?.coupling.force_limit_n,
     })
+}
+
+/// [`run_cell`], again (up to [`ATTEMPTS`] runs) while it fails the criteria *and* a loop
+/// was starved: a starved run's physics describe the host (this VM under other builds), not
+/// the link. A cell failing without starvation is not re-run.
+fn run_cell_until_fed(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
+    let mut attempt = 1;
+    loop {
+        let mut o = run_cell(cell, scratch)?;
+        o.attempts = attempt;
+        if o.reasons.is_empty() || !o.starved || attempt >= ATTEMPTS || !cell.protected {
+            return Ok(o);
+        }
+        attempt += 1;
+    }
 }
 
 /// Zenoh's session over UDP does not come up through a lossy relay: with 5 % loss from the
@@ -250,7 +280,7 @@ fn run_all(cells: Vec<Cell>, scratch: &Scratch) -> Vec<Result<Outcome, String>> 
                 loop {
                     let next = queue.lock().unwrap().pop();
                     let Some((i, cell)) = next else { break };
-                    let r = run_cell(cell, scratch);
+                    let r = run_cell_until_fed(cell, scratch);
                     results.lock().unwrap().push((i, r));
                 }
             });
@@ -263,20 +293,24 @@ fn run_all(cells: Vec<Cell>, scratch: &Scratch) -> Vec<Result<Outcome, String>> 
 
 fn row(o: &Outcome) -> String {
     format!(
-        "| {:?} | {:?} | {} | {:.0} % | {} | {:.2} | {:.1} / {:.0} | {:.3} / {:.3} | {:.0} | {} | {} |",
+        "| {:?} | {:?} | {} | {:.0} % | {} | {:.2} ({:.0}) | {:.1} / {:.0} | {:.3} / {:.3} | {:.0} | {} | {} | {} + {} | {} |",
         o.cell.via,
         o.cell.wall,
         o.cell.rtt_ms,
         o.cell.loss * 100.0,
         if o.reasons.is_empty() { "yes" } else { "NO" },
         o.slave.max_force_n,
+        o.slave.force_limit_n,
         o.master.max_rendered_force_n,
-        COUPLING_LIMIT_N,
+        o.coupling_limit_n,
         o.master.energy_min_j * 1e3,
         o.slave.energy_min_j * 1e3,
         o.master.round_trip_p50_us / 1e3,
         o.lost,
         o.slave.safe_stops,
+        o.master.run.deadline_misses,
+        o.slave.run.deadline_misses,
+        o.attempts,
     )
 }
 
@@ -320,9 +354,9 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
     cells.push(control);
     let results = run_all(cells, &scratch);
     println!(
-        "| path | wall | round trip ms | loss | stable | max true force N | max rendered N / limit | observers min master / slave mJ | measured rtt p50 ms | lost msgs | safe stops |"
+        "| path | wall | round trip ms | loss | stable | max true force N (slave guard's limit) | max rendered N / limit | observers min master / slave mJ | measured rtt p50 ms | lost msgs | safe stops | deadline misses master + slave | runs |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut failures = Vec::new();
     for r in &results {
         let o = match r {
@@ -343,7 +377,12 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
             continue;
         }
         if !o.reasons.is_empty() {
-            failures.push(format!("{name}: {}", o.reasons.join("; ")));
+            let starved = if o.starved {
+                format!(" (starved in all {} runs: the host, not the link?)", o.attempts)
+            } else {
+                String::new()
+            };
+            failures.push(format!("{name}: {}{starved}", o.reasons.join("; ")));
         }
         // The impairment was really there: the measured round trip includes it.
         if o.master.round_trip_p50_us < o.cell.rtt_ms * 1e3 {

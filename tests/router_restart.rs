@@ -19,7 +19,6 @@ use h4_tests::procs::{self, Pair, PairSpec, Scratch};
 use h4_tests::record::{self, SafeEpisode};
 
 const SESSION: &str = "config/sessions/wall-push.toml";
-const COUPLING_LIMIT_N: f64 = 30.0;
 
 /// Starts the router on the slave's host; returns once it says `ready`.
 fn router(hosts: &TwoHosts, endpoint: &str) -> Child {
@@ -92,7 +91,7 @@ fn a_router_restart_under_clients_safe_stops_fades_and_repairs() {
     r.0 = Some(router(&hosts, &endpoint));
     let down_s = t.elapsed().as_secs_f64();
     let (m, s) = pair.finish().unwrap();
-    let why = procs::judge(&m, &s, COUPLING_LIMIT_N);
+    let why = procs::judge(&m, &s, &procs::session(SESSION, &spec.overrides).unwrap());
     assert!(why.is_empty(), "{why:?}");
     let cycles = record::slave_cycles(&pair.slave_record).unwrap();
     let episodes = record::safe_episodes(&cycles);

@@ -23,7 +23,6 @@ use h4_tests::relay::{Proto, Relay};
 use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
-const COUPLING_LIMIT_N: f64 = 30.0;
 
 #[test]
 fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
@@ -67,7 +66,7 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
     relay.set(ImpairmentConfig::default());
     let (m, s) = pair.finish().unwrap();
     // No energy generated, forces within limits.
-    let why = procs::judge(&m, &s, COUPLING_LIMIT_N);
+    let why = procs::judge(&m, &s, &procs::session(SESSION, &spec.overrides).unwrap());
     assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");
     // The slow stretch really was slow.
     assert!(m.round_trip_max_us >= 600_000.0, "{m:#?}");

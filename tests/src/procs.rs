@@ -253,23 +253,29 @@ pub fn slave_config(
     Ok((world, passivity))
 }
 
-/// The criteria for one real-process run, on physical evidence from both
-/// summaries: every force finite; the slave's true contact force within its controller's
-/// limit; the rendered force within `coupling_limit_n`; both passivity observers ≥
-/// [`ENERGY_FLOOR_J`]; round trips completed. Returns the reasons it fails (empty: stable).
+/// The criteria for one real-process run — the simulated matrix's
+/// (`tests/delay_matrix.rs`, the session's `[detector]` and `[coupling]` sections) — on
+/// physical evidence from both summaries: every force finite; the slave's true contact force
+/// within `detector.force_limit_n` (100 N by default); the rendered force within
+/// `coupling.force_limit_n`; both passivity observers ≥ [`ENERGY_FLOOR_J`]; round trips
+/// completed. Returns the reasons it fails (empty: stable). (The slave controller's own force
+/// limit, 80 N, is what its guard aims below; how close a run came is in
+/// `slave.max_force_n` / `slave.force_limit_n`.)
 pub fn judge(
     master: &MasterRunSummary,
     slave: &SlaveRunSummary,
-    coupling_limit_n: f64,
+    session: &h4_master::session::SessionConfig,
 ) -> Vec<String> {
+    let coupling_limit_n = session.coupling.force_limit_n;
+    let force_limit_n = session.detector.force_limit_n;
     let mut why = Vec::new();
     if !slave.max_force_n.is_finite() || !master.max_rendered_force_n.is_finite() {
         why.push("a force is not finite".to_string());
     }
-    if slave.max_force_n > slave.force_limit_n {
+    if slave.max_force_n > force_limit_n {
         why.push(format!(
-            "true contact force {:.1} N > the slave's limit {} N",
-            slave.max_force_n, slave.force_limit_n
+            "true contact force {:.1} N > detector.force_limit_n {force_limit_n} N",
+            slave.max_force_n
         ));
     }
     if master.max_rendered_force_n > coupling_limit_n + 1e-9 {
@@ -329,7 +335,8 @@ pub struct PairSpec<'a> {
 }
 
 impl Pair {
-    /// Starts the slave (recording itself), then the master; `wrap` makes each command
+    /// Starts the slave (recording itself), then the master, both under `--fifo-priority 10`
+    /// (refused without the permission: a warning, normal scheduling); `wrap` makes each command
     /// (e.g. to run it on one of two hosts).
     pub fn start(
         spec: &PairSpec<'_>,
@@ -352,6 +359,7 @@ impl Pair {
             .arg(&slave_summary)
             .arg("--record")
             .arg(&slave_record)
+            .args(["--fifo-priority", "10"])
             .args(&spec.slave_args);
         let mut mc = wrap(false, master_bin);
         mc.arg("run").arg("--config").arg(spec.session);
@@ -362,6 +370,7 @@ impl Pair {
             .args(["--wait-for-slave-s", "30"])
             .arg("--summary")
             .arg(&master_summary)
+            .args(["--fifo-priority", "10"])
             .args(&spec.master_args);
         let slave = Running::spawn(&format!("{tag}-slave"), sc, scratch)?;
         let master = Running::spawn(&format!("{tag}-master"), mc, scratch)?;
@@ -391,4 +400,25 @@ impl Pair {
             read_summary(&self.slave_summary)?,
         ))
     }
+}
+
+/// A loop that missed more than this share of its deadlines did not run in real time (the
+/// threshold of `h4-master loopback`'s `realtime_ok`).
+pub const MAX_MISSED_SHARE: f64 = 0.01;
+
+/// Whether either loop of a run was starved by the host (missed more than
+/// [`MAX_MISSED_SHARE`] of its deadlines): its physics then describe the host, not the link.
+pub fn starved(master: &MasterRunSummary, slave: &SlaveRunSummary) -> bool {
+    [
+        (master.run.cycles, master.run.deadline_misses),
+        (slave.run.cycles, slave.run.deadline_misses),
+    ]
+    .iter()
+    .any(|&(c, m)| m as f64 > MAX_MISSED_SHARE * (c + m).max(1) as f64)
+}
+
+/// The session file `session` (relative to the workspace) with `overrides`, as the master
+/// process reads it.
+pub fn session(session: &str, overrides: &[String]) -> Result<h4_master::session::SessionConfig, String> {
+    h4_master::session::load(&workspace().join(session), overrides).map_err(|e| e.to_string())
 }
