@@ -42,12 +42,7 @@ fn overrides() -> Vec<String> {
 }
 
 /// The criteria for one cut of `cut_s` seconds.
-fn check_cut(
-    m: &MasterRunSummary,
-    s: &SlaveRunSummary,
-    cycles: &[record::SlaveCycle],
-    cut_s: f64,
-) {
+fn check_cut(m: &MasterRunSummary, s: &SlaveRunSummary, cycles: &[record::SlaveCycle], cut_s: f64) {
     let session = procs::session(SESSION, &overrides()).unwrap();
     let why = procs::judge(m, s, &session);
     assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");
@@ -82,7 +77,10 @@ fn check_cut(
     // Re-paired within 1 s of the link's return.
     let late_s = outage(cut).unwrap() - cut_s;
     println!("re-paired {late_s:.3} s after the link returned");
-    assert!(late_s <= 1.0, "re-paired {late_s:.3} s after the link returned: {cut:#?}");
+    assert!(
+        late_s <= 1.0,
+        "re-paired {late_s:.3} s after the link returned: {cut:#?}"
+    );
     // No jump: the arm moves < 0.15 mm per cycle in the second after, the force stays within
     // the limit.
     assert!(
@@ -120,7 +118,11 @@ fn a_2_s_cut_over_iceoryx2_with_impair_safe_stops_fades_and_repairs() {
     let (m, s) = pair.finish().unwrap();
     let cycles = record::slave_cycles(&pair.slave_record).unwrap();
     check_cut(&m, &s, &cycles, 2.0);
-    assert!(pair.slave.log().contains("blacked out"), "{}", pair.slave.log());
+    assert!(
+        pair.slave.log().contains("blacked out"),
+        "{}",
+        pair.slave.log()
+    );
 }
 
 #[test]

@@ -237,7 +237,9 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         slave: s,
         lost,
         attempts: 1,
-        coupling_limit_n: procs::session(SESSION, &cell.overrides())?.coupling.force_limit_n,
+        coupling_limit_n: procs::session(SESSION, &cell.overrides())?
+            .coupling
+            .force_limit_n,
     })
 }
 
@@ -378,7 +380,10 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
         }
         if !o.reasons.is_empty() {
             let starved = if o.starved {
-                format!(" (starved in all {} runs: the host, not the link?)", o.attempts)
+                format!(
+                    " (starved in all {} runs: the host, not the link?)",
+                    o.attempts
+                )
             } else {
                 String::new()
             };
@@ -397,10 +402,7 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
         }
         // The session made contact (the wall was touched).
         if o.slave.max_force_n < 2.0 {
-            failures.push(format!(
-                "{name}: no contact ({:.1} N)",
-                o.slave.max_force_n
-            ));
+            failures.push(format!("{name}: no contact ({:.1} N)", o.slave.max_force_n));
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));

@@ -33,7 +33,9 @@ fn router(hosts: &TwoHosts, endpoint: &str) -> Child {
         .expect("start h4-zenoh-router");
     let out = child.stdout.take().expect("router stdout");
     let mut line = String::new();
-    BufReader::new(out).read_line(&mut line).expect("router output");
+    BufReader::new(out)
+        .read_line(&mut line)
+        .expect("router output");
     assert_eq!(line.trim(), "ready", "router did not start");
     child
 }
@@ -82,10 +84,10 @@ fn a_router_restart_under_clients_safe_stops_fades_and_repairs() {
     })
     .unwrap();
     std::thread::sleep(Duration::from_millis(2500));
-    r.0.take().map(|mut c| {
+    if let Some(mut c) = r.0.take() {
         let _ = c.kill();
         let _ = c.wait();
-    });
+    }
     let t = Instant::now();
     std::thread::sleep(Duration::from_millis(2000));
     r.0 = Some(router(&hosts, &endpoint));
@@ -110,7 +112,10 @@ fn a_router_restart_under_clients_safe_stops_fades_and_repairs() {
     assert!(cut.force_at_end_n < 1.0, "{cut:#?}");
     let late_s = outage(cut).unwrap() - down_s;
     println!("re-paired {late_s:.3} s after the router was back");
-    assert!(late_s <= 1.0, "re-paired {late_s:.3} s after the router was back");
+    assert!(
+        late_s <= 1.0,
+        "re-paired {late_s:.3} s after the router was back"
+    );
     assert!(cut.max_step_after_mm < 0.15, "{cut:#?}");
     assert!(cut.max_force_after_n <= s.force_limit_n, "{cut:#?}");
     assert!(m.feedback_losses >= 1 && m.faded_out >= 1, "{m:#?}");

@@ -168,10 +168,10 @@ impl Running {
 
     /// Whether it has exited (reaps it then).
     pub fn exited(&mut self) -> bool {
-        match self.child.as_mut().map(Child::try_wait) {
-            Some(Ok(Some(_))) | None => true,
-            _ => false,
-        }
+        matches!(
+            self.child.as_mut().map(Child::try_wait),
+            Some(Ok(Some(_))) | None
+        )
     }
 
     /// Waits for the exit, at most `limit_s` (then it is killed: an error with its log);
@@ -288,7 +288,8 @@ pub fn judge(
         ("master", master.energy_min_j),
         ("slave", slave.energy_min_j),
     ] {
-        if !(e >= ENERGY_FLOOR_J) {
+        // NaN fails too.
+        if e.is_nan() || e < ENERGY_FLOOR_J {
             why.push(format!(
                 "the {who}'s observer reached {:.3} mJ < {:.1} mJ",
                 e * 1e3,
@@ -419,6 +420,9 @@ pub fn starved(master: &MasterRunSummary, slave: &SlaveRunSummary) -> bool {
 
 /// The session file `session` (relative to the workspace) with `overrides`, as the master
 /// process reads it.
-pub fn session(session: &str, overrides: &[String]) -> Result<h4_master::session::SessionConfig, String> {
+pub fn session(
+    session: &str,
+    overrides: &[String],
+) -> Result<h4_master::session::SessionConfig, String> {
     h4_master::session::load(&workspace().join(session), overrides).map_err(|e| e.to_string())
 }

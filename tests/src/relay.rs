@@ -324,8 +324,7 @@ fn tcp_relay(
         match listener.accept() {
             Ok((client, _)) => {
                 // The slave side refusing (not up yet, restarting): drop the client; it retries.
-                let Ok(server) = TcpStream::connect_timeout(&target, Duration::from_secs(2))
-                else {
+                let Ok(server) = TcpStream::connect_timeout(&target, Duration::from_secs(2)) else {
                     continue;
                 };
                 conn += 1;
@@ -341,7 +340,9 @@ fn tcp_relay(
                     pumps.push(std::thread::spawn(move || pump(control, lane, from, to)));
                 }
             }
-            Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(2)),
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(2))
+            }
             Err(_) => std::thread::sleep(Duration::from_millis(2)),
         }
     }

@@ -631,14 +631,20 @@ fn main() {
                     cycles,
                     move || {
                         MasterEnd(
-                            MasterZenohLink::open(1, &zenoh_settings(ZenohConfig::connect_to_loopback(port)))
-                                .expect("master"),
+                            MasterZenohLink::open(
+                                1,
+                                &zenoh_settings(ZenohConfig::connect_to_loopback(port)),
+                            )
+                            .expect("master"),
                         )
                     },
                     move || {
                         SlaveEnd(
-                            SlaveZenohLink::open(1, &zenoh_settings(ZenohConfig::listen_on_loopback(port)))
-                                .expect("slave"),
+                            SlaveZenohLink::open(
+                                1,
+                                &zenoh_settings(ZenohConfig::listen_on_loopback(port)),
+                            )
+                            .expect("slave"),
                         )
                     },
                 )
@@ -701,8 +707,11 @@ fn main() {
                 let pong_args = ["zenoh-link".into(), port.to_string()];
                 in_processes(name, cycles, &pong_args, move |_| {
                     MasterEnd(
-                        MasterZenohLink::open(1, &zenoh_settings(ZenohConfig::connect_to_loopback(port)))
-                            .expect("master"),
+                        MasterZenohLink::open(
+                            1,
+                            &zenoh_settings(ZenohConfig::connect_to_loopback(port)),
+                        )
+                        .expect("master"),
                     )
                 })
             });

@@ -17,7 +17,7 @@ use h4_shared::config::Validate;
 use h4_shared::rng::Rng;
 use h4_shared::wire::WireMessage;
 
-use crate::impair::{ImpairmentConfig, ImpairmentCounters, Impaired};
+use crate::impair::{Impaired, ImpairmentConfig, ImpairmentCounters};
 use crate::{Link, LinkError};
 
 /// The period the in-flight buffer is sized for (1 kHz loops), ns.
@@ -28,8 +28,9 @@ const LOOP_PERIOD_NS: u64 = 1_000_000;
 /// `delay_ms`, `jitter_ms`, `loss`, `burst_loss_enter`, `burst_loss_exit`,
 /// `burst_loss_in_bad`, `duplicate`, `reorder`, `reorder_extra_ms`, `blackout_ms`,
 /// `blackout_every_ms`, `seed`; unnamed keys keep their defaults (no impairment).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ImpairSpec(pub ImpairmentConfig);
+/// (Boxed: it sits in the commands' argument structs, which clap keeps by value.)
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImpairSpec(pub Box<ImpairmentConfig>);
 
 /// Why an `--impair` value was refused.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -101,7 +102,7 @@ impl FromStr for ImpairSpec {
         }
         cfg.validate()
             .map_err(|e| ImpairSpecError::Invalid(e.to_string()))?;
-        Ok(ImpairSpec(cfg))
+        Ok(ImpairSpec(Box::new(cfg)))
     }
 }
 
@@ -189,7 +190,7 @@ impl<Out: WireMessage, In: WireMessage> ImpairedLink<Out, In> {
         spec: &ImpairSpec,
         direction: Direction,
     ) -> Result<Self, ImpairSpecError> {
-        let mut cfg = spec.0;
+        let mut cfg = *spec.0;
         cfg.seed = Rng::fork(spec.0.seed, direction as u64).next_u64();
         let inner = Impaired::new(link, MonotonicClock::new(), cfg, LOOP_PERIOD_NS)
             .map_err(|e| ImpairSpecError::Invalid(e.to_string()))?;
@@ -267,7 +268,7 @@ mod tests {
         let back: ImpairSpec = s.to_string().parse().unwrap();
         assert_eq!(back, s);
         assert_eq!(
-            "".parse::<ImpairSpec>().unwrap().0,
+            *"".parse::<ImpairSpec>().unwrap().0,
             ImpairmentConfig::default()
         );
     }
