@@ -190,8 +190,8 @@ fn make_vectors() -> Value {
     b[116] = 9;
     bad("mode 9", b, WireError::BadMode(9));
     let mut b = good.clone();
-    b[118] = 0x02;
-    bad("unknown flag bit 1", b, WireError::BadFlags(0x02));
+    b[118] = 0x04;
+    bad("unknown flag bit 2", b, WireError::BadFlags(0x04));
     let mut b = good.clone();
     b[24..32].copy_from_slice(&f64::NAN.to_le_bytes());
     bad("NaN in pose[0]", b, WireError::NonFinite { field: "pose" });

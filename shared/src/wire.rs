@@ -134,8 +134,12 @@ impl SlaveState {
 
 /// Command flag: the operator holds the clutch (the slave holds still; re-anchor on release).
 pub const CMD_FLAG_CLUTCH: u16 = 1 << 0;
+/// Command flag: the master has seen the slave's safe stop, faded its rendering out and
+/// started a new energy ledger; a slave in `SafeStop` re-engages only on a command that
+/// carries it.
+pub const CMD_FLAG_ACK_SAFE_STOP: u16 = 1 << 1;
 /// All command flags this version defines.
-pub const CMD_FLAGS_KNOWN: u16 = CMD_FLAG_CLUTCH;
+pub const CMD_FLAGS_KNOWN: u16 = CMD_FLAG_CLUTCH | CMD_FLAG_ACK_SAFE_STOP;
 
 /// Fault flag: no valid command within the watchdog period.
 pub const FAULT_COMMAND_TIMEOUT: u16 = 1 << 0;

@@ -7,6 +7,8 @@ pub mod procs;
 pub mod record;
 pub mod relay;
 
+pub mod bins;
+
 use h4_shared::H4Params;
 use serde::Deserialize;
 
