@@ -9,6 +9,8 @@
 //!   saturation, feedback-loss fade).
 //! * [`contact_model`]: [`contact_model::ContactModel`], the master's local model of the
 //!   slave's contact (model-mediated rendering).
+//! * [`link_stats`]: the link as the operator sees it in `h4-master run` (feedback loss,
+//!   link state).
 //! * [`teleop`]: [`teleop::MasterTeleop`], the master's per-cycle endpoint (device,
 //!   operator, receive gate, coupling, round trip), stepped by the simulation and the
 //!   process alike.
@@ -18,6 +20,7 @@
 pub mod contact_model;
 pub mod coupling;
 pub mod device;
+pub mod link_stats;
 pub mod operator;
 pub mod server;
 pub mod session;

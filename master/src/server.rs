@@ -124,6 +124,18 @@ pub struct MasterRunSummary {
     pub recording_dropped: u64,
     /// Time spent waiting for the slave's first feedback, s.
     pub waited_for_slave_s: f64,
+    /// Feedback messages the slave sent that never arrived (gaps in its sequence numbers).
+    #[serde(default)]
+    pub feedback_lost: u64,
+    /// `feedback_lost` as % of what the slave sent.
+    #[serde(default)]
+    pub feedback_loss_pct: f64,
+    /// Cycles with the link down (no feedback for longer than the fade: nothing rendered).
+    #[serde(default)]
+    pub link_down_cycles: u64,
+    /// The link's state in the last cycle: `waiting`, `up`, `fading` or `down`.
+    #[serde(default)]
+    pub link_state: crate::link_stats::LinkState,
 }
 
 /// Why the master could not run.
@@ -229,6 +241,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
     let dt_s = period_ns as f64 * 1e-9;
     let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
     let mut stats = RenderStats::new(cfg.scale.force);
+    let mut link_stats = crate::link_stats::LossMeter::new();
     rt.run(|cx| {
         let now = cx.now_ns;
         let m = side.step(&mut link, now, dt_s);
@@ -237,6 +250,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
         let fade = m.step.fade;
         let force = stats.rendered(&mut s, &m.rendered_wrench, fade);
         let (slave_force, slave_state) = stats.slave(&mut s, side.latest_feedback());
+        link_stats.cycle(side.latest_feedback(), side.gate_counters().accepted, fade);
         stats.transparency(&m.rendered_wrench, &slave_force, fade, &mut s);
         let record = CycleRecord {
             time_ns: now,
@@ -257,12 +271,15 @@ pub fn run_then<L: Link<Command, Feedback>>(
             use std::fmt::Write;
             let _ = write!(
                 line.text,
-                "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | rtt p99 {:>7.1} us | F {:>6.2} N | fade {:.2} | slave {}",
+                "master arm {} | {:>6} cycles | late p99 {:>6.1} us | misses {} | link {} rtt {:>7.1} ms (p99 {:>7.1}) loss {:>4.1} % | F {:>6.2} N | fade {:.2} | slave {}",
                 opts.arm_id,
                 cx.cycles,
                 line.lateness_p99_us,
                 line.misses,
-                us(side.round_trip().histogram().quantile(0.99)),
+                link_stats.state().word(),
+                us(side.round_trip().last_ns()) / 1e3,
+                us(side.round_trip().histogram().quantile(0.99)) / 1e3,
+                link_stats.window_loss_pct(),
                 force,
                 fade,
                 state_name(slave_state),
@@ -284,6 +301,11 @@ pub fn run_then<L: Link<Command, Feedback>>(
     s.feedback_invalid = gate.wrong_version + gate.malformed + gate.wrong_arm + gate.undecodable;
     s.link_errors = side.counters().link_errors;
     s.force_transparency_err_pct = stats.transparency_err_pct();
+    let (sent, arrived) = link_stats.totals();
+    s.feedback_lost = sent.saturating_sub(arrived);
+    s.feedback_loss_pct = link_stats.loss_pct();
+    s.link_down_cycles = link_stats.down_cycles();
+    s.link_state = link_stats.state();
     s.run = rt.report();
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(MasterRunError::Recording)?;

@@ -1,7 +1,13 @@
-//! Helpers shared by the behaviour tests: the reference kinematics vectors, and the real-process
-//! test support (`procs`).
+//! Helpers shared by the behaviour tests: the reference kinematics vectors; the project's
+//! binaries ([`bins`]); the real processes of the process tests ([`procs`]); two hosts on one
+//! machine ([`netns`]), a relay that impairs the network between them ([`relay`]), the real
+//! processes of the remote tests ([`remote_procs`]) and their recordings ([`record`]).
 
+pub mod netns;
 pub mod procs;
+pub mod record;
+pub mod relay;
+pub mod remote_procs;
 
 pub mod bins;
 

@@ -11,6 +11,9 @@
 //! CARGO_TARGET_DIR=/work/target-transport cargo bench -p h4-transport --bench round_trip
 //! H4_BENCH_CYCLES=10000 cargo bench -p h4-transport --bench round_trip -- zenoh udp
 //! ```
+//! Zenoh settings under test: `H4_BENCH_ZENOH_CONFIG=config/zenoh/low-latency.json5` (a json5
+//! file every Zenoh end of the run loads), `H4_BENCH_ZENOH_PROTO=udp|unixsock-stream` (the
+//! link), `ZENOH_RUNTIME` (Zenoh's own thread pools); docs/remote.md, "Zenoh at 1 kHz".
 //! Arguments select paths by substring (default: all). `H4_BENCH_CYCLES` sets the measured
 //! round trips per path (default 5000, after 200 warm-up ones).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -284,9 +287,9 @@ fn pong_main(args: &[String]) {
         "zenoh-link" => Box::new(SlaveEnd(
             h4_transport::zenoh::SlaveZenohLink::open(
                 1,
-                &h4_transport::zenoh::ZenohConfig::listen_on_loopback(
+                &zenoh_settings(h4_transport::zenoh::ZenohConfig::listen_on_loopback(
                     arg(1).parse().expect("port"),
-                ),
+                )),
             )
             .expect("slave"),
         )),
@@ -628,14 +631,20 @@ fn main() {
                     cycles,
                     move || {
                         MasterEnd(
-                            MasterZenohLink::open(1, &ZenohConfig::connect_to_loopback(port))
-                                .expect("master"),
+                            MasterZenohLink::open(
+                                1,
+                                &zenoh_settings(ZenohConfig::connect_to_loopback(port)),
+                            )
+                            .expect("master"),
                         )
                     },
                     move || {
                         SlaveEnd(
-                            SlaveZenohLink::open(1, &ZenohConfig::listen_on_loopback(port))
-                                .expect("slave"),
+                            SlaveZenohLink::open(
+                                1,
+                                &zenoh_settings(ZenohConfig::listen_on_loopback(port)),
+                            )
+                            .expect("slave"),
                         )
                     },
                 )
@@ -698,8 +707,11 @@ fn main() {
                 let pong_args = ["zenoh-link".into(), port.to_string()];
                 in_processes(name, cycles, &pong_args, move |_| {
                     MasterEnd(
-                        MasterZenohLink::open(1, &ZenohConfig::connect_to_loopback(port))
-                            .expect("master"),
+                        MasterZenohLink::open(
+                            1,
+                            &zenoh_settings(ZenohConfig::connect_to_loopback(port)),
+                        )
+                        .expect("master"),
                     )
                 })
             });
@@ -738,16 +750,37 @@ fn iox_options(prefix: String) -> h4_transport::iceoryx2::Iceoryx2Options {
     }
 }
 
+/// `H4_BENCH_ZENOH_CONFIG=FILE.json5`: a Zenoh configuration file every Zenoh path of the
+/// run (bare and ours, ping and pong) loads first, e.g. `config/zenoh/low-latency.json5`;
+/// `H4_BENCH_ZENOH_PROTO=udp|tcp|unixsock-stream` (default tcp) picks the link.
+#[cfg(feature = "zenoh")]
+fn zenoh_settings(mut c: h4_transport::zenoh::ZenohConfig) -> h4_transport::zenoh::ZenohConfig {
+    c.config_file = std::env::var("H4_BENCH_ZENOH_CONFIG").ok();
+    if let Ok(proto) = std::env::var("H4_BENCH_ZENOH_PROTO") {
+        let swap = |e: &String| {
+            if proto == "unixsock-stream" {
+                let port = e.rsplit(':').next().unwrap_or("0");
+                format!("unixsock-stream//tmp/h4bench-{port}.sock")
+            } else {
+                e.replacen("tcp/", &format!("{proto}/"), 1)
+            }
+        };
+        c.listen = c.listen.iter().map(swap).collect();
+        c.connect = c.connect.iter().map(swap).collect();
+    }
+    c
+}
+
 #[cfg(feature = "zenoh")]
 fn zenoh_listen(port: u16) -> zenoh::Config {
-    h4_transport::zenoh::ZenohConfig::listen_on_loopback(port)
+    zenoh_settings(h4_transport::zenoh::ZenohConfig::listen_on_loopback(port))
         .to_zenoh()
         .expect("config")
 }
 
 #[cfg(feature = "zenoh")]
 fn zenoh_connect(port: u16) -> zenoh::Config {
-    h4_transport::zenoh::ZenohConfig::connect_to_loopback(port)
+    zenoh_settings(h4_transport::zenoh::ZenohConfig::connect_to_loopback(port))
         .to_zenoh()
         .expect("config")
 }

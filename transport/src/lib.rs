@@ -3,7 +3,8 @@
 //! One interface, [`Link`], with several implementations: [`inproc`] (two ends in one
 //! process, for tests and the lockstep simulation), `iceoryx2` (shared memory on one host)
 //! and `zenoh` (between hosts). [`impair::Impaired`] wraps any link and injects delay,
-//! jitter, loss, duplication, reordering and blackouts; [`gate::Gate`] is the check every
+//! jitter, loss, duplication, reordering and blackouts ([`impaired`]: the same on a real process's
+//! link, `--impair`); [`gate::Gate`] is the check every
 //! receiver puts in front of its control loop. `open` (with both middleware features) opens
 //! a process's end from its command-line options.
 //!
@@ -13,6 +14,7 @@ pub mod gate;
 #[cfg(feature = "iceoryx2")]
 pub mod iceoryx2;
 pub mod impair;
+pub mod impaired;
 pub mod inproc;
 #[cfg(all(feature = "iceoryx2", feature = "zenoh"))]
 pub mod open;

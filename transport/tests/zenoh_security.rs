@@ -233,7 +233,10 @@ fn shipped_configs_parse() {
             n += 1;
         }
     }
-    assert_eq!(n, 4, "expected four shipped json5 files");
+    assert_eq!(
+        n, 5,
+        "expected five shipped json5 files (four security files, low-latency.json5)"
+    );
 }
 
 #[test]

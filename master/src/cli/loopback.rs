@@ -16,6 +16,7 @@ use h4_slave::experiment::{
     ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
+use h4_transport::impaired::ImpairArgs;
 use h4_transport::open::TransportArgs;
 use serde::Serialize;
 
@@ -56,6 +57,10 @@ pub struct LoopbackArgs {
     /// otherwise a warning and normal scheduling).
     #[arg(long)]
     pub fifo_priority: Option<i32>,
+    /// Link impairment, passed to both processes (each impairs what it sends: round trip
+    /// R ms is delay_ms=R/2).
+    #[command(flatten)]
+    pub impair: ImpairArgs,
     /// The live view: the master serves at HOST:PORT, the slave at HOST:PORT+1 (with port 0,
     /// each picks a free port; both are printed on stderr).
     #[command(flatten)]
@@ -135,6 +140,7 @@ impl LoopbackArgs {
             config: self.config.clone(),
             set: self.set.clone(),
             transport,
+            impair: self.impair.clone(),
             run: LoopArgs {
                 duration_s: Some(duration_s),
                 summary: None,
@@ -254,6 +260,7 @@ impl SlaveChild {
             .arg("--config")
             .arg(fd_path(&world))
             .args(transport.to_args())
+            .args(args.impair.to_args())
             .arg("--passivity-config")
             .arg(fd_path(&passivity))
             .arg("--watchdog-ms")

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use h4_master::server::{self, MasterRunOptions, MasterRunSummary};
 use h4_master::session;
 use h4_shared::process::LoopArgs;
+use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 
 /// Run the master process: the simulated master arm and the scripted operator of a session
@@ -22,6 +23,9 @@ pub struct RunArgs {
     /// Transport.
     #[command(flatten)]
     pub transport: TransportArgs,
+    /// Link impairment of the commands this process sends (`--impair`).
+    #[command(flatten)]
+    pub impair: ImpairArgs,
     /// Duration, summary, recording, real-time settings.
     #[command(flatten)]
     pub run: LoopArgs,
@@ -46,6 +50,8 @@ impl RunArgs {
         let cfg = session::load(&self.config, &self.set)
             .map_err(|e| format!("{}: {e}", self.config.display()))?;
         let link = self.transport.open_master().map_err(|e| e.to_string())?;
+        let link = impaired::wrap(link, self.impair.impair.as_ref(), Direction::Commands)
+            .map_err(|e| e.to_string())?;
         let opts = MasterRunOptions {
             arm_id: self.transport.arm_id,
             fifo_priority: self.run.fifo_priority,

@@ -7,6 +7,7 @@ use h4_shared::passivity::PassivityParams;
 use h4_shared::process::LoopArgs;
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::{self, RunOptions};
+use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 
 /// Run the slave process: the 1 kHz force loop on the simulated arm, commanded by a master
@@ -24,6 +25,9 @@ pub struct RunArgs {
     /// Transport.
     #[command(flatten)]
     pub transport: TransportArgs,
+    /// Link impairment of the feedback this process sends (`--impair`).
+    #[command(flatten)]
+    pub impair: ImpairArgs,
     /// Duration, summary, recording, real-time settings.
     #[command(flatten)]
     pub run: LoopArgs,
@@ -74,7 +78,9 @@ impl RunArgs {
             }
             None => PassivityParams::default(),
         };
-        let mut link = self.transport.open_slave().map_err(|e| e.to_string())?;
+        let link = self.transport.open_slave().map_err(|e| e.to_string())?;
+        let mut link = impaired::wrap(link, self.impair.impair.as_ref(), Direction::Feedback)
+            .map_err(|e| e.to_string())?;
         let opts = RunOptions {
             passivity,
             arm_id: self.transport.arm_id,

@@ -1,0 +1,409 @@
+//! The delay matrix against the real processes (issue 16): `h4-slave run` and `h4-master run`
+//! as OS processes, round trip {0, 50, 250, 1000} ms × loss {0, 5 %} × wall {resin
+//! (200 N/mm), aluminium (1000 N/mm)}, over two paths:
+//!
+//! * **iceoryx2 with `--impair`**: both processes impair what they send with the
+//!   simulation's impairment layer (`delay_ms` = round trip / 2 each, `loss`).
+//! * **Zenoh across two hosts**: the slave in one network namespace, the master in another,
+//!   Zenoh over UDP across a veth pair through the test's relay (`h4_tests::relay`), which
+//!   delays each direction by round trip / 2 and drops datagrams. Skipped, with a printed
+//!   `SKIPPED` line, where network namespaces cannot be made.
+//!
+//! Each cell is the wall-push session cut to 7 s (approach, push with 6 N, hold, release).
+//! Criteria, from physical evidence in both summaries (`h4_tests::procs::judge`): every force
+//! finite, the slave's true contact force within `detector.force_limit_n` (100 N), the
+//! rendered force within `coupling.force_limit_n`, both passivity observers ≥ −1 mJ, round
+//! trips completed — the energy floor and force limits of the simulated matrix
+//! (`tests/delay_matrix.rs`; the table also shows the slave guard's own 80 N limit); its
+//! oscillation detector needs the per-cycle trace and is not applied to processes (as in
+//! `loopback`). Controls: the measured round trip is at least the cell's (the impairment is
+//! really there); loss cells lost messages; and a negative control (passivity and the local
+//! model off, aluminium, 250 ms) must fail the same criteria.
+//!
+//! Both loops run under `--fifo-priority 10` (as in `tests/processes.rs`). Cells run two at a
+//! time (each is two 1 kHz loops at ~15–20 % of a core); a cell that fails while a loop was
+//! starved (> 1 % deadlines missed, `loopback`'s `realtime_ok`) is run again, at most three
+//! times, and reported as starved if it never ran fed. Nothing asserts a wall-clock duration.
+//! ≈ 2.5 min on 2 cores.
+//! `cargo test --release -p h4-tests --test real_delay_matrix -- --nocapture` prints the table.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::net::SocketAddr;
+use std::process::Command;
+use std::sync::Mutex;
+
+use h4_master::server::MasterRunSummary;
+use h4_slave::server::SlaveRunSummary;
+use h4_tests::netns::{Host, TwoHosts};
+use h4_tests::procs::{self, Running, Scratch};
+use h4_tests::relay::{Proto, Relay};
+use h4_transport::impair::ImpairmentConfig;
+
+const SESSION: &str = "config/sessions/wall-push.toml";
+const DURATION_S: f64 = 7.0;
+const RTT_MS: [f64; 4] = [0.0, 50.0, 250.0, 1000.0];
+const LOSS: [f64; 2] = [0.0, 0.05];
+const CONCURRENT: usize = 2;
+/// Runs of a cell at most: a cell that fails while a loop was starved is run again.
+const ATTEMPTS: usize = 3;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Wall {
+    Resin,
+    Aluminium,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Via {
+    Iceoryx2Impair,
+    ZenohRelay,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Cell {
+    rtt_ms: f64,
+    loss: f64,
+    wall: Wall,
+    via: Via,
+    /// Passivity control and the master's local model (off only in the negative control).
+    protected: bool,
+}
+
+impl Cell {
+    fn name(&self) -> String {
+        format!(
+            "{:?}-{:?}-rtt{}-loss{}{}",
+            self.via,
+            self.wall,
+            self.rtt_ms,
+            self.loss,
+            if self.protected { "" } else { "-bare" }
+        )
+    }
+
+    fn overrides(&self) -> Vec<String> {
+        let material = match self.wall {
+            Wall::Resin => "resin",
+            Wall::Aluminium => "aluminium",
+        };
+        vec![
+            format!("environment.material={material}"),
+            "environment.stiffness_n_per_mm=0".into(),
+            format!("duration_s={DURATION_S}"),
+            format!("passivity.enabled={}", self.protected),
+            format!("coupling.model={}", self.protected),
+        ]
+    }
+
+    fn impairment(&self, seed: u64) -> ImpairmentConfig {
+        ImpairmentConfig {
+            delay_ms: self.rtt_ms / 2.0,
+            loss: self.loss,
+            seed,
+            ..ImpairmentConfig::default()
+        }
+    }
+}
+
+struct Outcome {
+    cell: Cell,
+    reasons: Vec<String>,
+    master: MasterRunSummary,
+    slave: SlaveRunSummary,
+    /// Messages lost on the way (impairment counters or the relay's), both directions.
+    lost: u64,
+    /// Either loop missed more than 1 % of its deadlines.
+    starved: bool,
+    /// Runs it took.
+    attempts: usize,
+    /// The session's `coupling.force_limit_n`, N.
+    coupling_limit_n: f64,
+}
+
+/// `impair (…): sent N, delivered N, lost L, blacked out B, …` lines of a process's stderr:
+/// the lost + blacked-out count.
+fn impair_lost(log: &str) -> u64 {
+    let field = |line: &str, key: &str| -> u64 {
+        line.split(", ")
+            .find_map(|p| p.trim().strip_prefix(key))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0)
+    };
+    log.lines()
+        .filter(|l| l.starts_with("impair ("))
+        .map(|l| field(l, "lost ") + field(l, "blacked out "))
+        .sum()
+}
+
+fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
+    let (master_bin, slave_bin) = procs::binaries()?;
+    let tag = cell.name();
+    let (world, passivity) = procs::slave_config(scratch, &tag, SESSION, &cell.overrides())?;
+    let slave_summary = scratch.path(&format!("{tag}-slave.json"));
+    let master_summary = scratch.path(&format!("{tag}-master.json"));
+    let seed = 11;
+    let hosts = match cell.via {
+        Via::ZenohRelay => Some(TwoHosts::new()?),
+        Via::Iceoryx2Impair => None,
+    };
+    let mut slave_cmd = match &hosts {
+        Some(h) => h.command(Host::Slave, slave_bin),
+        None => Command::new(slave_bin),
+    };
+    slave_cmd
+        .arg("run")
+        .arg("--config")
+        .arg(&world)
+        .arg("--passivity-config")
+        .arg(&passivity)
+        .arg("--summary")
+        .arg(&slave_summary)
+        .args(["--fifo-priority", "10"]);
+    let mut master_cmd = match &hosts {
+        Some(h) => h.command(Host::Master, master_bin),
+        None => Command::new(master_bin),
+    };
+    master_cmd.arg("run").arg("--config").arg(SESSION);
+    for o in cell.overrides() {
+        master_cmd.arg("--set").arg(o);
+    }
+    master_cmd
+        .args(["--duration-s", &DURATION_S.to_string()])
+        .args(["--wait-for-slave-s", "30"])
+        .arg("--summary")
+        .arg(&master_summary)
+        .args(["--fifo-priority", "10"]);
+    let prefix = format!("{}-{}", scratch.prefix, tag);
+    let slave_port = 7447;
+    let relay = match &hosts {
+        Some(h) => {
+            let target = SocketAddr::new(h.ip(Host::Slave).into(), slave_port);
+            slave_cmd.args(["--transport", "zenoh", "--zenoh-listen"]);
+            slave_cmd.arg(format!("udp/{target}"));
+            // Loss starts once the session is up (see `lossy_once_up`).
+            let relay = Relay::start(
+                h,
+                Proto::Udp,
+                target,
+                ImpairmentConfig {
+                    loss: 0.0,
+                    ..cell.impairment(seed)
+                },
+            )?;
+            master_cmd.args(["--transport", "zenoh", "--zenoh-connect"]);
+            master_cmd.arg(format!("udp/{}", relay.listen_addr()));
+            Some(relay)
+        }
+        None => {
+            let impair = format!(
+                "delay_ms={},loss={},seed={seed}",
+                cell.rtt_ms / 2.0,
+                cell.loss
+            );
+            for c in [&mut slave_cmd, &mut master_cmd] {
+                c.args(["--iceoryx2-prefix", &prefix, "--impair", &impair]);
+            }
+            None
+        }
+    };
+    let mut slave = Running::spawn(&format!("{tag}-slave"), slave_cmd, scratch)?;
+    let mut master = Running::spawn(&format!("{tag}-master"), master_cmd, scratch)?;
+    if let Some(r) = &relay {
+        lossy_once_up(r, &mut master, cell.impairment(seed));
+    }
+    let master_ok = master.wait(DURATION_S + 60.0)?;
+    slave.stop()?;
+    if !master_ok {
+        return Err(format!(
+            "{tag}: the master failed:\n{}\nslave:\n{}",
+            master.log(),
+            slave.log()
+        ));
+    }
+    let m: MasterRunSummary = procs::read_summary(&master_summary)?;
+    let s: SlaveRunSummary = procs::read_summary(&slave_summary)?;
+    let lost = match &relay {
+        Some(r) => r.counters().dropped,
+        None => impair_lost(&slave.log()) + impair_lost(&master.log()),
+    };
+    drop(relay);
+    drop(hosts);
+    Ok(Outcome {
+        cell,
+        reasons: procs::judge(&m, &s, &procs::session(SESSION, &cell.overrides())?),
+        starved: procs::starved(&m, &s),
+        master: m,
+        slave: s,
+        lost,
+        attempts: 1,
+        coupling_limit_n: procs::session(SESSION, &cell.overrides())?
+            .coupling
+            .force_limit_n,
+    })
+}
+
+/// [`run_cell`], again (up to [`ATTEMPTS`] runs) while it fails the criteria *and* a loop
+/// was starved: a starved run's physics describe the host (this VM under other builds), not
+/// the link. A cell failing without starvation is not re-run.
+fn run_cell_until_fed(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
+    let mut attempt = 1;
+    loop {
+        let mut o = run_cell(cell, scratch)?;
+        o.attempts = attempt;
+        if o.reasons.is_empty() || !o.starved || attempt >= ATTEMPTS || !cell.protected {
+            return Ok(o);
+        }
+        attempt += 1;
+    }
+}
+
+/// Zenoh's session over UDP does not come up through a lossy relay: with 5 % loss from the
+/// first datagram the master saw no feedback within 30 s in every Zenoh cell of a first run
+/// (2026-12-02), presumably a lost handshake message leaving the two sides disagreeing. So
+/// the relay forwards losslessly until the session carries traffic (1000 datagrams, about
+/// half a second of both directions, or the master gave up), then drops with the cell's
+/// probability for the rest of the run.
+fn lossy_once_up(relay: &Relay, master: &mut Running, cfg: ImpairmentConfig) {
+    let t = std::time::Instant::now();
+    while relay.counters().forwarded < 1000 && !master.exited() && t.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    relay.set(cfg);
+}
+
+/// Runs `cells`, `CONCURRENT` at a time.
+fn run_all(cells: Vec<Cell>, scratch: &Scratch) -> Vec<Result<Outcome, String>> {
+    let queue = Mutex::new(cells.into_iter().enumerate().collect::<Vec<_>>());
+    let results = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..CONCURRENT {
+            s.spawn(|| {
+                loop {
+                    let next = queue.lock().unwrap().pop();
+                    let Some((i, cell)) = next else { break };
+                    let r = run_cell_until_fed(cell, scratch);
+                    results.lock().unwrap().push((i, r));
+                }
+            });
+        }
+    });
+    let mut r = results.into_inner().unwrap();
+    r.sort_by_key(|(i, _)| *i);
+    r.into_iter().map(|(_, r)| r).collect()
+}
+
+fn row(o: &Outcome) -> String {
+    format!(
+        "| {:?} | {:?} | {} | {:.0} % | {} | {:.2} ({:.0}) | {:.1} / {:.0} | {:.3} / {:.3} | {:.0} | {} | {} | {} + {} | {} |",
+        o.cell.via,
+        o.cell.wall,
+        o.cell.rtt_ms,
+        o.cell.loss * 100.0,
+        if o.reasons.is_empty() { "yes" } else { "NO" },
+        o.slave.max_force_n,
+        o.slave.force_limit_n,
+        o.master.max_rendered_force_n,
+        o.coupling_limit_n,
+        o.master.energy_min_j * 1e3,
+        o.slave.energy_min_j * 1e3,
+        o.master.round_trip_p50_us / 1e3,
+        o.lost,
+        o.slave.safe_stops,
+        o.master.run.deadline_misses,
+        o.slave.run.deadline_misses,
+        o.attempts,
+    )
+}
+
+#[test]
+fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
+    let scratch = Scratch::new("real-matrix").unwrap();
+    let zenoh = match TwoHosts::new_or_skip("real_delay_matrix (the Zenoh-over-relay cells)") {
+        Some(h) => {
+            drop(h);
+            true
+        }
+        None => false,
+    };
+    let mut cells = Vec::new();
+    for via in [Via::Iceoryx2Impair, Via::ZenohRelay] {
+        if via == Via::ZenohRelay && !zenoh {
+            continue;
+        }
+        for wall in [Wall::Resin, Wall::Aluminium] {
+            for rtt_ms in RTT_MS {
+                for loss in LOSS {
+                    cells.push(Cell {
+                        rtt_ms,
+                        loss,
+                        wall,
+                        via,
+                        protected: true,
+                    });
+                }
+            }
+        }
+    }
+    // Negative control: no passivity control, no local model, the stiff wall, 250 ms.
+    let control = Cell {
+        rtt_ms: 250.0,
+        loss: 0.0,
+        wall: Wall::Aluminium,
+        via: Via::Iceoryx2Impair,
+        protected: false,
+    };
+    cells.push(control);
+    let results = run_all(cells, &scratch);
+    println!(
+        "| path | wall | round trip ms | loss | stable | max true force N (slave guard's limit) | max rendered N / limit | observers min master / slave mJ | measured rtt p50 ms | lost msgs | safe stops | deadline misses master + slave | runs |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut failures = Vec::new();
+    for r in &results {
+        let o = match r {
+            Ok(o) => o,
+            Err(e) => {
+                failures.push(e.clone());
+                continue;
+            }
+        };
+        println!("{}", row(o));
+        let name = o.cell.name();
+        if !o.cell.protected {
+            if o.reasons.is_empty() {
+                failures.push(format!(
+                    "{name}: the negative control passed the criteria (they cannot fail?)"
+                ));
+            }
+            continue;
+        }
+        if !o.reasons.is_empty() {
+            let starved = if o.starved {
+                format!(
+                    " (starved in all {} runs: the host, not the link?)",
+                    o.attempts
+                )
+            } else {
+                String::new()
+            };
+            failures.push(format!("{name}: {}{starved}", o.reasons.join("; ")));
+        }
+        // The impairment was really there: the measured round trip includes it.
+        if o.master.round_trip_p50_us < o.cell.rtt_ms * 1e3 {
+            failures.push(format!(
+                "{name}: measured round trip p50 {:.1} ms < the cell's {} ms",
+                o.master.round_trip_p50_us / 1e3,
+                o.cell.rtt_ms
+            ));
+        }
+        if o.cell.loss > 0.0 && o.lost == 0 {
+            failures.push(format!("{name}: a loss cell lost nothing"));
+        }
+        // The session made contact (the wall was touched).
+        if o.slave.max_force_n < 2.0 {
+            failures.push(format!("{name}: no contact ({:.1} N)", o.slave.max_force_n));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}

@@ -1,0 +1,86 @@
+//! A slow, not dead, link against the real processes (issue 16): between two hosts (network
+//! namespaces) over Zenoh/TCP through the relay, every message is held 300 ms for 5 s in the
+//! middle of a contact, then the link is normal again. No safe-state flapping, no energy
+//! generated. Skipped with a printed `SKIPPED` line where namespaces cannot be made.
+//!
+//! When every message becomes 300 ms late at once, nothing arrives for 300 ms: the slave's
+//! 20 ms watchdog trips once (a real outage) and re-pairs when the late commands arrive; it
+//! must then stay paired through the slow stretch (late but steady commands) and through the
+//! return to normal (the relay keeps order: no gap there). Flapping would be a trip every
+//! time the late stream hiccups. Allowed: that one trip at the onset plus one for a host
+//! stall (this VM stalls for 3–66 ms a few times a minute); the trip when the run ends is
+//! not counted.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use h4_tests::netns::{Host, TwoHosts};
+use h4_tests::procs::{self, Pair, PairSpec, Scratch};
+use h4_tests::record;
+use h4_tests::relay::{Proto, Relay};
+use h4_transport::impair::ImpairmentConfig;
+
+const SESSION: &str = "config/sessions/wall-push.toml";
+
+#[test]
+fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
+    let Some(hosts) = TwoHosts::new_or_skip("slow_link") else {
+        return;
+    };
+    let scratch = Scratch::new("slow-link").unwrap();
+    let target = SocketAddr::new(hosts.ip(Host::Slave).into(), 7447);
+    let relay = Relay::start(&hosts, Proto::Tcp, target, ImpairmentConfig::default()).unwrap();
+    let spec = PairSpec {
+        tag: "slow",
+        session: SESSION,
+        overrides: vec![
+            "environment.stiffness_n_per_mm=0".into(),
+            "duration_s=9.5".into(),
+        ],
+        duration_s: 9.5,
+        slave_args: vec![
+            "--transport".into(),
+            "zenoh".into(),
+            "--zenoh-listen".into(),
+            format!("tcp/{target}"),
+        ],
+        master_args: vec![
+            "--transport".into(),
+            "zenoh".into(),
+            "--zenoh-connect".into(),
+            format!("tcp/{}", relay.listen_addr()),
+        ],
+    };
+    let mut pair = Pair::start(&spec, &scratch, |slave, bin| {
+        hosts.command(if slave { Host::Slave } else { Host::Master }, bin)
+    })
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(2000));
+    relay.set(ImpairmentConfig {
+        delay_ms: 300.0,
+        ..ImpairmentConfig::default()
+    });
+    std::thread::sleep(Duration::from_millis(5000));
+    relay.set(ImpairmentConfig::default());
+    let (m, s) = pair.finish().unwrap();
+    // No energy generated, forces within limits.
+    let why = procs::judge(&m, &s, &procs::session(SESSION, &spec.overrides).unwrap());
+    assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");
+    // The slow stretch really was slow.
+    assert!(m.round_trip_max_us >= 600_000.0, "{m:#?}");
+    let cycles = record::slave_cycles(&pair.slave_record).unwrap();
+    let episodes = record::safe_episodes(&cycles);
+    let during: Vec<_> = episodes.iter().filter(|e| e.repaired_s.is_some()).collect();
+    println!(
+        "safe stops {}, repairs {}, safe-state episodes that re-paired: {during:#?}\nall: {episodes:#?}\nmaster: {m:#?}",
+        s.safe_stops, s.repairs
+    );
+    assert!(
+        during.len() <= 2,
+        "the safe state flapped: {} episodes\n{during:#?}",
+        during.len()
+    );
+    assert!(m.feedback_losses <= 2, "{m:#?}");
+}
