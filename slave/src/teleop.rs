@@ -24,11 +24,11 @@ use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::process::Watchdog;
 use h4_shared::vec3::norm3;
 use h4_shared::wire::{
-    Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, Feedback, Mode,
-    PROTOCOL_VERSION, SlaveState,
+    Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT,
+    Feedback, Mode, PROTOCOL_VERSION, SlaveState,
 };
 use h4_transport::Link;
-use h4_transport::gate::{Gate, GateCounters};
+use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;
 
 use crate::arm::ArmDriver;
@@ -136,6 +136,7 @@ pub struct TeleopCycle {
 pub struct SlaveTeleop<A: ArmDriver> {
     p: TeleopParams,
     gate: Gate<Command>,
+    session_id: u64,
     watchdog: Watchdog,
     port: AdmittancePort,
     ctrl: SlaveController,
@@ -202,8 +203,19 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             "0 to 1",
         )?;
         let watchdog_ns = ((p.watchdog_ms * 1e6) as u64).saturating_sub(period_ns);
+        let cp = ctrl.params();
+        let limits = CommandLimits {
+            workspace: *ctrl.workspace(),
+            max_speed_mm_per_s: cp.max_speed_mm_per_s,
+            force_limit_n: cp.force_limit_n,
+        };
+        let energy =
+            EnergyBound::from_limits(cp.force_limit_n, cp.max_speed_mm_per_s, ENERGY_POWER_MARGIN);
         Ok(SlaveTeleop {
-            gate: Gate::new(p.arm_id, (p.restart_silence_ms * 1e6) as u64),
+            gate: Gate::new(p.arm_id, (p.restart_silence_ms * 1e6) as u64)
+                .with_limits(limits)
+                .with_energy_bound(energy),
+            session_id: h4_shared::wire::new_session_id(),
             watchdog: Watchdog::new(watchdog_ns),
             port: AdmittancePort::from_params(&p.passivity),
             ctrl,
@@ -249,6 +261,16 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     /// What the receive gate accepted and rejected.
     pub fn gate_counters(&self) -> &GateCounters {
         &self.gate.counters
+    }
+
+    /// The receive gate (its paired session, pairing energies, last rejection).
+    pub fn gate(&self) -> &Gate<Command> {
+        &self.gate
+    }
+
+    /// This slave's session id (sent in every feedback).
+    pub fn session_id(&self) -> u64 {
+        self.session_id
     }
 
     /// The state.
@@ -311,12 +333,17 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> bool {
         let port = &mut self.port;
         let latest = &mut self.latest;
-        let d = self
-            .gate
-            .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
-                port.receive_remote_in(c.energy_in_j);
-                *latest = Some(*c);
-            });
+        let gate = &mut self.gate;
+        let mut accepted = None;
+        let d = gate.drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
+            accepted = Some(*c);
+        });
+        if let Some(c) = accepted {
+            // The master's energy since this pairing: a new session's first message cannot
+            // hand the slave energy (issue 14; the gate bounds every later change).
+            port.receive_remote_in(self.gate.energy_since_pairing_j(&c).0);
+            *latest = Some(c);
+        }
         if d.link_error {
             self.counters.link_errors += 1;
         }
@@ -521,6 +548,9 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             state: self.state as u8,
             reserved: 0,
             fault_flags: self.faults,
+            session_id: self.session_id,
+            rejected_reasons: self.gate.take_reasons(),
+            rejected_count: u32::try_from(self.gate.counters.rejected()).unwrap_or(u32::MAX),
         };
         if fb.validate().is_ok() {
             match link.publish(&fb) {
@@ -561,6 +591,11 @@ struct PortCommand {
 }
 
 /// Most commands taken from the link in one cycle (more than any queue holds).
+/// The energy plausibility bound on the master's energy fields: this many times the power
+/// the slave can exchange at its force and speed limits (the master's handle may move faster
+/// than the slave follows; docs/wire.md).
+const ENERGY_POWER_MARGIN: f64 = 4.0;
+
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 
 #[cfg(test)]

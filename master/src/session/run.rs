@@ -182,7 +182,7 @@ impl Session {
         let rejected =
             self.master.gate_counters().rejected() + self.slave.gate_counters().rejected();
         let rtt = self.master.round_trip().mean_ms();
-        Ok(ev.finish(
+        let mut summary = ev.finish(
             self.cfg.name.clone(),
             dissipated,
             lost,
@@ -190,7 +190,10 @@ impl Session {
             rtt,
             cycles,
             wall_time_s,
-        ))
+        );
+        summary.slave_gate = *self.slave.gate_counters();
+        summary.master_gate = *self.master.gate_counters();
+        Ok(summary)
     }
 }
 
