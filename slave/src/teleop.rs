@@ -647,6 +647,7 @@ mod tests {
         slave: InprocEnd<Feedback, Command>,
         now: u64,
         seq: u64,
+        reasons: u32,
     }
 
     impl Rig {
@@ -658,7 +659,9 @@ mod tests {
                     .unwrap();
             }
             let c = self.ep.step(&mut self.slave, self.now, 1e-3);
-            while self.master.try_recv().unwrap().is_some() {}
+            while let Some(fb) = self.master.try_recv().unwrap() {
+                self.reasons |= fb.rejected_reasons;
+            }
             self.ep.arm_mut().advance(PERIOD_NS);
             self.now += PERIOD_NS;
             c
@@ -674,6 +677,7 @@ mod tests {
             slave,
             now: 0,
             seq: 0,
+            reasons: 0,
         };
         assert_eq!(r.ep.state(), SlaveState::Idle);
         // Follow a slow downward ramp.
@@ -725,6 +729,7 @@ mod tests {
             slave,
             now: 0,
             seq: 0,
+            reasons: 0,
         };
         for _ in 0..200 {
             r.cycle(Some(-250.0));
@@ -739,10 +744,19 @@ mod tests {
         let c = r.cycle(None);
         assert!(!c.fresh);
         assert_eq!(r.ep.gate_counters().rejected(), 2);
-        // Outside the workspace: the controller rejects it, the fault flag is raised.
+        // Outside the workspace: the gate rejects it as out of range (issue 14: before
+        // anything acts on it), and the feedback reports the reason.
         let c = r.cycle(Some(-2000.0));
-        assert!(c.fault_flags & FAULT_COMMAND_REJECTED != 0, "{c:?}");
-        assert!(r.ep.counters().commands_rejected_by_controller >= 1);
+        assert!(!c.fresh, "{c:?}");
+        assert_eq!(r.ep.gate_counters().out_of_range, 1);
+        assert_eq!(r.ep.gate_counters().rejected(), 3);
         assert!((c.out.commanded_pose[2] + 250.0).abs() < 0.5);
+        use h4_shared::wire::RejectReason;
+        assert_eq!(
+            r.reasons,
+            RejectReason::WrongArm.bit()
+                | RejectReason::WrongVersion.bit()
+                | RejectReason::OutOfRange.bit()
+        );
     }
 }
