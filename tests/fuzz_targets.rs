@@ -44,7 +44,9 @@ impl Rng {
     }
 }
 
-const INTERESTING: [u8; 12] = [0, 1, 0x7F, 0x80, 0xFF, b'=', b'[', b'"', b'.', b'\n', b'H', b'4'];
+const INTERESTING: [u8; 12] = [
+    0, 1, 0x7F, 0x80, 0xFF, b'=', b'[', b'"', b'.', b'\n', b'H', b'4',
+];
 
 fn mutate(seed: &[u8], other: &[u8], rng: &mut Rng) -> Vec<u8> {
     let mut b = seed.to_vec();

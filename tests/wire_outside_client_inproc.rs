@@ -14,6 +14,7 @@ mod outside_client;
 
 use h4_shared::config::ArmConfig;
 use h4_shared::kinematics::Pose;
+use h4_shared::wire::{Command, Feedback};
 use h4_slave::controller::ControllerParams;
 use h4_slave::plant::{
     MaterialPreset, PlantConfig, SensorConfig, ShapeKind, SimArm, SurfaceConfig,
@@ -22,7 +23,6 @@ use h4_slave::teleop::{SlaveTeleop, TeleopParams};
 use h4_slave::world::SlaveWorld;
 use h4_transport::gate::GateCounters;
 use h4_transport::inproc::{self, DecodingEnd, RawEnd};
-use h4_shared::wire::{Command, Feedback};
 use outside_client::{Cmd, Fb, bad_messages};
 
 const PERIOD_NS: u64 = 1_000_000;
@@ -44,7 +44,11 @@ impl Rig {
     fn new() -> Self {
         let world = SlaveWorld {
             arm: ArmConfig::default(),
-            surface: SurfaceConfig::new(ShapeKind::Plane, MaterialPreset::Resin, [0.0, 0.0, -260.0]),
+            surface: SurfaceConfig::new(
+                ShapeKind::Plane,
+                MaterialPreset::Resin,
+                [0.0, 0.0, -260.0],
+            ),
             sensor: SensorConfig::default(),
             plant: PlantConfig::default(),
             controller: ControllerParams::default(),
@@ -85,7 +89,9 @@ impl Rig {
         let dev = (0..3).map(|i| (p[i] - HOME[i]).powi(2)).sum::<f64>().sqrt();
         self.max_dev_mm = self.max_dev_mm.max(dev);
         let w = self.ep.arm().true_contact_wrench();
-        self.max_force_n = self.max_force_n.max((w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt());
+        self.max_force_n = self
+            .max_force_n
+            .max((w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt());
     }
 
     fn counters(&self) -> GateCounters {
@@ -118,14 +124,32 @@ fn a_hand_encoded_command_is_accepted_and_acted_on() {
         r.cycle(&[&Cmd::position(SESSION, seq, target).bytes()]);
     }
     let x = r.ep.arm().true_pose()[0];
-    assert!((x - target[0]).abs() < 0.3, "the arm went to x = {x} mm, not 3 mm");
+    assert!(
+        (x - target[0]).abs() < 0.3,
+        "the arm went to x = {x} mm, not 3 mm"
+    );
+    assert!(r.max_dev_mm > 2.0, "the motion detector sees it");
+    // A target 3 mm into the resin, with energy the master may plausibly have put in (10 W,
+    // under the slave's bound): the arm presses, and the force detector sees it.
+    let mut energy_j = 0.0;
+    for _ in 0..1000 {
+        seq += 1;
+        energy_j += 0.01;
+        let c = Cmd {
+            energy_in_j: energy_j,
+            ..Cmd::position(SESSION, seq, [0.0, 0.0, -263.0, 0.0])
+        };
+        r.cycle(&[&c.bytes()]);
+    }
+    assert!(r.max_force_n > 5.0, "pressed only {} N", r.max_force_n);
+    assert_eq!(r.counters().rejected(), 0, "{:?}", r.counters());
 }
 
 #[test]
 fn every_bad_message_is_rejected_counted_by_reason_flagged_and_never_acted_on() {
     let mut r = Rig::new();
     let mut seq = 0;
-    let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+    let rng = 0x9E37_79B9_7F4A_7C15u64;
     for _ in 0..300 {
         seq += 1;
         r.cycle(&[&Cmd::position(SESSION, seq, HOME).bytes()]);
@@ -133,11 +157,14 @@ fn every_bad_message_is_rejected_counted_by_reason_flagged_and_never_acted_on() 
     // Settled at home.
     r.max_dev_mm = 0.0;
     r.max_force_n = 0.0;
-    let ok = Cmd::position(SESSION, seq, HOME);
-    let bad = bad_messages(&ok, &mut seq, &mut rng);
+    // Each case is built with a sequence number above the keep-alives of its batch.
+    let bad_at =
+        |seq: u64| bad_messages(&Cmd::position(SESSION, seq + 500, HOME), &mut rng.clone());
+    let cases = bad_at(seq).len();
     const SENT: u64 = 300;
     const KEEPALIVE_EVERY: u64 = 50;
-    for b in &bad {
+    for i in 0..cases {
+        let b = &bad_at(seq)[i];
         let before = r.counters();
         r.reasons_seen = 0;
         let mut keepalives = 0;
@@ -159,18 +186,42 @@ fn every_bad_message_is_rejected_counted_by_reason_flagged_and_never_acted_on() 
             b.name,
             b.counter
         );
-        assert_eq!(after.rejected() - before.rejected(), SENT, "{}: only there", b.name);
+        assert_eq!(
+            after.rejected() - before.rejected(),
+            SENT,
+            "{}: only there",
+            b.name
+        );
         assert_eq!(after.accepted - before.accepted, keepalives, "{}", b.name);
-        assert!(r.reasons_seen & b.bit != 0, "{}: flag {:#x} not in the feedback", b.name, b.bit);
+        assert!(
+            r.reasons_seen & b.bit != 0,
+            "{}: flag {:#x} not in the feedback",
+            b.name,
+            b.bit
+        );
         assert_eq!(r.reasons_seen & !b.bit, 0, "{}: other flags", b.name);
-        assert!(r.max_dev_mm < 0.3, "{}: the arm moved {} mm", b.name, r.max_dev_mm);
-        assert!(r.max_force_n < 1.0, "{}: the arm pressed {} N", b.name, r.max_force_n);
+        assert!(
+            r.max_dev_mm < 0.3,
+            "{}: the arm moved {} mm",
+            b.name,
+            r.max_dev_mm
+        );
+        assert!(
+            r.max_force_n < 1.0,
+            "{}: the arm pressed {} N",
+            b.name,
+            r.max_force_n
+        );
     }
     let fb = r.last_fb.unwrap();
     assert_eq!(u64::from(fb.rejected_count), r.counters().rejected());
-    assert_eq!(r.counters().rejected(), SENT * bad.len() as u64);
+    assert_eq!(r.counters().rejected(), SENT * cases as u64);
     // The energy of the 1e6 J message was not believed.
-    assert!(r.ep.port().observed_j() < 1.0, "observer {} J", r.ep.port().observed_j());
+    assert!(
+        r.ep.port().observed_j() < 1.0,
+        "observer {} J",
+        r.ep.port().observed_j()
+    );
     assert_eq!(r.counters().pairings, 1);
     assert_eq!(r.ep.gate().paired_session(), Some(SESSION));
 }

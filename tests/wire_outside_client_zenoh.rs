@@ -37,7 +37,17 @@ impl Client {
         config
             .insert_json5("scouting/multicast/enabled", "false")
             .unwrap();
-        let session = zenoh::open(config).wait().expect("zenoh session");
+        // The slave may still be starting: retry (watchdog 30 s).
+        let t = Instant::now();
+        let session = loop {
+            match zenoh::open(config.clone()).wait() {
+                Ok(s) => break s,
+                Err(e) => {
+                    assert!(t.elapsed() < Duration::from_secs(30), "zenoh session: {e}");
+                    std::thread::sleep(Duration::from_millis(200));
+                }
+            }
+        };
         let inbox = Arc::new(Mutex::new(Vec::new()));
         let q = Arc::clone(&inbox);
         let subscriber = session
@@ -79,7 +89,10 @@ fn until(c: &Client, mut each: impl FnMut(&Fb), mut pred: impl FnMut(&Fb) -> boo
                 return fb;
             }
         }
-        assert!(t.elapsed() < Duration::from_secs(20), "watchdog: no such feedback");
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "watchdog: no such feedback"
+        );
         std::thread::sleep(Duration::from_millis(1));
     }
 }
@@ -121,11 +134,13 @@ fn the_slave_process_rejects_counts_and_flags_every_bad_message_from_an_outside_
     let fb = until(&client, |_| {}, |fb| fb.echo_seq >= want && fb.state == 1);
     assert_eq!(fb.echo_seq, want, "{}", sl.log());
     let (mut max_dev_mm, mut max_force_n, mut reasons) = (0.0f64, 0.0f64, 0u32);
-    let mut rng = 0xDEAD_BEEF_1234_5678u64;
-    let ok = Cmd::position(session, seq, home);
-    let bad = bad_messages(&ok, &mut seq, &mut rng);
+    let rng = 0xDEAD_BEEF_1234_5678u64;
+    let bad_at =
+        |seq: u64| bad_messages(&Cmd::position(session, seq + 500, home), &mut rng.clone());
+    let bad = bad_at(seq);
     const SENT: u64 = 20;
-    for b in &bad {
+    for i in 0..bad.len() {
+        let b = &bad_at(seq)[i];
         for _ in 0..SENT {
             client.send(&b.bytes);
             std::thread::sleep(Duration::from_millis(2));
@@ -144,7 +159,12 @@ fn the_slave_process_rejects_counts_and_flags_every_bad_message_from_an_outside_
             },
             |fb| fb.echo_seq >= want,
         );
-        assert!(seen & b.bit != 0, "{}: flag {:#x} not in the feedback ({seen:#x})", b.name, b.bit);
+        assert!(
+            seen & b.bit != 0,
+            "{}: flag {:#x} not in the feedback ({seen:#x})",
+            b.name,
+            b.bit
+        );
         reasons |= seen;
     }
     sl.stop();
@@ -158,14 +178,15 @@ fn the_slave_process_rejects_counts_and_flags_every_bad_message_from_an_outside_
         assert_eq!(g[name].as_u64(), Some(*n), "{name}: {g:#}");
     }
     let total: u64 = expected.values().sum();
-    let rejected: u64 = expected
-        .keys()
-        .map(|k| g[k].as_u64().unwrap())
-        .sum::<u64>();
+    let rejected: u64 = expected.keys().map(|k| g[k].as_u64().unwrap()).sum::<u64>();
     assert_eq!(rejected, total, "{g:#}");
     assert_eq!(g["accepted"].as_u64(), Some(50 + bad.len() as u64), "{g:#}");
     assert_eq!(g["pairings"].as_u64(), Some(1), "{g:#}");
-    assert_eq!(v["commands_rejected_by_controller"].as_u64(), Some(0), "{v:#}");
+    assert_eq!(
+        v["commands_rejected_by_controller"].as_u64(),
+        Some(0),
+        "{v:#}"
+    );
     assert!(max_dev_mm < 0.5, "the arm moved {max_dev_mm} mm");
     assert!(max_force_n < 1.0, "the arm pressed {max_force_n} N");
     assert!(reasons != 0);

@@ -319,7 +319,10 @@ fn documented_offsets_match_the_encoding() {
     assert_eq!(u16::from_le_bytes([b[2], b[3]]), PROTOCOL_VERSION);
     assert_eq!((b[4], b[5]), (1, 0));
     assert_eq!(u16::from_le_bytes([b[6], b[7]]), 112);
-    assert_eq!(u64::from_le_bytes(b[8..16].try_into().unwrap()), cmd.session_id);
+    assert_eq!(
+        u64::from_le_bytes(b[8..16].try_into().unwrap()),
+        cmd.session_id
+    );
     assert_eq!(b[16], 0x08);
     assert_eq!(&b[96..104], &20.0f64.to_le_bytes());
     assert_eq!(&b[104..112], &0.25f64.to_le_bytes());

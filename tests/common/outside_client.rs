@@ -185,44 +185,204 @@ pub fn random_bytes(state: &mut u64, len: usize) -> Vec<u8> {
         .collect()
 }
 
-/// The bad messages of issue 14, built by hand around a valid command `ok` (session,
-/// `seq` and pose of the paired master); each is sent in place of a command. `seq` is a
-/// fresh sequence number for each (so only the named fault can reject it).
-pub fn bad_messages(ok: &Cmd, seq: &mut u64, rng: &mut u64) -> Vec<Bad> {
-    let mut next = |c: &Cmd| {
-        *seq += 1;
-        Cmd { seq: *seq, send_time_ns: *seq * 1_000_000, ..*c }
-    };
+/// The bad messages of issue 14, built by hand around a valid command `ok` (session and pose
+/// of the paired master, a sequence number above every one the test sends meanwhile, within
+/// the gate's window); each is sent in place of a command, so only the named fault can
+/// reject it.
+pub fn bad_messages(ok: &Cmd, rng: &mut u64) -> Vec<Bad> {
+    let next = |c: &Cmd| *c;
     let mut out = Vec::new();
-    let mut push = |name, bytes, counter, bit| out.push(Bad { name, bytes, counter, bit });
+    let mut push = |name, bytes, counter, bit| {
+        out.push(Bad {
+            name,
+            bytes,
+            counter,
+            bit,
+        })
+    };
     let len = (*rng % 300) as usize;
-    push("random bytes", random_bytes(rng, len), "undecodable", BIT_UNDECODABLE);
-    push("random bytes of the command's size", random_bytes(rng, COMMAND_LEN), "undecodable", BIT_UNDECODABLE);
-    push("truncated (60 of 128 bytes)", next(ok).bytes()[..60].to_vec(), "undecodable", BIT_UNDECODABLE);
-    push("wrong version (1)", Cmd { header_version: 1, protocol_version: 1, ..next(ok) }.bytes(), "wrong_version", BIT_WRONG_VERSION);
-    push("version 3 in the body only", Cmd { protocol_version: 3, ..next(ok) }.bytes(), "wrong_version", BIT_WRONG_VERSION);
-    push("header reserved byte set", Cmd { header_reserved: 1, ..next(ok) }.bytes(), "reserved_bits", BIT_RESERVED_BITS);
-    push("body reserved byte set", Cmd { reserved: 0x80, ..next(ok) }.bytes(), "reserved_bits", BIT_RESERVED_BITS);
-    push("undefined flag bit", Cmd { flags: 0x8000, ..next(ok) }.bytes(), "reserved_bits", BIT_RESERVED_BITS);
-    push("header body length 111", Cmd { body_len: 111, ..next(ok) }.bytes(), "length_mismatch", BIT_LENGTH_MISMATCH);
+    push(
+        "random bytes",
+        random_bytes(rng, len),
+        "undecodable",
+        BIT_UNDECODABLE,
+    );
+    push(
+        "random bytes of the command's size",
+        random_bytes(rng, COMMAND_LEN),
+        "undecodable",
+        BIT_UNDECODABLE,
+    );
+    push(
+        "truncated (60 of 128 bytes)",
+        next(ok).bytes()[..60].to_vec(),
+        "undecodable",
+        BIT_UNDECODABLE,
+    );
+    push(
+        "wrong version (1)",
+        Cmd {
+            header_version: 1,
+            protocol_version: 1,
+            ..next(ok)
+        }
+        .bytes(),
+        "wrong_version",
+        BIT_WRONG_VERSION,
+    );
+    push(
+        "version 3 in the body only",
+        Cmd {
+            protocol_version: 3,
+            ..next(ok)
+        }
+        .bytes(),
+        "wrong_version",
+        BIT_WRONG_VERSION,
+    );
+    push(
+        "header reserved byte set",
+        Cmd {
+            header_reserved: 1,
+            ..next(ok)
+        }
+        .bytes(),
+        "reserved_bits",
+        BIT_RESERVED_BITS,
+    );
+    push(
+        "body reserved byte set",
+        Cmd {
+            reserved: 0x80,
+            ..next(ok)
+        }
+        .bytes(),
+        "reserved_bits",
+        BIT_RESERVED_BITS,
+    );
+    push(
+        "undefined flag bit",
+        Cmd {
+            flags: 0x8000,
+            ..next(ok)
+        }
+        .bytes(),
+        "reserved_bits",
+        BIT_RESERVED_BITS,
+    );
+    push(
+        "header body length 111",
+        Cmd {
+            body_len: 111,
+            ..next(ok)
+        }
+        .bytes(),
+        "length_mismatch",
+        BIT_LENGTH_MISMATCH,
+    );
     let mut x = next(ok);
     x.pose[0] = 1e6;
-    push("target x = 1e6 mm", x.bytes(), "out_of_range", BIT_OUT_OF_RANGE);
+    push(
+        "target x = 1e6 mm",
+        x.bytes(),
+        "out_of_range",
+        BIT_OUT_OF_RANGE,
+    );
     let mut z = next(ok);
     z.pose[2] = -1e6;
-    push("target z = -1e6 mm", z.bytes(), "out_of_range", BIT_OUT_OF_RANGE);
+    push(
+        "target z = -1e6 mm",
+        z.bytes(),
+        "out_of_range",
+        BIT_OUT_OF_RANGE,
+    );
     let mut zf = next(ok);
     zf.pose[2] = -1e6;
     zf.mode = 2;
     zf.force_setpoint_n = 20.0;
-    push("force-guided target z = -1e6 mm", zf.bytes(), "out_of_range", BIT_OUT_OF_RANGE);
-    push("set-point 1e6 N (force-guided)", Cmd { mode: 2, force_setpoint_n: 1e6, ..next(ok) }.bytes(), "out_of_range", BIT_OUT_OF_RANGE);
-    push("set-point -5 N", Cmd { mode: 2, force_setpoint_n: -5.0, ..next(ok) }.bytes(), "out_of_range", BIT_OUT_OF_RANGE);
-    push("speed 1e4 mm/s", Cmd { velocity: [1e4, 0.0, 0.0, 0.0], ..next(ok) }.bytes(), "out_of_range", BIT_OUT_OF_RANGE);
-    push("energy_in_j = 1e6", Cmd { energy_in_j: 1e6, ..next(ok) }.bytes(), "implausible_energy", BIT_IMPLAUSIBLE_ENERGY);
-    push("seq 2^64-1", Cmd { seq: u64::MAX, ..*ok }.bytes(), "wild_seq", BIT_WILD_SEQ);
-    push("another arm", Cmd { arm_id: 7, ..next(ok) }.bytes(), "wrong_arm", BIT_WRONG_ARM);
-    push("duplicate", Cmd { seq: 1, ..*ok }.bytes(), "stale", BIT_STALE);
-    push("a second master", Cmd { session_id: ok.session_id ^ 0xFFFF, ..next(ok) }.bytes(), "wrong_session", BIT_WRONG_SESSION);
+    push(
+        "force-guided target z = -1e6 mm",
+        zf.bytes(),
+        "out_of_range",
+        BIT_OUT_OF_RANGE,
+    );
+    push(
+        "set-point 1e6 N (force-guided)",
+        Cmd {
+            mode: 2,
+            force_setpoint_n: 1e6,
+            ..next(ok)
+        }
+        .bytes(),
+        "out_of_range",
+        BIT_OUT_OF_RANGE,
+    );
+    push(
+        "set-point -5 N",
+        Cmd {
+            mode: 2,
+            force_setpoint_n: -5.0,
+            ..next(ok)
+        }
+        .bytes(),
+        "out_of_range",
+        BIT_OUT_OF_RANGE,
+    );
+    push(
+        "speed 1e4 mm/s",
+        Cmd {
+            velocity: [1e4, 0.0, 0.0, 0.0],
+            ..next(ok)
+        }
+        .bytes(),
+        "out_of_range",
+        BIT_OUT_OF_RANGE,
+    );
+    push(
+        "energy_in_j = 1e6",
+        Cmd {
+            energy_in_j: 1e6,
+            ..next(ok)
+        }
+        .bytes(),
+        "implausible_energy",
+        BIT_IMPLAUSIBLE_ENERGY,
+    );
+    push(
+        "seq 2^64-1",
+        Cmd {
+            seq: u64::MAX,
+            ..*ok
+        }
+        .bytes(),
+        "wild_seq",
+        BIT_WILD_SEQ,
+    );
+    push(
+        "another arm",
+        Cmd {
+            arm_id: 7,
+            ..next(ok)
+        }
+        .bytes(),
+        "wrong_arm",
+        BIT_WRONG_ARM,
+    );
+    push(
+        "duplicate",
+        Cmd { seq: 1, ..*ok }.bytes(),
+        "stale",
+        BIT_STALE,
+    );
+    push(
+        "a second master",
+        Cmd {
+            session_id: ok.session_id ^ 0xFFFF,
+            ..next(ok)
+        }
+        .bytes(),
+        "wrong_session",
+        BIT_WRONG_SESSION,
+    );
     out
 }

@@ -175,4 +175,3 @@ pub fn read_json(path: &Path) -> Value {
         std::fs::read_to_string(path).unwrap_or_else(|e| panic!("summary {}: {e}", path.display()));
     serde_json::from_str(&text).expect("summary JSON")
 }
-
