@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of h4-teleop on stable Rust: libFuzzer (libfuzzer-sys) with rustc's
 # stable SanitizerCoverage flags (what cargo-fuzz passes, without the nightly-only -Z
-# sanitizer). Usage: fuzz/run.sh [RUNS_PER_TARGET] [TARGET...]  (default 10000000, all).
+# sanitizer). Usage: fuzz/run.sh [RUNS_PER_TARGET] [TARGET...]  (default 10000000, all);
+# MAX_TIME_S=N caps each target's run at N seconds (libFuzzer's -max_total_time).
 # Corpus: fuzz/corpus/<target>/ (kept in the repository; new interesting inputs are added
 # there); crashes land in fuzz/artifacts/<target>/. Needs a C++ compiler (libFuzzer is C++).
 set -euo pipefail
@@ -23,6 +24,7 @@ for t in "${targets[@]}"; do
   echo "== $t: $runs runs"
   start=$(date +%s)
   ./target/"$triple"/release/"$t" "corpus/$t" -runs="$runs" -max_len=2048 -timeout=10 \
-    -artifact_prefix="artifacts/$t/" -print_final_stats=1 2>&1 | tail -n 25 | tee "artifacts/$t.log"
+    -artifact_prefix="artifacts/$t/" -print_final_stats=1 \
+    ${MAX_TIME_S:+-max_total_time="$MAX_TIME_S"} 2>&1 | tail -n 25 | tee "artifacts/$t.log"
   echo "== $t: $(( $(date +%s) - start )) s"
 done

@@ -8,8 +8,8 @@
 //! 1. the operator's hand acts on the handle (the simulated master arm, [`SimMasterArm`]),
 //!    and the handle is read;
 //! 2. drains the link through the receive gate, the only check of incoming feedback (wrong
-//!    version, wrong arm, malformed, undecodable, duplicated or reordered feedback is
-//!    counted and dropped); each accepted message goes to the coupling and to the round-trip
+//!    version, wrong arm, undecodable, reserved bits, length, session, sequence number or
+//!    energy is counted by reason and dropped); each accepted message goes to the coupling and to the round-trip
 //!    figure ([`RoundTrip`]);
 //! 3. the coupling step ([`MasterCoupling`]: mapping of the handle into the slave's
 //!    workspace, the rendered force with its passivity port, clutch, fade);

@@ -4,8 +4,10 @@
 //! there is one piece of code for the slave's per-cycle logic.
 //!
 //! One [`SlaveTeleop::step`]:
-//! 1. drains the link through the receive gate (wrong version, wrong arm, malformed,
-//!    duplicated or reordered commands are counted and dropped);
+//! 1. drains the link through the receive gate, which judges every command once (wire
+//!    checks, arm, session, sequence number, the workspace/set-point/speed limits, energy
+//!    plausibility) and counts each rejection by reason; rejected commands are dropped and
+//!    their reasons go out in the next feedback's `rejected_reasons`;
 //! 2. the watchdog: no valid command for `watchdog_ms` while active → the controller's safe
 //!    stop (force ramped down, retract, hold), state `SafeStop`, `FAULT_COMMAND_TIMEOUT`;
 //!    a fresh valid command after that → `clear_safe_stop()` and re-pairing with no jump

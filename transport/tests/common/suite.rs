@@ -32,6 +32,7 @@ pub trait Transport {
 /// A valid command.
 pub fn command(arm_id: u16, seq: u64) -> Command {
     Command {
+        session_id: 0x51,
         seq,
         send_time_ns: 1_000 + seq,
         pose: [1.5, -2.25, 40.0 + seq as f64, 0.125],
@@ -50,6 +51,7 @@ pub fn command(arm_id: u16, seq: u64) -> Command {
 /// A valid feedback message.
 pub fn feedback(arm_id: u16, seq: u64) -> Feedback {
     Feedback {
+        session_id: 0x52,
         seq,
         send_time_ns: 2_000 + seq,
         echo_seq: seq.saturating_sub(1),
@@ -64,6 +66,8 @@ pub fn feedback(arm_id: u16, seq: u64) -> Feedback {
         state: SlaveState::Idle as u8,
         reserved: 0,
         fault_flags: 0,
+        rejected_reasons: 0,
+        rejected_count: 0,
     }
 }
 
