@@ -11,8 +11,11 @@ use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate};
 use h4_transport::inproc;
 
-/// Every target, by name (the file names under `fuzz/corpus/`).
-pub const TARGETS: [(&str, fn(&[u8])); 6] = [
+/// A target: its name (its folder under `fuzz/corpus/`) and its body.
+pub type Target = (&'static str, fn(&[u8]));
+
+/// Every target.
+pub const TARGETS: [Target; 6] = [
     ("wire_decode", wire_decode),
     ("gate", gate),
     ("gate_bytes", gate_bytes),

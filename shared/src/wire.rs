@@ -728,11 +728,11 @@ impl CommandLimits {
     pub fn check(&self, cmd: &Command) -> Option<&'static str> {
         let v = &cmd.velocity;
         let speed = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if !(speed <= self.max_speed_mm_per_s * (1.0 + 1e-9)) {
+        if speed.is_nan() || speed > self.max_speed_mm_per_s * (1.0 + 1e-9) {
             return Some("speed_above_limit");
         }
         let sp = cmd.force_setpoint_n;
-        if !(sp >= 0.0 && sp <= self.force_limit_n) {
+        if !(0.0..=self.force_limit_n).contains(&sp) {
             return Some("setpoint_out_of_range");
         }
         let moves = cmd.mode == Mode::Position as u8 || cmd.mode == Mode::ForceGuided as u8;
