@@ -112,20 +112,50 @@ pub fn parse<T: DeserializeOwned + Validate>(
         toml::from_str(text).map_err(parse_err)?
     } else {
         let mut table: toml::Table = toml::from_str(text).map_err(parse_err)?;
-        for arg in overrides {
+        let mut original_fits = None;
+        for (i, arg) in overrides.iter().enumerate() {
             apply_override(&mut table, arg)?;
+            if let Err(e) = from_table::<T>(&table, source_name) {
+                // Blame the first override that turns a fitting document into one that does
+                // not, by its key and value as given: the document the overrides produce is
+                // not a file the user has, so its line numbers would mislead.
+                let fits_before = *original_fits
+                    .get_or_insert_with(|| i > 0 || toml::from_str::<T>(text).is_ok());
+                if fits_before {
+                    return Err(ConfigError::BadOverride {
+                        arg: arg.clone(),
+                        reason: e.message().trim_end().to_string(),
+                    });
+                }
+            } else {
+                original_fits = Some(true);
+            }
         }
-        let merged = toml::to_string(&table).map_err(|e| ConfigError::Parse {
-            source_name: source_name.to_string(),
-            message: e.to_string(),
-        })?;
-        toml::from_str(&merged).map_err(|e| ConfigError::Parse {
-            source_name: format!("{source_name} (with --set overrides)"),
-            message: e.to_string().trim_end().to_string(),
-        })?
+        match from_table(&table, source_name) {
+            Ok(value) => value,
+            // The file itself does not fit and no override mends it: its own lines.
+            Err(_) if original_fits == Some(false) => toml::from_str(text).map_err(parse_err)?,
+            Err(e) => {
+                return Err(ConfigError::Parse {
+                    source_name: format!("{source_name} (with --set overrides)"),
+                    message: e.message().trim_end().to_string(),
+                });
+            }
+        }
     };
     value.validate()?;
     Ok(value)
+}
+
+/// Deserialises a table (a document with overrides applied) into `T`.
+fn from_table<T: DeserializeOwned>(
+    table: &toml::Table,
+    source_name: &str,
+) -> Result<T, toml::de::Error> {
+    let merged = toml::to_string(table).map_err(|e| {
+        <toml::de::Error as serde::de::Error>::custom(format!("{source_name}: {e}"))
+    })?;
+    toml::from_str(&merged)
 }
 
 /// Applies one `a.b.c=value` override. The value is read as a TOML value (number, bool,
@@ -335,6 +365,35 @@ mod tests {
         assert!(err.to_string().contains("bogus"), "{err}");
         let err = parse::<ArmConfig>("", "test", &["novalue".into()]).unwrap_err();
         assert!(matches!(err, ConfigError::BadOverride { .. }));
+    }
+
+    #[test]
+    fn override_errors_name_the_override_not_a_rebuilt_line() {
+        let file =
+            "geometry = \"alt\"\n\n\n# padding\n\nactuator_stiffness_n_per_mm = [50, 60, 70, 80]\n";
+        let err = parse::<ArmConfig>(file, "arm.toml", &["geometry=\"wood\"".into()]).unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("geometry=\"wood\""), "{text}");
+        assert!(!text.contains("line"), "{text}");
+        // The second of two overrides is the one blamed.
+        let err = parse::<ArmConfig>(
+            file,
+            "arm.toml",
+            &[
+                "geometry=\"prototype\"".into(),
+                "actuator_stiffness_n_per_mm=\"x\"".into(),
+            ],
+        )
+        .unwrap_err();
+        assert!(text_has(&err, "actuator_stiffness_n_per_mm=\"x\""), "{err}");
+        // A file that does not fit by itself keeps its own line numbers.
+        let err = parse::<ArmConfig>("\n\nbogus = 1\n", "arm.toml", &["geometry=\"alt\"".into()])
+            .unwrap_err();
+        assert!(text_has(&err, "line 3"), "{err}");
+    }
+
+    fn text_has(err: &ConfigError, needle: &str) -> bool {
+        err.to_string().contains(needle)
     }
 
     #[test]
