@@ -33,6 +33,8 @@ fn master_opts(duration_s: f64) -> MasterRunOptions {
     MasterRunOptions {
         duration_s: Some(duration_s),
         wait_for_slave_s: 0.0,
+        // The live view on: its per-cycle hand-off is on the measured thread too.
+        foxglove_ws: Some("127.0.0.1:0".into()),
         ..MasterRunOptions::default()
     }
 }
@@ -40,6 +42,7 @@ fn master_opts(duration_s: f64) -> MasterRunOptions {
 fn slave_opts(duration_s: f64) -> RunOptions {
     RunOptions {
         duration_s: Some(duration_s),
+        foxglove_ws: Some("127.0.0.1:0".into()),
         ..RunOptions::default()
     }
 }

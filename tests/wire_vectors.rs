@@ -212,8 +212,8 @@ fn make_vectors() -> Value {
     b[124] = 9;
     bad("mode 9", b, WireError::BadMode(9));
     let mut b = good.clone();
-    b[126] = 0x02;
-    bad("unknown flag bit 1", b, WireError::BadFlags(0x02));
+    b[126] = 0x04;
+    bad("unknown flag bit 2", b, WireError::BadFlags(0x04));
     let mut b = good.clone();
     b[32..40].copy_from_slice(&f64::NAN.to_le_bytes());
     bad("NaN in pose[0]", b, WireError::NonFinite { field: "pose" });

@@ -22,7 +22,9 @@
 use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::kinematics::{Pose, Workspace};
 use h4_shared::vec3::norm3;
-use h4_shared::wire::{CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION};
+use h4_shared::wire::{
+    CMD_FLAG_ACK_SAFE_STOP, CMD_FLAG_CLUTCH, Command, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
+};
 use serde::{Deserialize, Serialize};
 
 use h4_shared::passivity::{ImpedancePort, PassivityParams};
@@ -61,6 +63,10 @@ pub struct CouplingConfig {
     /// Local damping the master renders against the handle's velocity (position–force),
     /// N·s/mm.
     pub master_damping_n_s_per_mm: f64,
+    /// Extra local damping while the slave reports a contact held by its force loop (its
+    /// desired wrench is not zero), N·s/mm: the delayed virtual wall of the slave's contact
+    /// hand-over needs more damping at the handle than free motion should feel.
+    pub contact_damping_n_s_per_mm: f64,
     /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
     /// (0: unfiltered).
     pub force_filter_hz: f64,
@@ -91,6 +97,7 @@ impl Default for CouplingConfig {
             guide_setpoint_max_n: 50.0,
             guide_approach_depth_mm: 20.0,
             master_damping_n_s_per_mm: 0.3,
+            contact_damping_n_s_per_mm: 0.0,
             force_filter_hz: 0.0,
             model: ModelParams::default().enabled,
             model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
@@ -153,6 +160,13 @@ impl Section for CouplingConfig {
         check_range(
             &f("master_damping_n_s_per_mm"),
             self.master_damping_n_s_per_mm,
+            0.0,
+            1.0,
+            "N·s/mm",
+        )?;
+        check_range(
+            &f("contact_damping_n_s_per_mm"),
+            self.contact_damping_n_s_per_mm,
             0.0,
             1.0,
             "N·s/mm",
@@ -251,6 +265,8 @@ pub struct CouplingParams {
     /// Local damping the master renders against the handle's velocity, N·s/mm (position–
     /// force mode; passive, not part of the link's two-port).
     pub master_damping_n_s_per_mm: f64,
+    /// Extra local damping while the slave reports a contact, N·s/mm.
+    pub contact_damping_n_s_per_mm: f64,
     /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
     pub force_filter_hz: f64,
     /// Model-mediated rendering (position–force): the master renders a local model of the
@@ -289,6 +305,7 @@ impl CouplingParams {
             guide_setpoint_max_n: c.guide_setpoint_max_n,
             guide_approach_depth_mm: c.guide_approach_depth_mm,
             master_damping_n_s_per_mm: c.master_damping_n_s_per_mm,
+            contact_damping_n_s_per_mm: c.contact_damping_n_s_per_mm,
             force_filter_hz: c.force_filter_hz,
             model: ModelParams {
                 enabled: c.model,
@@ -325,6 +342,9 @@ pub struct MasterStep {
     pub workspace_limited: bool,
     /// The rendered force was limited.
     pub saturated: bool,
+    /// The slave reports its safe stop: the rendering fades out, and once it has, the
+    /// master starts a new energy ledger and acknowledges (`CMD_FLAG_ACK_SAFE_STOP`).
+    pub slave_safe_stop: bool,
 }
 
 /// The master's coupling state.
@@ -357,6 +377,13 @@ pub struct MasterCoupling {
     pub model: ContactModel,
     /// The slave targets sent, by sequence number (ring; allocated once).
     sent: Vec<(u64, [f64; 3])>,
+    /// The newest feedback reports the slave's safe stop.
+    slave_stopped: bool,
+    /// The master has faded out, started a new ledger and acknowledges the safe stop
+    /// until the slave is active again.
+    acking: bool,
+    /// Safe stops of the slave seen (each counted once, when first reported).
+    pub safe_stops_seen: u64,
 }
 
 /// Commands remembered for the contact model (≥ the longest round trip in cycles).
@@ -384,6 +411,9 @@ impl MasterCoupling {
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
+            slave_stopped: false,
+            acking: false,
+            safe_stops_seen: 0,
             p,
         }
     }
@@ -410,9 +440,39 @@ impl MasterCoupling {
         self.offset_mm
     }
 
-    /// Hands the coupling a feedback message the gate accepted at `now_ns`.
+    /// A new pairing (the slave restarted; a session id can call it too): the port starts
+    /// a new ledger, taking the newest feedback's energy as its first, and the rendering
+    /// fades in again from zero.
+    pub fn new_pairing(&mut self) {
+        self.port.new_pairing();
+        if let Some(fb) = &self.feedback {
+            self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        }
+        self.fade = 0.0;
+        self.model.reset_used();
+    }
+
+    /// The slave is in its safe stop (as the newest feedback reports).
+    pub fn slave_safe_stop(&self) -> bool {
+        self.slave_stopped
+    }
+
+    /// Hands the coupling a feedback message the gate accepted at `now_ns`. Feedback that
+    /// reports the slave's safe stop carries the old ledger's energy: it is not taken (the
+    /// master starts a new ledger before it acknowledges; the slave, on the acknowledgement).
     pub fn receive(&mut self, fb: &Feedback, now_ns: u64) {
-        self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        if fb.state == SlaveState::SafeStop as u8 {
+            if !self.slave_stopped {
+                self.safe_stops_seen += 1;
+            }
+            self.slave_stopped = true;
+        } else {
+            if fb.state == SlaveState::Active as u8 {
+                self.acking = false;
+            }
+            self.slave_stopped = false;
+            self.port.receive_remote_in(fb.energy_in_j * self.kappa());
+        }
         let slot = &self.sent[(fb.echo_seq % SENT_HISTORY as u64) as usize];
         if slot.0 == fb.echo_seq && fb.echo_seq > 0 {
             self.model.observe(&self.p.model, fb, slot.1);
@@ -462,11 +522,17 @@ impl MasterCoupling {
         } else {
             p.feedback_timeout_ms
         };
-        self.fade = if silent_ms > timeout_ms {
+        self.fade = if silent_ms > timeout_ms || self.slave_stopped {
             (self.fade - rate).max(0.0)
         } else {
             (self.fade + rate).min(1.0)
         };
+        // Faded out in the slave's safe stop: a new ledger, then the acknowledgement.
+        if self.slave_stopped && self.fade == 0.0 && !self.acking {
+            self.acking = true;
+            self.port.new_pairing();
+            self.model.reset_used();
+        }
     }
 
     /// Clutch and indexing: on release the handle's pose and the slave target become the
@@ -602,15 +668,32 @@ impl MasterCoupling {
         }
     }
 
+    /// The local damping at the handle: `master_damping_n_s_per_mm`, plus
+    /// `contact_damping_n_s_per_mm` while the newest feedback reports a contact held by the
+    /// slave's force loop.
+    fn local_damping(&self) -> f64 {
+        let contact = self.feedback.is_some_and(|fb| {
+            let w = fb.wrench_desired;
+            w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 1e-6
+        });
+        self.p.master_damping_n_s_per_mm
+            + if contact {
+                self.p.contact_damping_n_s_per_mm
+            } else {
+                0.0
+            }
+    }
+
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
     /// the local damping, stays within what the handle's mass takes in one cycle
     /// (discrete-time bound).
     fn bound_damping(&mut self, dev: &DeviceState, dt_s: f64) {
         let p = &self.p;
+        self.port.mass_estimate_kg = (dev.effective_mass_kg > 0.0).then_some(dev.effective_mass_kg);
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
             let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
-                p.master_damping_n_s_per_mm * self.fade
+                self.local_damping() * self.fade
             } else {
                 0.0
             };
@@ -664,7 +747,7 @@ impl MasterCoupling {
             // Faded with the feedback: with no slave there is no loop to stabilise, and the
             // operator holds a free handle (the feedback-loss safe state renders nothing).
             for (f, v) in force.iter_mut().zip(handle_velocity.iter()) {
-                *f -= p.master_damping_n_s_per_mm * self.fade * v;
+                *f -= self.local_damping() * self.fade * v;
             }
         }
         // Force-guided: the local virtual spring sets the set-point.
@@ -695,6 +778,7 @@ impl MasterCoupling {
         step.observed_j = pc.observed_j;
         step.fade = self.fade;
         step.slave_target = target;
+        step.slave_safe_stop = self.slave_stopped;
         self.last = step;
         step
     }
@@ -745,7 +829,12 @@ impl MasterCoupling {
             arm_id: self.p.arm_id,
             mode: mode as u8,
             reserved: 0,
-            flags: if self.clutched { CMD_FLAG_CLUTCH } else { 0 },
+            flags: if self.clutched { CMD_FLAG_CLUTCH } else { 0 }
+                | if self.acking {
+                    CMD_FLAG_ACK_SAFE_STOP
+                } else {
+                    0
+                },
         }
     }
 }

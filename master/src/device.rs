@@ -66,6 +66,16 @@ pub struct MasterArmConfig {
     pub motor_force_max_n: f64,
     /// Integration substeps per 1 ms step.
     pub substeps: u32,
+    /// Resolution of the handle's position encoders, mm (task space; 0: exact). The
+    /// coupling sees only quantised positions.
+    pub encoder_resolution_mm: f64,
+    /// Cut-off of the first-order low-pass on the backward difference of the quantised
+    /// positions that estimates the handle's velocity, Hz (0: the raw difference).
+    pub velocity_filter_hz: f64,
+    /// The handle's mass as the coupling knows it, as a share of the simulator's (a real
+    /// device's mass is a datasheet figure, not exact; < 1 is the conservative side for
+    /// the passivity controller's per-cycle bounds).
+    pub mass_estimate_factor: f64,
 }
 
 impl Default for MasterArmConfig {
@@ -81,6 +91,9 @@ impl Default for MasterArmConfig {
             friction_velocity_mm_per_s: 2.0,
             motor_force_max_n: 12.0,
             substeps: 10,
+            encoder_resolution_mm: 0.002,
+            velocity_filter_hz: 50.0,
+            mass_estimate_factor: 0.8,
         }
     }
 }
@@ -147,7 +160,28 @@ impl Section for MasterArmConfig {
             1e3,
             "N",
         )?;
-        check_range(&f("substeps"), f64::from(self.substeps), 1.0, 1000.0, "")
+        check_range(&f("substeps"), f64::from(self.substeps), 1.0, 1000.0, "")?;
+        check_range(
+            &f("encoder_resolution_mm"),
+            self.encoder_resolution_mm,
+            0.0,
+            1.0,
+            "mm",
+        )?;
+        check_range(
+            &f("velocity_filter_hz"),
+            self.velocity_filter_hz,
+            0.0,
+            1e4,
+            "Hz",
+        )?;
+        check_range(
+            &f("mass_estimate_factor"),
+            self.mass_estimate_factor,
+            0.1,
+            10.0,
+            "",
+        )
     }
 }
 
@@ -164,6 +198,18 @@ pub struct SimMasterArm {
     clutch: bool,
     kinematics_faults: u64,
     effective_mass_kg: f64,
+    /// The encoders' reading (quantised pose) and the velocity estimated from it.
+    sensed_pose: [f64; 4],
+    sensed_vel: [f64; 4],
+}
+
+/// `x` quantised to `res` (0: exact).
+fn quantise(x: f64, res: f64) -> f64 {
+    if res > 0.0 {
+        (x / res).round() * res
+    } else {
+        x
+    }
 }
 
 /// The task-space mass matrix `M = M_platform + Jᵀ M_c J`, in N·s²/mm (kg × 1e-3).
@@ -206,7 +252,31 @@ impl SimMasterArm {
             clutch: false,
             kinematics_faults: 0,
             effective_mass_kg,
-        })
+            sensed_pose: [0.0; 4],
+            sensed_vel: [0.0; 4],
+        }
+        .sensing_started())
+    }
+
+    fn sensing_started(mut self) -> Self {
+        let r = self.cfg.encoder_resolution_mm;
+        for i in 0..4 {
+            let res = if i < 3 { r } else { 0.0 };
+            self.sensed_pose[i] = quantise(self.pose[i], res);
+        }
+        self
+    }
+
+    /// The handle's true state (the simulator's, for the operator's hand, which is
+    /// physics; the coupling reads the device through [`HapticDevice::read`]).
+    pub fn true_state(&self) -> DeviceState {
+        DeviceState {
+            time_ns: self.time_ns,
+            pose: [self.pose[0], self.pose[1], self.pose[2], self.pose[3]],
+            velocity: [self.vel[0], self.vel[1], self.vel[2], self.vel[3]],
+            clutch: self.clutch,
+            effective_mass_kg: self.effective_mass_kg,
+        }
     }
 
     /// The configuration.
@@ -267,17 +337,44 @@ impl SimMasterArm {
             self.pose += self.vel * dt;
         }
         self.time_ns += dt_ns;
+        self.sense(dt_ns as f64 * 1e-9);
+    }
+
+    /// The encoders read the new pose (quantised); the velocity estimate is the backward
+    /// difference of two readings through a first-order low-pass (`velocity_filter_hz`):
+    /// one reading per cycle, no knowledge of the true velocity.
+    fn sense(&mut self, dt_s: f64) {
+        if dt_s <= 0.0 {
+            return;
+        }
+        let r = self.cfg.encoder_resolution_mm;
+        let hz = self.cfg.velocity_filter_hz;
+        let a = if hz > 0.0 {
+            1.0 - (-2.0 * std::f64::consts::PI * hz * dt_s).exp()
+        } else {
+            1.0
+        };
+        for i in 0..4 {
+            let res = if i < 3 { r } else { 0.0 };
+            let q = quantise(self.pose[i], res);
+            let raw = (q - self.sensed_pose[i]) / dt_s;
+            self.sensed_pose[i] = q;
+            self.sensed_vel[i] += a * (raw - self.sensed_vel[i]);
+        }
     }
 }
 
 impl HapticDevice for SimMasterArm {
+    /// What a real device gives: the encoders' quantised pose, the velocity estimated
+    /// from them, and the mass as the datasheet knows it (`mass_estimate_factor` of the
+    /// simulator's).
     fn read(&mut self) -> DeviceState {
         DeviceState {
             time_ns: self.time_ns,
-            pose: [self.pose[0], self.pose[1], self.pose[2], self.pose[3]],
-            velocity: [self.vel[0], self.vel[1], self.vel[2], self.vel[3]],
+            pose: self.sensed_pose,
+            velocity: self.sensed_vel,
             clutch: self.clutch,
-            effective_mass_kg: self.effective_mass_kg,
+            effective_mass_kg: self.effective_mass_kg * self.cfg.mass_estimate_factor,
         }
     }
 

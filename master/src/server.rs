@@ -44,6 +44,8 @@ pub struct MasterRunOptions {
     pub wait_for_slave_s: f64,
     /// Write an MCAP recording here.
     pub record: Option<PathBuf>,
+    /// Serve the live view here (`--foxglove-ws HOST:PORT`).
+    pub foxglove_ws: Option<String>,
 }
 
 impl Default for MasterRunOptions {
@@ -57,6 +59,7 @@ impl Default for MasterRunOptions {
             duration_s: None,
             wait_for_slave_s: 10.0,
             record: None,
+            foxglove_ws: None,
         }
     }
 }
@@ -145,6 +148,9 @@ pub enum MasterRunError {
     /// The recording could not be written.
     #[error("recording: {0}")]
     Recording(String),
+    /// The live view could not start.
+    #[error("{0}")]
+    Live(#[from] h4_shared::live::LiveError),
 }
 
 /// One master cycle as recorded (topic `/master/cycle`, schema `h4.MasterProcessCycle`).
@@ -170,6 +176,8 @@ struct CycleRecord {
     slave_state: u8,
     /// The newest round trip, µs.
     round_trip_us: f64,
+    /// The master port's passivity observer, J.
+    energy_observed_j: f64,
 }
 
 fn us(ns: u64) -> f64 {
@@ -208,6 +216,14 @@ pub fn run_then<L: Link<Command, Feedback>>(
         "h4.MasterProcessCycle",
     )
     .map_err(|e| MasterRunError::Recording(e.to_string()))?;
+    let live_server =
+        h4_shared::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-master")?;
+    let mut live = h4_shared::live::topic_or_off::<CycleRecord>(
+        live_server.as_ref(),
+        "/master/cycle",
+        "h4.MasterProcessCycle",
+        1e9 / opts.period_ns.max(1) as f64,
+    );
 
     h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
     let mut s = MasterRunSummary {
@@ -227,21 +243,21 @@ pub fn run_then<L: Link<Command, Feedback>>(
         let force = stats.rendered(&mut s, &m.rendered_wrench, fade);
         let (slave_force, slave_state) = stats.slave(&mut s, side.latest_feedback());
         stats.transparency(&m.rendered_wrench, &slave_force, fade, &mut s);
-        recorder.push(
-            cx.unix_ns,
-            CycleRecord {
-                time_ns: now,
-                lateness_us: us(cx.tick.lateness_ns),
-                pose: m.handle.pose,
-                hand_wrench: m.hand.wrench,
-                rendered_wrench: m.rendered_wrench,
-                fade,
-                slave_target: m.step.slave_target,
-                slave_force_n: slave_force,
-                slave_state,
-                round_trip_us: us(side.round_trip().last_ns()),
-            },
-        );
+        let record = CycleRecord {
+            time_ns: now,
+            lateness_us: us(cx.tick.lateness_ns),
+            pose: m.handle.pose,
+            hand_wrench: m.hand.wrench,
+            rendered_wrench: m.rendered_wrench,
+            fade,
+            slave_target: m.step.slave_target,
+            slave_force_n: slave_force,
+            slave_state,
+            round_trip_us: us(side.round_trip().last_ns()),
+            energy_observed_j: m.step.observed_j,
+        };
+        recorder.push(cx.unix_ns, record);
+        live.push(cx.unix_ns, record);
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(

@@ -282,6 +282,7 @@ impl MasterTeleop {
     fn receive<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
         let coupling = &mut self.coupling;
         let round_trip = &mut self.round_trip;
+        let restarts = self.gate.counters.repaired;
         let d = self
             .gate
             .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |f: &Feedback| {
@@ -289,6 +290,10 @@ impl MasterTeleop {
                 round_trip.record(f, now_ns);
             });
         self.counters.feedback_received += d.received;
+        if self.gate.counters.repaired > restarts {
+            // The slave restarted: a new ledger on this side (it starts its own).
+            self.coupling.new_pairing();
+        }
         if d.link_error {
             self.counters.link_errors += 1;
         }
@@ -302,7 +307,8 @@ impl MasterTeleop {
         now_ns: u64,
         dt_s: f64,
     ) -> MasterCycle {
-        let before = self.device.read();
+        // The hand is physics: it acts on the handle's true state.
+        let before = self.device.true_state();
         let hand = self
             .operator
             .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, dt_s);

@@ -7,6 +7,7 @@ pub mod alloc_count;
 pub mod clock;
 pub mod config;
 pub mod kinematics;
+pub mod live;
 pub mod passivity;
 pub mod process;
 pub mod recording;

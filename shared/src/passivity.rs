@@ -54,9 +54,10 @@ pub struct PassivityParams {
     pub energy_reserve_j: f64,
     /// Discrete-time bound of the master controller's damping: `(α + local damping) · dt ≤
     /// damping_step_fraction · m`, `m` the handle's smallest effective mass (more makes the
-    /// light handle's velocity overshoot and flip sign every cycle). A deficit the bounded
-    /// damping cannot dissipate at once is carried (the observer goes below zero). 0: off
-    /// (the handle then chatters under a large deficit); default 1.
+    /// light handle's velocity overshoot and flip sign every cycle). What the bounded
+    /// damping cannot dissipate is not put out: the port then scales its force down
+    /// (force limiting), so the observer stays ≥ 0 either way. 0: off (the handle then
+    /// chatters under a large deficit); default 1.
     pub damping_step_fraction: f64,
     /// The slave hands the part of its observer's surplus above this reserve back to the
     /// master (slave units), J; negative: never. Energy the operator put in that the slave
@@ -198,6 +199,15 @@ pub struct ImpedancePort {
     /// This cycle's discrete-time bound of the damping, N·s/mm (`None`: only
     /// `max_damping_n_s_per_mm`); the caller sets it from the device's effective mass.
     pub damping_step_limit_n_s_per_mm: Option<f64>,
+    /// Cycles in which the controller limited the force (bounded damping was not enough).
+    pub limited_cycles: u64,
+    /// The handle's (smallest effective) mass as the caller knows it, kg (`None`: the
+    /// force limit counts only `F · v · dt`). A force held over a cycle also accelerates
+    /// the handle: it does up to `|F|² dt² / 2m` more work than `F · v · dt`, which the
+    /// limit then counts too.
+    pub mass_estimate_kg: Option<f64>,
+    /// Pairings this port has had (1 + the times [`ImpedancePort::new_pairing`] was called).
+    pub pairings: u64,
     alpha: f64,
 }
 
@@ -231,11 +241,23 @@ impl ImpedancePort {
     }
 
     /// Takes the far end's cumulative input energy, already converted to this port's units
-    /// (J). Older (smaller) values than one already seen are ignored.
+    /// (J). Older (smaller) values than one already seen in this pairing are ignored.
     pub fn receive_remote_in(&mut self, remote_in_j: f64) {
         if remote_in_j.is_finite() && remote_in_j > self.remote_in_j {
             self.remote_in_j = remote_in_j;
         }
+    }
+
+    /// A new pairing (the far end restarted, or the link was re-engaged after a safe stop):
+    /// a new ledger. Both cumulative flows and the far end's input start again from zero,
+    /// so neither side inherits the other's lifetime energy as budget; the damping is
+    /// released. (`dissipated_j` stays cumulative: it is a statistic, not a budget.)
+    pub fn new_pairing(&mut self) {
+        self.energy.in_j = 0.0;
+        self.energy.out_j = 0.0;
+        self.remote_in_j = 0.0;
+        self.alpha = 0.0;
+        self.pairings += 1;
     }
 
     /// The observer: energy available for output at this port, J (negative: the link has
@@ -245,8 +267,12 @@ impl ImpedancePort {
     }
 
     /// One cycle: `force_n` is the force the link wants rendered, `velocity_mm_per_s` the
-    /// measured handle velocity. With `control` the force is corrected so that the observer
-    /// stays ≥ 0 whenever the bounded damping suffices; without, it is only observed.
+    /// measured (estimated) handle velocity. With `control` the force is first damped
+    /// (within the damping bounds), then, if that is not enough, scaled down so that this
+    /// cycle's output `F · v · dt` does not exceed what the observer holds: the energy put
+    /// out never exceeds the observer's, by construction (up to the difference between the
+    /// estimated velocity and the displacement booked). Without `control` it is only
+    /// observed.
     pub fn step(
         &mut self,
         force_n: [f64; 3],
@@ -294,11 +320,51 @@ impl ImpedancePort {
                 }
                 self.energy.dissipated_j += alpha * v2 * dt_s * J_PER_N_MM;
             }
+            // Force limiting (energy bounding): what the bounded damping could not
+            // dissipate is not put out. The force is scaled down (never reversed, so it
+            // cannot make the handle chatter as more damping would) until this cycle's
+            // output fits what the observer holds: the energy put out never exceeds the
+            // observer's, whatever the damping bound.
+            let s = self.output_share(&force, &velocity_mm_per_s, dt_s);
+            if s < 1.0 {
+                for f in force.iter_mut() {
+                    *f *= s;
+                }
+                self.limited_cycles += 1;
+            }
         }
         ImpedanceStep {
             force_n: force,
             damping_n_s_per_mm: alpha,
             observed_j: self.observed_j() - dot3(&force, &velocity_mm_per_s).max(0.0) * dt_s * 1e-3,
+        }
+    }
+
+    /// The largest share `s ∈ [0, 1]` of `force` whose work over the cycle, `s F · v dt`
+    /// plus (with a mass estimate) the acceleration's `s² |F|² dt² / 2m`, fits what the
+    /// observer holds above the reserve.
+    fn output_share(&self, force: &[f64; 3], v: &[f64; 3], dt_s: f64) -> f64 {
+        let e = (self.observed_j() - self.energy_reserve_j).max(0.0);
+        let a = dot3(force, v) * dt_s * J_PER_N_MM;
+        let b = match self.mass_estimate_kg {
+            // N² s² / kg = N·m = 1 J.
+            Some(m) if m > 0.0 => dot3(force, force) * dt_s * dt_s / (2.0 * m),
+            _ => 0.0,
+        };
+        if a + b <= e {
+            return 1.0;
+        }
+        let s = if b > 1e-300 {
+            (-a + (a * a + 4.0 * b * e).sqrt()) / (2.0 * b)
+        } else if a > 0.0 {
+            e / a
+        } else {
+            1.0
+        };
+        if s.is_finite() {
+            s.clamp(0.0, 1.0)
+        } else {
+            0.0
         }
     }
 
@@ -338,6 +404,8 @@ pub struct AdmittancePort {
     pub return_rate_per_s: f64,
     /// Energy handed back to the master so far, J (no longer this port's to spend).
     pub returned_j: f64,
+    /// Pairings this port has had (the times [`AdmittancePort::new_pairing`] was called).
+    pub pairings: u64,
 }
 
 /// What the slave's port did this cycle.
@@ -384,10 +452,44 @@ impl AdmittancePort {
         }
     }
 
-    /// Takes the far end's cumulative input energy in this port's units, J.
+    /// Takes the far end's cumulative input energy in this port's units, J (the largest
+    /// seen in this pairing).
     pub fn receive_remote_in(&mut self, remote_in_j: f64) {
         if remote_in_j.is_finite() && remote_in_j > self.remote_in_j {
             self.remote_in_j = remote_in_j;
+        }
+    }
+
+    /// A new pairing (the far end restarted, or re-engagement after a safe stop): a new
+    /// ledger, see [`ImpedancePort::new_pairing`]. The drift is kept (it is where the arm
+    /// is, not energy) and is closed with the new ledger's energy.
+    pub fn new_pairing(&mut self) {
+        self.energy.in_j = 0.0;
+        self.energy.out_j = 0.0;
+        self.remote_in_j = 0.0;
+        self.returned_j = 0.0;
+        self.pairings += 1;
+    }
+
+    /// Books the work of one cycle's motion from the forces of the same instants: the
+    /// displacement commanded over the cycle against the mean of the forces measured at
+    /// its start and at its end (trapezoid), `−½(F_k + F_k+1) · Δx`. Booking the force of
+    /// the cycle before against this cycle's motion would lag the force by a cycle (and
+    /// the sensor's filter by more), crediting a phantom input of about `k·τ·∫v²` on a
+    /// stiff wall. Non-finite input is ignored.
+    pub fn commit_work(
+        &mut self,
+        force_start_n: [f64; 3],
+        force_end_n: [f64; 3],
+        displacement_mm: [f64; 3],
+    ) {
+        let mut f = [0.0; 3];
+        for i in 0..3 {
+            f[i] = 0.5 * (force_start_n[i] + force_end_n[i]);
+        }
+        let w = -dot3(&f, &displacement_mm);
+        if w.is_finite() {
+            self.energy.add_power(w, 1.0);
         }
     }
 
@@ -606,10 +708,10 @@ mod tests {
         assert!(e_smooth > e_bang);
     }
 
-    /// A discrete-time bound holds all of the damping; the deficit it cannot dissipate at
-    /// once is carried and paid back once energy arrives.
+    /// A discrete-time bound holds all of the damping; what it cannot dissipate the port
+    /// does not put out (force limiting): the observer never goes below zero.
     #[test]
-    fn impedance_port_step_limit_bounds_the_damping_and_carries_the_deficit() {
+    fn impedance_port_step_limit_bounds_the_damping_and_limits_the_force() {
         let dt = 0.001;
         let mut port = ImpedancePort::from_params(&PassivityParams::default());
         port.damping_step_limit_n_s_per_mm = Some(0.1);
@@ -623,10 +725,69 @@ mod tests {
             let s = port.step([f, 0.0, 0.0], [5.0, 0.0, 0.0], dt, true);
             port.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
             assert!(s.damping_n_s_per_mm <= 0.1 + 1e-12, "{k}: {s:?}");
+            assert!(s.force_n[0] <= f + 1e-12, "{k}: {s:?}");
             lowest = lowest.min(port.observed_j());
         }
-        assert!(lowest < 0.0, "{lowest}");
+        assert!(lowest >= -1e-12, "{lowest}");
+        assert!(port.limited_cycles > 0);
         assert!(port.observed_j() > 0.0, "{}", port.observed_j());
+        // The same deficit with force limiting off (observer only) goes below zero: the
+        // limit is what holds it.
+        let mut off = ImpedancePort::from_params(&PassivityParams::default());
+        off.receive_remote_in(0.0005);
+        for _ in 0..20 {
+            let s = off.step([10.0, 0.0, 0.0], [5.0, 0.0, 0.0], dt, false);
+            off.commit_displacement(s.force_n, [5.0 * dt, 0.0, 0.0]);
+        }
+        assert!(off.observed_j() < -1e-4, "{}", off.observed_j());
+    }
+
+    /// A new pairing starts a new ledger on both ports: nothing of the old pairing's
+    /// energy is budget any more, and the far end's new (small) cumulative values count.
+    #[test]
+    fn new_pairing_starts_a_new_ledger_on_both_ports() {
+        let dt = 0.001;
+        let mut m = ImpedancePort::from_params(&PassivityParams::default());
+        m.receive_remote_in(5.0);
+        m.commit_displacement([10.0, 0.0, 0.0], [-1.0, 0.0, 0.0]);
+        assert!(m.observed_j() > 4.0);
+        m.new_pairing();
+        assert_eq!(m.observed_j(), 0.0);
+        assert_eq!((m.energy.in_j, m.energy.out_j), (0.0, 0.0));
+        m.receive_remote_in(0.001);
+        assert!((m.observed_j() - 0.001).abs() < 1e-15);
+        // With no budget the port puts nothing out.
+        let s = m.step([10.0, 0.0, 0.0], [100.0, 0.0, 0.0], dt, true);
+        assert!(dot3(&s.force_n, &[100.0, 0.0, 0.0]) * dt * 1e-3 <= 0.001 + 1e-12);
+        let mut sl = AdmittancePort::from_params(&PassivityParams::default());
+        sl.receive_remote_in(5.0);
+        sl.hand_back(dt);
+        sl.new_pairing();
+        assert_eq!(sl.observed_j(), 0.0);
+        assert_eq!(sl.available_to_remote_j(), 0.0);
+        assert_eq!(sl.pairings, 1);
+    }
+
+    /// The slave books the displacement against the forces of the same instants: moving
+    /// into a force that rises from 0 to 20 N over the cycle is 10 N times the
+    /// displacement of output, not 0 (the force of the cycle before).
+    #[test]
+    fn admittance_port_books_force_and_motion_of_the_same_instant() {
+        let mut port = AdmittancePort::from_params(&PassivityParams::default());
+        port.commit_work([0.0, 0.0, 0.0], [0.0, 0.0, 20.0], [0.0, 0.0, -0.1]);
+        assert!(
+            (port.energy.out_j - 1e-3).abs() < 1e-15,
+            "{:?}",
+            port.energy
+        );
+        port.commit_work([0.0, 0.0, 20.0], [0.0, 0.0, 10.0], [0.0, 0.0, 0.1]);
+        assert!(
+            (port.energy.in_j - 1.5e-3).abs() < 1e-15,
+            "{:?}",
+            port.energy
+        );
+        port.commit_work([f64::NAN, 0.0, 0.0], [0.0; 3], [0.0, 0.0, 1.0]);
+        assert!((port.energy.in_j - 1.5e-3).abs() < 1e-15);
     }
 
     /// Booked from the displacement, a force whose handle reverses within the cycle is

@@ -252,8 +252,12 @@ impl SlaveState {
 
 /// Command flag: the operator holds the clutch (the slave holds still; re-anchor on release).
 pub const CMD_FLAG_CLUTCH: u16 = 1 << 0;
+/// Command flag: the master has seen the slave's safe stop, faded its rendering out and
+/// started a new energy ledger; a slave in `SafeStop` re-engages only on a command that
+/// carries it.
+pub const CMD_FLAG_ACK_SAFE_STOP: u16 = 1 << 1;
 /// All command flags this version defines.
-pub const CMD_FLAGS_KNOWN: u16 = CMD_FLAG_CLUTCH;
+pub const CMD_FLAGS_KNOWN: u16 = CMD_FLAG_CLUTCH | CMD_FLAG_ACK_SAFE_STOP;
 
 /// Fault flag: no valid command within the watchdog period.
 pub const FAULT_COMMAND_TIMEOUT: u16 = 1 << 0;
@@ -760,6 +764,9 @@ pub trait WireMessage: Copy + Send + 'static {
     fn seq(&self) -> u64;
     /// The passivity energy fields `(energy_in_j, energy_out_j)`, cumulative, J.
     fn energies_j(&self) -> (f64, f64);
+    /// Whether the sender started a new energy ledger with this message (a command carrying
+    /// [`CMD_FLAG_ACK_SAFE_STOP`]): its energy fields start again near 0.
+    fn starts_new_ledger(&self) -> bool;
     /// Why the message is outside `limits` (a reason code), or `None`.
     fn out_of_range(&self, limits: &Self::Limits) -> Option<&'static str>;
     /// Sender's clock when sent, ns.
@@ -775,7 +782,7 @@ pub trait WireMessage: Copy + Send + 'static {
 }
 
 macro_rules! impl_wire_message {
-    ($ty:ty, $name:literal, $limits:ty, $check:expr) => {
+    ($ty:ty, $name:literal, $limits:ty, $check:expr, $ledger:expr) => {
         impl WireMessage for $ty {
             type Limits = $limits;
             const WIRE_SIZE: usize = <$ty>::WIRE_SIZE;
@@ -788,6 +795,10 @@ macro_rules! impl_wire_message {
             }
             fn energies_j(&self) -> (f64, f64) {
                 (self.energy_in_j, self.energy_out_j)
+            }
+            fn starts_new_ledger(&self) -> bool {
+                let ledger: fn(&Self) -> bool = $ledger;
+                ledger(self)
             }
             fn out_of_range(&self, limits: &Self::Limits) -> Option<&'static str> {
                 let check: fn(&Self, &$limits) -> Option<&'static str> = $check;
@@ -819,8 +830,11 @@ macro_rules! impl_wire_message {
     };
 }
 
-impl_wire_message!(Command, "command", CommandLimits, |c, l| l.check(c));
-impl_wire_message!(Feedback, "feedback", (), |_, _| None);
+impl_wire_message!(Command, "command", CommandLimits, |c, l| l.check(c), |c| c
+    .flags
+    & CMD_FLAG_ACK_SAFE_STOP
+    != 0);
+impl_wire_message!(Feedback, "feedback", (), |_, _| None, |_| false);
 
 fn check_all_finite(fields: &[(&'static str, &[f64])]) -> Result<(), WireError> {
     for (field, values) in fields {

@@ -26,7 +26,7 @@ enum Command {
     Experiment(cli::experiment::ExperimentArgs),
     /// Runs the slave process: the 1 kHz force loop on the simulated arm, commanded by a
     /// master over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
-    Run(cli::run::RunArgs),
+    Run(Box<cli::run::RunArgs>),
     /// Draws a recording (MCAP): PNG figures (force against the set-point and its tolerance
     /// band, force along the path, tracking errors; for sessions the rendered force, the
     /// passivity observers and the link), metrics.json and index.html.

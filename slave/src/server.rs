@@ -48,6 +48,8 @@ pub struct RunOptions {
     pub duration_s: Option<f64>,
     /// Write an MCAP recording here.
     pub record: Option<PathBuf>,
+    /// Serve the live view here (`--foxglove-ws HOST:PORT`).
+    pub foxglove_ws: Option<String>,
 }
 
 impl Default for RunOptions {
@@ -63,6 +65,7 @@ impl Default for RunOptions {
             lock_memory: false,
             duration_s: None,
             record: None,
+            foxglove_ws: None,
         }
     }
 }
@@ -126,6 +129,9 @@ pub enum ServerError {
     /// The teleoperation endpoint's settings are unusable.
     #[error("{0}")]
     Teleop(#[from] TeleopError),
+    /// The live view could not start.
+    #[error("{0}")]
+    Live(#[from] h4_shared::live::LiveError),
 }
 
 /// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
@@ -155,6 +161,8 @@ struct CycleRecord {
     contact_normal: [f64; 3],
     /// Sequence number of the command acted on.
     command_seq: u64,
+    /// The slave port's passivity observer, J.
+    energy_observed_j: f64,
 }
 
 fn us(ns: u64) -> f64 {
@@ -196,6 +204,14 @@ pub fn run<L: Link<Feedback, Command>>(
         "h4.SlaveProcessCycle",
     )
     .map_err(|e| ServerError::Recording(e.to_string()))?;
+    let live_server =
+        h4_shared::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-slave")?;
+    let mut live = h4_shared::live::topic_or_off::<CycleRecord>(
+        live_server.as_ref(),
+        "/slave/cycle",
+        "h4.SlaveProcessCycle",
+        1e9 / period_ns as f64,
+    );
 
     h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
     let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
@@ -233,22 +249,22 @@ pub fn run<L: Link<Feedback, Command>>(
             s.contact_cycles += 1;
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
-        recorder.push(
-            cx.unix_ns,
-            CycleRecord {
-                time_ns: now,
-                state: c.state as u8,
-                status: out.status.code(),
-                lateness_us: us(cx.tick.lateness_ns),
-                force_measured_n: out.normal_force_n,
-                force_desired_n: out.setpoint_n,
-                force_true_n: true_force_n,
-                measured_pose: out.measured_pose,
-                commanded_pose: out.commanded_pose,
-                contact_normal: out.contact_normal,
-                command_seq: c.command_seq,
-            },
-        );
+        let record = CycleRecord {
+            time_ns: now,
+            state: c.state as u8,
+            status: out.status.code(),
+            lateness_us: us(cx.tick.lateness_ns),
+            force_measured_n: out.normal_force_n,
+            force_desired_n: out.setpoint_n,
+            force_true_n: true_force_n,
+            measured_pose: out.measured_pose,
+            commanded_pose: out.commanded_pose,
+            contact_normal: out.contact_normal,
+            command_seq: c.command_seq,
+            energy_observed_j: c.port.observed_j,
+        };
+        recorder.push(cx.unix_ns, record);
+        live.push(cx.unix_ns, record);
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(

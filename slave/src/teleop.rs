@@ -26,8 +26,8 @@ use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::process::Watchdog;
 use h4_shared::vec3::norm3;
 use h4_shared::wire::{
-    Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT,
-    Feedback, Mode, PROTOCOL_VERSION, SlaveState,
+    CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
+    FAULT_FORCE_LIMIT, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
 };
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate, GateCounters};
@@ -51,6 +51,92 @@ pub struct TeleopParams {
     pub passivity: PassivityParams,
     /// Commanded speeds are limited to this share of the controller's speed limit.
     pub speed_margin: f64,
+    /// Contact hand-over: in position mode, the slave's own force loop holds a contact.
+    pub contact: ContactHandover,
+}
+
+/// Contact hand-over (position mode): when the slave meets a surface, its force controller
+/// (the paper's implicit force control, `Mode::ForceGuided`) takes the contact over, so
+/// that neither the wall's stiffness nor the link's delay is inside the loop that sets the
+/// contact force. The master's command then sets the force through a virtual spring: the
+/// force set-point is `hold_min_n + stiffness_n_per_mm · depth`, `depth` how far the
+/// (passivity-shaped) commanded position lies beyond where the contact began, along the
+/// contact normal; along the surface the arm follows the command's velocity. The
+/// set-point never exceeds `force_share` of the controller's force limit. When the command
+/// lies `release_mm` out of the surface the arm goes back to position control.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ContactHandover {
+    /// Hand-over on.
+    pub enabled: bool,
+    /// The virtual spring's stiffness, N/mm at the slave (what the master's command
+    /// feels like in contact, whatever the wall).
+    pub stiffness_n_per_mm: f64,
+    /// Set-point while the command is at the contact point, N (above the controller's
+    /// contact threshold, so a light contact is held, not lost and re-touched).
+    pub hold_min_n: f64,
+    /// The command this far out of the surface ends the hand-over, mm.
+    pub release_mm: f64,
+    /// Largest set-point, as a share of the controller's force limit.
+    pub force_share: f64,
+}
+
+impl Default for ContactHandover {
+    fn default() -> Self {
+        ContactHandover {
+            enabled: true,
+            stiffness_n_per_mm: 5.0,
+            hold_min_n: 1.0,
+            release_mm: 0.3,
+            force_share: 0.8,
+        }
+    }
+}
+
+impl ContactHandover {
+    /// Checks every field; errors name the key with `prefix`.
+    pub fn validate_at(&self, prefix: &str) -> Result<(), h4_shared::config::ConfigError> {
+        use h4_shared::config::check_range;
+        check_range(
+            &format!("{prefix}stiffness_n_per_mm"),
+            self.stiffness_n_per_mm,
+            0.01,
+            1e4,
+            "N/mm",
+        )?;
+        check_range(
+            &format!("{prefix}hold_min_n"),
+            self.hold_min_n,
+            0.0,
+            100.0,
+            "N",
+        )?;
+        check_range(
+            &format!("{prefix}release_mm"),
+            self.release_mm,
+            0.0,
+            100.0,
+            "mm",
+        )?;
+        check_range(
+            &format!("{prefix}force_share"),
+            self.force_share,
+            0.05,
+            1.0,
+            "",
+        )
+    }
+}
+
+/// A contact held by the slave's force loop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct HeldContact {
+    /// The commanded position when the contact began, mm.
+    point_mm: [f64; 3],
+    /// The outward contact normal (the measured force's direction at the touch).
+    normal: [f64; 3],
+    /// The virtual commanded position (the passivity port's), mm.
+    virtual_mm: [f64; 3],
 }
 
 impl Default for TeleopParams {
@@ -61,6 +147,7 @@ impl Default for TeleopParams {
             restart_silence_ms: 100.0,
             passivity: PassivityParams::default(),
             speed_margin: 0.9,
+            contact: ContactHandover::default(),
         }
     }
 }
@@ -93,8 +180,14 @@ pub struct TeleopCounters {
     pub safe_stops: u64,
     /// Silence when the watchdog tripped (largest over all trips), ms.
     pub safe_stop_entry_silence_ms: f64,
-    /// Times a master was paired again after a safe stop.
+    /// Times a master was paired again after a safe stop (each on the master's
+    /// acknowledgement, `CMD_FLAG_ACK_SAFE_STOP`).
     pub repairs: u64,
+    /// Commands received in the safe stop without the master's acknowledgement (they
+    /// keep the link alive but neither re-engage the arm nor count as energy).
+    pub unacknowledged_in_safe_stop: u64,
+    /// New energy ledgers started (re-engagement after a safe stop, a restarted master).
+    pub new_pairings: u64,
     /// Feedback messages published.
     pub feedback_published: u64,
 }
@@ -150,6 +243,13 @@ pub struct SlaveTeleop<A: ArmDriver> {
     desired_theta: f64,
     anchored: bool,
     last_out: Option<ControllerOutput>,
+    /// Last cycle's commanded displacement and the force measured at its start, booked
+    /// by the port once the force at its end is measured.
+    pending_work: Option<([f64; 3], [f64; 3])>,
+    held: Option<HeldContact>,
+    /// The surface of the last held contact (start point, outward normal): position mode
+    /// approaches it again no faster than the controller's approach speed.
+    known_surface: Option<([f64; 3], [f64; 3])>,
     seq: u64,
     counters: TeleopCounters,
 }
@@ -229,6 +329,9 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             desired_theta: 0.0,
             anchored: false,
             last_out: None,
+            pending_work: None,
+            held: None,
+            known_surface: None,
             seq: 0,
             counters: TeleopCounters::default(),
             p,
@@ -295,8 +398,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
-        let fresh = self.receive(link, now_ns);
-        let (repaired, tripped) = self.watch(fresh, now_ns);
+        let (fresh, acked) = self.receive(link, now_ns);
+        let (repaired, tripped) = self.watch(fresh, acked, now_ns);
         let intent = self.follow(dt_s);
         let port = self.shape_command(&intent, dt_s);
         let input = ControllerInput {
@@ -331,32 +434,64 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         }
     }
 
-    /// Drains the link through the receive gate; returns whether a valid command arrived.
-    fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> bool {
+    /// Drains the link through the receive gate; returns whether a valid command arrived
+    /// and whether the master acknowledged a safe stop (then the port has started a new
+    /// ledger before taking the acknowledging command's energy). In the safe stop, commands
+    /// without the acknowledgement are not followed and their energies (the old ledger's)
+    /// are not taken. A restarted master (the gate re-paired) also starts a new ledger.
+    fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> (bool, bool) {
         let port = &mut self.port;
         let latest = &mut self.latest;
-        let gate = &mut self.gate;
-        let mut accepted = None;
-        let d = gate.drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
-            accepted = Some(*c);
-        });
-        if let Some(c) = accepted {
-            // The master's energy since this pairing: a new session's first message cannot
-            // hand the slave energy (issue 14; the gate bounds every later change).
-            port.receive_remote_in(self.gate.energy_since_pairing_j(&c).0);
-            *latest = Some(c);
+        let safe_stopped = self.state == SlaveState::SafeStop;
+        let mut acked = false;
+        let mut ignored = 0;
+        let restarts = self.gate.counters.repaired;
+        let d = self
+            .gate
+            .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
+                if safe_stopped && !acked {
+                    if c.flags & CMD_FLAG_ACK_SAFE_STOP == 0 {
+                        ignored += 1;
+                        return;
+                    }
+                    acked = true;
+                    port.new_pairing();
+                }
+                port.receive_remote_in(c.energy_in_j);
+                *latest = Some(*c);
+            });
+        self.counters.unacknowledged_in_safe_stop += ignored;
+        if acked {
+            self.counters.new_pairings += 1;
+        }
+        if self.gate.counters.repaired > restarts && !acked {
+            self.new_pairing();
         }
         if d.link_error {
             self.counters.link_errors += 1;
         }
-        d.accepted > 0
+        (d.accepted > 0, acked)
     }
 
-    /// The watchdog: a fresh command feeds it (and re-pairs after a safe stop); silence
-    /// while active trips it into the safe stop. Returns (re-paired, tripped) this cycle.
-    fn watch(&mut self, fresh: bool, now_ns: u64) -> (bool, bool) {
+    /// A new pairing: the port starts a new energy ledger (taking the newest command's
+    /// energy as the new pairing's first), and the desired pose re-anchors on the next
+    /// command (no jump). Called on a restarted master; a session id in the wire header
+    /// can call it on a new session too.
+    pub fn new_pairing(&mut self) {
+        self.port.new_pairing();
+        if let Some(c) = &self.latest {
+            self.port.receive_remote_in(c.energy_in_j);
+        }
+        self.anchored = false;
+        self.counters.new_pairings += 1;
+    }
+
+    /// The watchdog: a fresh command feeds it (and, with the master's acknowledgement,
+    /// re-pairs after a safe stop); silence while active trips it into the safe stop.
+    /// Returns (re-paired, tripped) this cycle.
+    fn watch(&mut self, fresh: bool, acked: bool, now_ns: u64) -> (bool, bool) {
         let mut repaired = false;
-        if fresh {
+        if fresh && (acked || self.state != SlaveState::SafeStop) {
             self.watchdog.feed(now_ns);
             if self.state == SlaveState::SafeStop {
                 self.ctrl.clear_safe_stop();
@@ -447,9 +582,19 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             ]
         });
         let v_d = intent.desired_velocity;
+        if mode != Mode::Position || intent.clutch {
+            self.held = None;
+        } else {
+            self.update_held(force, held);
+        }
+        if let Some(mut h) = self.held {
+            return self.handover(&mut h, intent, force, max_v, control, dt_s);
+        }
         let ps = if mode == Mode::Position {
-            self.port
-                .step_position(held, self.desired, v_d, force, max_v, dt_s, control)
+            let ps = self
+                .port
+                .step_position(held, self.desired, v_d, force, max_v, dt_s, control);
+            self.slow_near_known_surface(ps, held, dt_s)
         } else {
             self.port.clear_drift();
             AdmittanceStep {
@@ -476,8 +621,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         PortCommand {
             step: ps,
             control,
-            force_n: force,
             drift_mm,
+            virtual_move_mm: None,
             command: SlaveCommand {
                 mode,
                 pose,
@@ -486,6 +631,136 @@ impl<A: ArmDriver> SlaveTeleop<A> {
                     .setpoint_n
                     .clamp(0.0, self.ctrl.params().force_limit_n),
                 clutch: intent.clutch,
+            },
+        }
+    }
+
+    /// Position mode near a surface held before (after a release, a safe stop, a
+    /// re-pairing): the motion into it, within `SURFACE_MARGIN_MM` of it or beyond, is
+    /// limited to the controller's approach speed, so a return to a known stiff wall
+    /// touches it as gently as the force loop's own approach; the gap becomes drift.
+    fn slow_near_known_surface(
+        &mut self,
+        mut ps: AdmittanceStep,
+        held: [f64; 3],
+        dt_s: f64,
+    ) -> AdmittanceStep {
+        let Some((point, n)) = self.known_surface else {
+            return ps;
+        };
+        let h = HeldContact {
+            point_mm: point,
+            normal: n,
+            virtual_mm: point,
+        };
+        let v = ps.velocity_mm_per_s;
+        let v_in = -(v[0] * n[0] + v[1] * n[1] + v[2] * n[2]);
+        let approach = self.ctrl.params().approach_speed_mm_per_s;
+        if depth_mm(&h, &ps.target_mm) > -SURFACE_MARGIN_MM && v_in > approach {
+            for i in 0..3 {
+                ps.velocity_mm_per_s[i] += (v_in - approach) * n[i];
+                ps.target_mm[i] = held[i] + ps.velocity_mm_per_s[i] * dt_s;
+            }
+            let mut drift = [0.0; 3];
+            for (i, d) in drift.iter_mut().enumerate() {
+                *d = ps.target_mm[i] - self.desired[i];
+            }
+            self.port.set_drift(drift);
+        }
+        ps
+    }
+
+    /// Starts the contact hand-over on a touch (the measured force above the controller's
+    /// contact threshold, in position mode) and ends it once the command lies
+    /// `release_mm` out of the surface.
+    fn update_held(&mut self, force: [f64; 3], commanded: [f64; 3]) {
+        let c = self.p.contact;
+        if !c.enabled {
+            self.held = None;
+            return;
+        }
+        match self.held {
+            None => {
+                let f = norm3(&force);
+                if f > self.ctrl.params().contact_threshold_n {
+                    let normal = [force[0] / f, force[1] / f, force[2] / f];
+                    self.held = Some(HeldContact {
+                        point_mm: commanded,
+                        normal,
+                        virtual_mm: commanded,
+                    });
+                    self.known_surface = Some((commanded, normal));
+                }
+            }
+            Some(h) => {
+                let out = depth_mm(&h, &self.desired);
+                if out < -c.release_mm {
+                    self.held = None;
+                }
+            }
+        }
+    }
+
+    /// One cycle of the contact hand-over: the passivity port moves the virtual commanded
+    /// position (its energy bound holds the depth when the observer is empty), and the
+    /// force loop is asked for the virtual spring's force at its depth.
+    fn handover(
+        &mut self,
+        h: &mut HeldContact,
+        intent: &Intent,
+        force: [f64; 3],
+        max_v: f64,
+        control: bool,
+        dt_s: f64,
+    ) -> PortCommand {
+        let c = self.p.contact;
+        let v_d = intent.desired_velocity;
+        let ps =
+            self.port
+                .step_position(h.virtual_mm, self.desired, v_d, force, max_v, dt_s, control);
+        let moved = [
+            ps.target_mm[0] - h.virtual_mm[0],
+            ps.target_mm[1] - h.virtual_mm[1],
+            ps.target_mm[2] - h.virtual_mm[2],
+        ];
+        h.virtual_mm = ps.target_mm;
+        self.held = Some(*h);
+        let depth = depth_mm(h, &h.virtual_mm);
+        let limit = self.ctrl.params().force_limit_n * c.force_share;
+        let sp = if depth >= 0.0 {
+            c.hold_min_n + c.stiffness_n_per_mm * depth
+        } else {
+            c.hold_min_n * (1.0 + depth / c.release_mm.max(1e-6)).max(0.0)
+        };
+        // Along the surface: the command's velocity without its normal part.
+        let n = h.normal;
+        let vn = v_d[0] * n[0] + v_d[1] * n[1] + v_d[2] * n[2];
+        let mut vt = [0.0; 3];
+        for i in 0..3 {
+            vt[i] = v_d[i] - vn * n[i];
+        }
+        let speed = norm3(&vt);
+        if speed > max_v {
+            for v in vt.iter_mut() {
+                *v *= max_v / speed;
+            }
+        }
+        PortCommand {
+            step: ps,
+            control,
+            drift_mm: self.port.drift_mm,
+            virtual_move_mm: Some(moved),
+            command: SlaveCommand {
+                mode: Mode::ForceGuided,
+                pose: [
+                    h.virtual_mm[0],
+                    h.virtual_mm[1],
+                    h.virtual_mm[2],
+                    self.desired_theta,
+                ],
+                velocity: [vt[0], vt[1], vt[2], 0.0],
+                force_setpoint_n: sp.clamp(0.0, limit),
+                clutch: false,
             },
         }
     }
@@ -506,19 +781,33 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     }
 
     /// The port books the motion actually commanded (the controller's rate limits and
-    /// holds included) against the force the arm measured. Only position mode closes a
+    /// holds included) against the force the arm measured at the same instants: the
+    /// displacement commanded last cycle (executed over it) against the forces measured
+    /// at its start and at its end (this cycle's reading). Only position mode closes a
     /// loop through the link: in force-guided mode the contact force is the slave's own
     /// force loop's, and nothing measured is rendered.
     fn book(&mut self, out: &ControllerOutput, intent: &Intent, port: &PortCommand, dt_s: f64) {
-        let moved = self.last_out.map_or([0.0; 3], |o| {
-            [
-                (out.commanded_pose[0] - o.commanded_pose[0]) / dt_s,
-                (out.commanded_pose[1] - o.commanded_pose[1]) / dt_s,
-                (out.commanded_pose[2] - o.commanded_pose[2]) / dt_s,
-            ]
+        let f_now = [
+            out.wrench_measured[0],
+            out.wrench_measured[1],
+            out.wrench_measured[2],
+        ];
+        if let Some((f_start, moved)) = self.pending_work.take() {
+            self.port.commit_work(f_start, f_now, moved);
+        }
+        // In the contact hand-over the link's port is the virtual commanded position (the
+        // virtual spring's), not the arm's.
+        let moved = port.virtual_move_mm.unwrap_or_else(|| {
+            self.last_out.map_or([0.0; 3], |o| {
+                [
+                    out.commanded_pose[0] - o.commanded_pose[0],
+                    out.commanded_pose[1] - o.commanded_pose[1],
+                    out.commanded_pose[2] - o.commanded_pose[2],
+                ]
+            })
         });
         if intent.mode == Mode::Position {
-            self.port.commit(port.force_n, moved, dt_s);
+            self.pending_work = Some((f_now, moved));
             if port.control {
                 self.port.hand_back(dt_s);
             }
@@ -584,12 +873,21 @@ struct PortCommand {
     step: AdmittanceStep,
     /// The port's controller acts (passivity on, position mode, no clutch).
     control: bool,
-    /// The force the port books against, N (last cycle's measurement).
-    force_n: [f64; 3],
     /// The port's drift (commanded − desired), mm.
     drift_mm: [f64; 3],
+    /// In the contact hand-over: the virtual commanded position's move this cycle, mm.
+    virtual_move_mm: Option<[f64; 3]>,
     /// The controller's command.
     command: SlaveCommand,
+}
+
+/// How close to a surface held before position mode slows to the approach speed, mm.
+const SURFACE_MARGIN_MM: f64 = 1.0;
+
+/// How far `x` lies beyond the contact's start point, along its inward normal, mm.
+fn depth_mm(h: &HeldContact, x: &[f64; 3]) -> f64 {
+    let n = h.normal;
+    (h.point_mm[0] - x[0]) * n[0] + (h.point_mm[1] - x[1]) * n[1] + (h.point_mm[2] - x[2]) * n[2]
 }
 
 /// Most commands taken from the link in one cycle (more than any queue holds).
@@ -650,15 +948,22 @@ mod tests {
         now: u64,
         seq: u64,
         reasons: u32,
+        /// Commands carry the safe-stop acknowledgement.
+        ack: bool,
     }
 
     impl Rig {
         fn cycle(&mut self, send: Option<f64>) -> TeleopCycle {
             if let Some(z) = send {
                 self.seq += 1;
-                self.master
-                    .publish(&command(self.seq, self.now, z))
-                    .unwrap();
+                let mut c = command(self.seq, self.now, z);
+                if self.ack {
+                    c.flags |= CMD_FLAG_ACK_SAFE_STOP;
+                    c.energy_in_j = 1e-4;
+                } else {
+                    c.energy_in_j = 5.0;
+                }
+                self.master.publish(&c).unwrap();
             }
             let c = self.ep.step(&mut self.slave, self.now, 1e-3);
             while let Some(fb) = self.master.try_recv().unwrap() {
@@ -680,6 +985,7 @@ mod tests {
             now: 0,
             seq: 0,
             reasons: 0,
+            ack: false,
         };
         assert_eq!(r.ep.state(), SlaveState::Idle);
         // Follow a slow downward ramp.
@@ -703,8 +1009,21 @@ mod tests {
         assert_eq!(r.ep.counters().safe_stops, 1);
         let held = r.cycle(None).out.commanded_pose;
         assert!(r.cycle(None).fault_flags & FAULT_COMMAND_TIMEOUT != 0);
-        // The master comes back 20 mm away: re-paired, and the commanded pose moves
-        // gradually (no jump).
+        // Commands without the master's acknowledgement do not re-engage the arm, and
+        // their (old ledger's) energy is not taken.
+        let observed = r.ep.port().observed_j();
+        for _ in 0..100 {
+            let c = r.cycle(Some(-230.0));
+            assert!(!c.repaired);
+            assert_eq!(c.state, SlaveState::SafeStop);
+            assert!((c.out.commanded_pose[2] - held[2]).abs() < 0.2);
+        }
+        assert_eq!(r.ep.port().observed_j(), observed);
+        assert_eq!(r.ep.counters().unacknowledged_in_safe_stop, 100);
+        // The master comes back 20 mm away and acknowledges: re-paired on a new ledger
+        // (the old ledger's 5 J are gone), and the commanded pose moves gradually (no
+        // jump).
+        r.ack = true;
         let mut prev = held;
         let mut repaired = false;
         for _ in 0..300 {
@@ -716,6 +1035,8 @@ mod tests {
         }
         assert!(repaired);
         assert_eq!(r.ep.counters().repairs, 1);
+        assert_eq!(r.ep.counters().new_pairings, 1);
+        assert!(r.ep.port().observed_j() <= 1e-4 + 1e-12);
         assert_eq!(r.ep.state(), SlaveState::Active);
         assert!(prev[2] > held[2] + 1.0, "did not move towards the master");
         assert_eq!(r.ep.counters().feedback_published, r.ep.counters().cycles);
@@ -732,6 +1053,7 @@ mod tests {
             now: 0,
             seq: 0,
             reasons: 0,
+            ack: false,
         };
         for _ in 0..200 {
             r.cycle(Some(-250.0));

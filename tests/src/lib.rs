@@ -1,5 +1,7 @@
 //! Helpers shared by the behaviour tests: the reference kinematics vectors.
 
+pub mod bins;
+
 use h4_shared::H4Params;
 use serde::Deserialize;
 

@@ -351,21 +351,29 @@ impl<M: WireMessage> Gate<M> {
         }
         let energy_j = msg.energies_j();
         let next = match current {
-            Some(s) => self.energy_step(&s, energy_j, silence.unwrap_or(0)),
-            None => {
+            Some(s) if !msg.starts_new_ledger() => {
+                self.energy_step(&s, energy_j, silence.unwrap_or(0))
+            }
+            _ => {
+                // A new session, or a new ledger inside one (the safe-stop acknowledgement):
+                // energies ≥ 0, and a new ledger starts within the reserve.
+                let cap = match (current.is_some(), self.energy) {
+                    (true, Some(b)) => b.reserve_j,
+                    _ => f64::INFINITY,
+                };
                 for (field, e) in [("energy_in_j", energy_j.0), ("energy_out_j", energy_j.1)] {
-                    if self.energy.is_some() && e < 0.0 {
+                    if self.energy.is_some() && !(0.0..=cap).contains(&e) {
                         return Err(Rejection::ImplausibleEnergy {
                             field,
                             change_j: e,
-                            allowed_j: 0.0,
+                            allowed_j: cap,
                         });
                     }
                 }
                 let full = self.energy.map_or(0.0, |b| b.reserve_j);
                 Ok(Session {
                     id: sid,
-                    last_seq: msg.seq(),
+                    last_seq: current.map_or(msg.seq(), |s| s.last_seq),
                     energy_j,
                     baseline_j: energy_j,
                     budget_j: (full, full),

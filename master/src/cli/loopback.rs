@@ -56,6 +56,10 @@ pub struct LoopbackArgs {
     /// otherwise a warning and normal scheduling).
     #[arg(long)]
     pub fifo_priority: Option<i32>,
+    /// The live view: the master serves at HOST:PORT, the slave at HOST:PORT+1 (with port 0,
+    /// each picks a free port; both are printed on stderr).
+    #[command(flatten)]
+    pub live: h4_shared::live::LiveArgs,
 }
 
 /// What `loopback` prints.
@@ -149,6 +153,12 @@ impl LoopbackArgs {
         if let Some(p) = self.fifo_priority {
             cmd.arg("--fifo-priority").arg(p.to_string());
         }
+        if let Some(addr) = self.live.slave_address() {
+            if !addr.ends_with(":0") {
+                eprintln!("h4-master loopback: the slave's live view at ws://{addr}");
+            }
+            cmd.arg("--foxglove-ws").arg(addr);
+        }
         let slave = cmd
             .spawn()
             .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
@@ -187,6 +197,7 @@ impl LoopbackArgs {
                 lock_memory: false,
             },
             wait_for_slave_s: 20.0,
+            live: self.live.clone(),
         };
         // The slave is told to stop the moment the master's loop ends, before its watchdog
         // sees the master's silence.

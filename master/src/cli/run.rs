@@ -25,6 +25,9 @@ pub struct RunArgs {
     /// Duration, summary, recording, real-time settings.
     #[command(flatten)]
     pub run: LoopArgs,
+    /// The live view.
+    #[command(flatten)]
+    pub live: h4_shared::live::LiveArgs,
     /// Wait this long for the slave's first feedback before the operator's script starts, s.
     #[arg(long, default_value_t = 10.0)]
     pub wait_for_slave_s: f64,
@@ -49,6 +52,7 @@ impl RunArgs {
             duration_s: self.run.duration_s,
             wait_for_slave_s: self.wait_for_slave_s,
             record: self.run.record.clone(),
+            foxglove_ws: self.live.foxglove_ws.clone(),
             ..MasterRunOptions::default()
         };
         server::run_then(&cfg, &opts, link, at_loop_end).map_err(|e| e.to_string())

@@ -8,6 +8,7 @@ use h4_slave::controller::ControllerParams;
 use h4_slave::plant::{
     Axis, MaterialPreset, PlantConfig, SensorConfig, ShapeKind, Surface, SurfaceConfig,
 };
+use h4_slave::teleop::ContactHandover;
 use h4_slave::world::SlaveWorld;
 use h4_transport::impair::ImpairmentConfig;
 use serde::{Deserialize, Serialize};
@@ -126,6 +127,8 @@ pub struct SlaveConfig {
     pub controller: ControllerParams,
     /// Command silence after which the slave holds, ms.
     pub command_timeout_ms: f64,
+    /// Contact hand-over to the slave's force loop (position mode).
+    pub contact: ContactHandover,
 }
 
 impl Default for SlaveConfig {
@@ -135,7 +138,8 @@ impl Default for SlaveConfig {
             plant: PlantConfig::default(),
             sensor: SensorConfig::default(),
             controller: ControllerParams::default(),
-            command_timeout_ms: 500.0,
+            command_timeout_ms: 20.0,
+            contact: ContactHandover::default(),
         }
     }
 }
@@ -271,6 +275,7 @@ impl Section for SlaveConfig {
         self.controller.validate_at(&f("controller."))?;
         self.plant.validate_at(&f("plant."))?;
         self.sensor.validate_at(&f("sensor."))?;
+        self.contact.validate_at(&f("contact."))?;
         check_range(
             &f("command_timeout_ms"),
             self.command_timeout_ms,

@@ -39,6 +39,17 @@ pub struct DetectorConfig {
     pub energy_tolerance_j: f64,
     /// Contact force above which the run is unstable, N.
     pub force_limit_n: f64,
+    /// A hold: the operator's intent at rest, pushing with at least this force, N.
+    pub hold_push_min_n: f64,
+    /// Time skipped at the start of each hold before its force and ripple are measured, s.
+    pub hold_settle_s: f64,
+    /// Ripple of the true contact force around its linear trend over a hold (every
+    /// frequency above 1 / the hold's length, 0.2 Hz for a 5 s hold), N RMS, above which
+    /// the run is unstable.
+    pub hold_ripple_limit_n: f64,
+    /// While the operator pushes, a contact lost and regained whose force reaches this is a
+    /// bounce (any bounce is unstable), N.
+    pub bounce_force_n: f64,
 }
 
 impl Default for DetectorConfig {
@@ -57,6 +68,10 @@ impl Default for DetectorConfig {
             oscillation_floor_n: 0.5,
             energy_tolerance_j: 0.01,
             force_limit_n: 100.0,
+            hold_push_min_n: 0.5,
+            hold_settle_s: 1.0,
+            hold_ripple_limit_n: 1.0,
+            bounce_force_n: 2.0,
         }
     }
 }
@@ -112,7 +127,17 @@ impl Section for DetectorConfig {
             1e3,
             "J",
         )?;
-        check_range(&f("force_limit_n"), self.force_limit_n, 0.0, 1e4, "N")
+        check_range(&f("force_limit_n"), self.force_limit_n, 0.0, 1e4, "N")?;
+        check_range(&f("hold_push_min_n"), self.hold_push_min_n, 0.0, 100.0, "N")?;
+        check_range(&f("hold_settle_s"), self.hold_settle_s, 0.0, 100.0, "s")?;
+        check_range(
+            &f("hold_ripple_limit_n"),
+            self.hold_ripple_limit_n,
+            0.0,
+            1e3,
+            "N",
+        )?;
+        check_range(&f("bounce_force_n"), self.bounce_force_n, 0.0, 1e4, "N")
     }
 }
 
@@ -183,6 +208,160 @@ pub struct Summary {
     pub sim_time_s: f64,
     /// Wall-clock time of the simulation, s (the only field that is not deterministic).
     pub wall_time_s: f64,
+    /// Largest true contact force from the first touch until the first hold has settled
+    /// (`detector.hold_settle_s` into it), N (0: no contact).
+    pub first_touch_peak_n: f64,
+    /// Mean true contact force of each hold (intent at rest, pushing), after
+    /// `detector.hold_settle_s`, N.
+    pub hold_force_n: Vec<f64>,
+    /// What each hold asks for: |push| / `scale.force`, N at the slave.
+    pub hold_target_n: Vec<f64>,
+    /// Largest, over the holds, RMS of the true contact force around its linear trend
+    /// (least squares over the settled hold): every oscillation slower than the hold
+    /// itself down to 1 / its length counts, N.
+    pub hold_ripple_rms_n: f64,
+    /// Contacts lost and regained, reaching `detector.bounce_force_n`, while the operator
+    /// pushes (after the first touch of each push).
+    pub bounces: u64,
+    /// Safe stops of the slave (its watchdog).
+    pub slave_safe_stops: u64,
+    /// Safe stops the master saw in the feedback (and faded out for).
+    pub master_saw_safe_stops: u64,
+    /// Re-engagements after a safe stop (each on the master's acknowledgement).
+    pub repairs: u64,
+}
+
+/// The holds of a run and what they show (see [`Summary`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(super) struct Holds {
+    pub(super) first_touch_peak_n: f64,
+    pub(super) force_n: Vec<f64>,
+    pub(super) target_n: Vec<f64>,
+    pub(super) ripple_rms_n: f64,
+    pub(super) bounces: u64,
+}
+
+impl Holds {
+    #[cfg(test)]
+    fn hold_count(&self) -> usize {
+        self.force_n.len()
+    }
+}
+
+/// RMS of `y` around its least-squares line.
+fn detrended_rms(y: &[f64]) -> f64 {
+    let n = y.len() as f64;
+    if y.len() < 3 {
+        return 0.0;
+    }
+    let mx = (n - 1.0) / 2.0;
+    let my = y.iter().sum::<f64>() / n;
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for (i, v) in y.iter().enumerate() {
+        let dx = i as f64 - mx;
+        sxy += dx * (v - my);
+        sxx += dx * dx;
+    }
+    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    let ss: f64 = y
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let r = v - my - b * (i as f64 - mx);
+            r * r
+        })
+        .sum();
+    (ss / n).sqrt()
+}
+
+/// The holds of a run from the true force, the operator's push (|push| per cycle, N) and
+/// whether the intent was at rest, per cycle.
+pub(super) fn holds(
+    force_n: &[f64],
+    push_n: &[f64],
+    steady: &[bool],
+    force_scale: f64,
+    d: &DetectorConfig,
+) -> Holds {
+    let mut h = Holds::default();
+    let settle = (d.hold_settle_s / DT_S).round() as usize;
+    let len = force_n.len().min(push_n.len()).min(steady.len());
+    // Holds: runs of steady cycles pushing with at least hold_push_min_n.
+    let mut k = 0;
+    let mut first_hold_settled: Option<usize> = None;
+    while k < len {
+        if !(steady[k] && push_n[k] >= d.hold_push_min_n) {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < len && steady[k] && push_n[k] >= d.hold_push_min_n {
+            k += 1;
+        }
+        if k - start > settle + 2 {
+            let seg = &force_n[start + settle..k];
+            h.force_n.push(seg.iter().sum::<f64>() / seg.len() as f64);
+            h.target_n.push(push_n[start] / force_scale);
+            h.ripple_rms_n = h.ripple_rms_n.max(detrended_rms(seg));
+            first_hold_settled.get_or_insert(start + settle);
+        }
+    }
+    // The first touch: from the first contact until the first hold has settled.
+    if let Some(first) = force_n[..len]
+        .iter()
+        .position(|&f| f > d.contact_threshold_n)
+    {
+        let end = first_hold_settled.unwrap_or(len).max(first + 1).min(len);
+        h.first_touch_peak_n = force_n[first..end].iter().fold(0.0, |a: f64, &b| a.max(b));
+    }
+    // Bounces: while pushing, after the first touch of the push, a contact lost (force
+    // below the threshold) and regained reaching bounce_force_n.
+    let mut touched = false;
+    let mut lost = false;
+    let mut peak = 0.0_f64;
+    let mut counting = false;
+    for kk in 0..len {
+        let pushing = push_n[kk] >= d.hold_push_min_n;
+        if !pushing {
+            touched = false;
+            lost = false;
+            counting = false;
+            continue;
+        }
+        let contact = force_n[kk] > d.contact_threshold_n;
+        if contact && !touched {
+            touched = true;
+        } else if touched && !contact {
+            if counting && peak >= d.bounce_force_n {
+                h.bounces += 1;
+            }
+            counting = false;
+            lost = true;
+        } else if touched && contact && lost && !counting {
+            counting = true;
+            peak = 0.0;
+        }
+        if counting {
+            peak = peak.max(force_n[kk]);
+        }
+    }
+    if counting && peak >= d.bounce_force_n {
+        h.bounces += 1;
+    }
+    h
+}
+
+/// What the run knows beyond the per-cycle samples.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct RunFacts {
+    /// `scale.force`.
+    pub(super) force_scale: f64,
+    /// Safe stops of the slave.
+    pub(super) slave_safe_stops: u64,
+    /// Safe stops the master saw.
+    pub(super) master_saw_safe_stops: u64,
+    /// Re-engagements after a safe stop.
+    pub(super) repairs: u64,
 }
 
 /// Window of [`Summary::master_force_chatter_n`], cycles (1 ms each).
@@ -201,6 +380,10 @@ pub(super) struct Sample {
     pub(super) free_motion: bool,
     pub(super) rejected: bool,
     pub(super) finite: bool,
+    /// |The operator's push|, N at the handle.
+    pub(super) push_n: f64,
+    /// The intent at rest (holds): like `steady` but the clutch does not matter.
+    pub(super) intent_steady: bool,
 }
 
 /// Contact episodes: runs of cycles with the contact force above `threshold_n`, runs less
@@ -307,6 +490,10 @@ pub(super) struct Evaluator {
     force_n: Vec<f64>,
     /// Position drift of every cycle, mm.
     drift_mm: Vec<f64>,
+    /// |Push| of every cycle, N.
+    push_n: Vec<f64>,
+    /// The intent at rest, every cycle.
+    intent_steady: Vec<bool>,
     steady_s: f64,
     energy_min: f64,
     max_force: f64,
@@ -331,6 +518,8 @@ impl Evaluator {
             det,
             force_n: Vec::with_capacity(cycles),
             drift_mm: Vec::with_capacity(cycles),
+            push_n: Vec::with_capacity(cycles),
+            intent_steady: Vec::with_capacity(cycles),
             steady_s: 0.0,
             energy_min: 0.0,
             max_force: 0.0,
@@ -385,6 +574,8 @@ impl Evaluator {
         let in_contact = s.true_force_n > d.contact_threshold_n;
         self.force_n.push(s.true_force_n);
         self.drift_mm.push(s.drift_mm);
+        self.push_n.push(s.push_n);
+        self.intent_steady.push(s.intent_steady);
         if !in_contact && s.free_motion && s.steady {
             self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
             self.track_n += 1;
@@ -406,6 +597,7 @@ impl Evaluator {
         rtt_mean_ms: f64,
         cycles: u64,
         wall_time_s: f64,
+        fin: &RunFacts,
     ) -> Summary {
         let d = self.det;
         let win = (d.window_s / DT_S).round() as usize;
@@ -482,6 +674,25 @@ impl Evaluator {
                 self.max_force, d.force_limit_n
             ));
         }
+        let holds = holds(
+            &self.force_n,
+            &self.push_n,
+            &self.intent_steady,
+            fin.force_scale,
+            &d,
+        );
+        if holds.ripple_rms_n > d.hold_ripple_limit_n {
+            reasons.push(format!(
+                "hold ripple: true force {:.2} N RMS around its trend > {} N",
+                holds.ripple_rms_n, d.hold_ripple_limit_n
+            ));
+        }
+        if holds.bounces > 0 {
+            reasons.push(format!(
+                "bounces: {} contacts lost and regained (reaching {} N) while pushing",
+                holds.bounces, d.bounce_force_n
+            ));
+        }
         let sim_time_s = cycles as f64 * DT_S;
         Summary {
             name,
@@ -519,6 +730,14 @@ impl Evaluator {
             cycles,
             sim_time_s,
             wall_time_s,
+            first_touch_peak_n: holds.first_touch_peak_n,
+            hold_force_n: holds.force_n,
+            hold_target_n: holds.target_n,
+            hold_ripple_rms_n: holds.ripple_rms_n,
+            bounces: holds.bounces,
+            slave_safe_stops: fin.slave_safe_stops,
+            master_saw_safe_stops: fin.master_saw_safe_stops,
+            repairs: fin.repairs,
         }
     }
 }
@@ -641,5 +860,85 @@ mod tests {
         assert_eq!(bouncing_impacts(&f, &e[6..], 500, 1.0, 2000), 3);
         // With a longer settle time the held push is an impact too.
         assert_eq!(bouncing_impacts(&f, &e, 2500, 2.0, 2000), 7);
+    }
+
+    /// The holds' measures on synthetic forces, with negative controls: a slow (0.3 Hz)
+    /// limit cycle of ±2 N around a held 12 N is caught as ripple, while a steady push
+    /// ramping up by 4 N over the hold (a trend) is not; a contact lost and regained while
+    /// pushing is a bounce; the first-touch peak is the impact before the hold.
+    #[test]
+    fn holds_see_slow_oscillation_bounces_and_the_first_touch() {
+        let d = DetectorConfig::default();
+        let n = 8000;
+        let push = vec![6.0; n];
+        let steady: Vec<bool> = (0..n).map(|k| k >= 1000).collect();
+        let touch = |k: usize| {
+            if k < 500 {
+                0.0
+            } else if k < 520 {
+                30.0
+            } else {
+                12.0
+            }
+        };
+        let slow: Vec<f64> = (0..n)
+            .map(|k| {
+                touch(k)
+                    + if k >= 520 {
+                        2.0 * (2.0 * std::f64::consts::PI * 0.3 * k as f64 * DT_S).sin()
+                    } else {
+                        0.0
+                    }
+            })
+            .collect();
+        let h = holds(&slow, &push, &steady, 0.5, &d);
+        assert!(h.ripple_rms_n > 1.2, "{h:?}");
+        assert_eq!(h.hold_count(), 1);
+        assert!((h.target_n[0] - 12.0).abs() < 1e-9);
+        assert!((h.first_touch_peak_n - 30.0).abs() < 1e-9, "{h:?}");
+        let ramp: Vec<f64> = (0..n)
+            .map(|k| {
+                touch(k)
+                    + if k >= 520 {
+                        4.0 * k as f64 / n as f64
+                    } else {
+                        0.0
+                    }
+            })
+            .collect();
+        let h = holds(&ramp, &push, &steady, 0.5, &d);
+        assert!(h.ripple_rms_n < 0.01, "{h:?}");
+        assert!(
+            (h.force_n[0] - 12.0 - 4.0 * 5000.0 / 8000.0).abs() < 0.3,
+            "{h:?}"
+        );
+        assert_eq!(h.bounces, 0);
+        // Two bounces: contact lost for 50 ms twice, regained at 12 N.
+        let bouncy: Vec<f64> = (0..n)
+            .map(|k| {
+                if (3000..3050).contains(&k) || (5000..5050).contains(&k) {
+                    0.0
+                } else {
+                    touch(k)
+                }
+            })
+            .collect();
+        let h = holds(&bouncy, &push, &steady, 0.5, &d);
+        assert_eq!(h.bounces, 2, "{h:?}");
+        // A release (no push) and a new touch is not a bounce.
+        let mut push2 = push.clone();
+        for p in push2.iter_mut().take(5100).skip(4900) {
+            *p = 0.0;
+        }
+        let rel: Vec<f64> = (0..n)
+            .map(|k| {
+                if (5000..5050).contains(&k) {
+                    0.0
+                } else {
+                    touch(k)
+                }
+            })
+            .collect();
+        assert_eq!(holds(&rel, &push2, &steady, 0.5, &d).bounces, 0);
     }
 }

@@ -16,7 +16,7 @@ use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopParams};
 use h4_transport::impair::Impaired;
 use h4_transport::inproc::{self, InprocEnd};
 
-use super::detector::{Evaluator, Sample};
+use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
 use super::{CYCLE_NS, DT_S, SessionConfig, SessionError, Summary};
 use crate::teleop::{MasterCycle, MasterTeleop, MasterTeleopError};
@@ -61,6 +61,7 @@ impl Session {
                 restart_silence_ms: 1000.0,
                 passivity: cfg.passivity,
                 speed_margin: 0.9,
+                contact: cfg.slave.contact,
             },
             ctrl,
             arm,
@@ -133,6 +134,8 @@ impl Session {
             rejected: s.out.status == Status::Rejected,
             finite: m.handle.pose.iter().all(|v| v.is_finite())
                 && meas.iter().all(|v| v.is_finite()),
+            push_n: norm3(&intent.push_n),
+            intent_steady: intent.steady,
         }
     }
 
@@ -182,6 +185,12 @@ impl Session {
         let rejected =
             self.master.gate_counters().rejected() + self.slave.gate_counters().rejected();
         let rtt = self.master.round_trip().mean_ms();
+        let facts = RunFacts {
+            force_scale: self.cfg.scale.force,
+            slave_safe_stops: self.slave.counters().safe_stops,
+            master_saw_safe_stops: self.master.coupling().safe_stops_seen,
+            repairs: self.slave.counters().repairs,
+        };
         let mut summary = ev.finish(
             self.cfg.name.clone(),
             dissipated,
@@ -190,6 +199,7 @@ impl Session {
             rtt,
             cycles,
             wall_time_s,
+            &facts,
         );
         summary.slave_gate = *self.slave.gate_counters();
         summary.master_gate = *self.master.gate_counters();

@@ -27,6 +27,9 @@ pub struct RunArgs {
     /// Duration, summary, recording, real-time settings.
     #[command(flatten)]
     pub run: LoopArgs,
+    /// The live view.
+    #[command(flatten)]
+    pub live: h4_shared::live::LiveArgs,
     /// No valid command for this long puts the arm in its safe state, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
@@ -70,6 +73,7 @@ impl RunArgs {
             lock_memory: self.run.lock_memory,
             duration_s: self.run.duration_s,
             record: self.run.record.clone(),
+            foxglove_ws: self.live.foxglove_ws.clone(),
             ..RunOptions::default()
         };
         let summary = server::run(&cfg, &opts, &mut link).map_err(|e| e.to_string())?;
