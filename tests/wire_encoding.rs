@@ -75,8 +75,8 @@ proptest! {
     fn non_finite_numbers_are_rejected(fb in feedback(), slot in 0usize..14, which in 0usize..3) {
         let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][which];
         let mut bytes = encode(&fb);
-        // f64 fields start after the 8-byte header and the four u64 fields.
-        let at = 8 + 32 + 8 * slot;
+        // f64 fields start after the 16-byte header and the four u64 fields.
+        let at = 16 + 32 + 8 * slot;
         bytes[at..at + 8].copy_from_slice(&bad.to_le_bytes());
         let ok = matches!(Feedback::decode_from(&bytes), Err(WireError::NonFinite { .. }));
         prop_assert!(ok, "slot {}", slot);
@@ -98,7 +98,8 @@ proptest! {
         let mut bytes = good.clone();
         bytes[2..4].copy_from_slice(&v.to_le_bytes());
         prop_assert_eq!(Command::decode_from(&bytes), Err(WireError::WrongVersion { ours: PROTOCOL_VERSION, theirs: v }));
-        prop_assert_eq!(Feedback::decode_from(&good), Err(WireError::WrongSize { expected: Feedback::WIRE_SIZE, got: Command::WIRE_SIZE }));
+        // The header is judged before the size: a command on the feedback key is the wrong kind.
+        prop_assert_eq!(Feedback::decode_from(&good), Err(WireError::WrongKind { expected: 2, got: 1 }));
         let mut bytes = good.clone();
         bytes[4] = 2;
         prop_assert_eq!(Command::decode_from(&bytes), Err(WireError::WrongKind { expected: 1, got: 2 }));

@@ -11,7 +11,7 @@ use std::path::PathBuf;
 
 use h4_shared::wire::{
     CMD_FLAG_CLUTCH, Command, FAULT_CONTACT_LOST, FAULT_FORCE_LIMIT, Feedback, Mode,
-    PROTOCOL_VERSION, SlaveState, WireError,
+    PROTOCOL_VERSION, RejectReason, SlaveState, WireError,
 };
 use serde_json::{Value, json};
 
@@ -32,7 +32,7 @@ fn unhex(s: &str) -> Vec<u8> {
 
 fn command_fields(c: &Command) -> Value {
     json!({
-        "seq": c.seq, "send_time_ns": c.send_time_ns, "pose": c.pose, "velocity": c.velocity,
+        "session_id": c.session_id, "seq": c.seq, "send_time_ns": c.send_time_ns, "pose": c.pose, "velocity": c.velocity,
         "force_setpoint_n": c.force_setpoint_n, "energy_in_j": c.energy_in_j,
         "energy_out_j": c.energy_out_j, "protocol_version": c.protocol_version,
         "arm_id": c.arm_id, "mode": c.mode, "reserved": c.reserved, "flags": c.flags,
@@ -41,12 +41,14 @@ fn command_fields(c: &Command) -> Value {
 
 fn feedback_fields(f: &Feedback) -> Value {
     json!({
-        "seq": f.seq, "send_time_ns": f.send_time_ns, "echo_seq": f.echo_seq,
+        "session_id": f.session_id, "seq": f.seq, "send_time_ns": f.send_time_ns,
+        "echo_seq": f.echo_seq,
         "echo_send_time_ns": f.echo_send_time_ns, "pose": f.pose,
         "wrench_measured": f.wrench_measured, "wrench_desired": f.wrench_desired,
         "energy_in_j": f.energy_in_j, "energy_out_j": f.energy_out_j,
         "protocol_version": f.protocol_version, "arm_id": f.arm_id, "state": f.state,
         "reserved": f.reserved, "fault_flags": f.fault_flags,
+        "rejected_reasons": f.rejected_reasons, "rejected_count": f.rejected_count,
     })
 }
 
@@ -57,6 +59,7 @@ fn f4(v: &Value) -> [f64; 4] {
 
 fn command_from(v: &Value) -> Command {
     Command {
+        session_id: v["session_id"].as_u64().unwrap(),
         seq: v["seq"].as_u64().unwrap(),
         send_time_ns: v["send_time_ns"].as_u64().unwrap(),
         pose: f4(&v["pose"]),
@@ -74,6 +77,7 @@ fn command_from(v: &Value) -> Command {
 
 fn feedback_from(v: &Value) -> Feedback {
     Feedback {
+        session_id: v["session_id"].as_u64().unwrap(),
         seq: v["seq"].as_u64().unwrap(),
         send_time_ns: v["send_time_ns"].as_u64().unwrap(),
         echo_seq: v["echo_seq"].as_u64().unwrap(),
@@ -88,6 +92,8 @@ fn feedback_from(v: &Value) -> Feedback {
         state: v["state"].as_u64().unwrap() as u8,
         reserved: v["reserved"].as_u64().unwrap() as u8,
         fault_flags: v["fault_flags"].as_u64().unwrap() as u16,
+        rejected_reasons: v["rejected_reasons"].as_u64().unwrap() as u32,
+        rejected_count: v["rejected_count"].as_u64().unwrap() as u32,
     }
 }
 
@@ -106,6 +112,7 @@ fn encode_feedback(f: &Feedback) -> Vec<u8> {
 /// The cases the file is made from.
 fn make_vectors() -> Value {
     let cmd = Command {
+        session_id: 0x1122_3344_5566_7788,
         seq: 42,
         send_time_ns: 1_764_620_000_123_456_789,
         pose: [10.0, -5.5, -250.0, 0.349],
@@ -119,12 +126,14 @@ fn make_vectors() -> Value {
         ..Command::default()
     };
     let hold = Command {
+        session_id: 1,
         seq: 1,
         send_time_ns: 1_000_000,
         pose: [0.0, 0.0, -250.0, 0.0],
         ..Command::default()
     };
     let fb = Feedback {
+        session_id: 0xA1B2_C3D4_E5F6_0718,
         seq: 7,
         send_time_ns: 1_764_620_000_124_000_000,
         echo_seq: 42,
@@ -137,6 +146,8 @@ fn make_vectors() -> Value {
         arm_id: 3,
         state: SlaveState::Active as u8,
         fault_flags: FAULT_FORCE_LIMIT | FAULT_CONTACT_LOST,
+        rejected_reasons: RejectReason::OutOfRange.bit() | RejectReason::Stale.bit(),
+        rejected_count: 17,
         ..Feedback::default()
     };
     let good = encode_command(&cmd);
@@ -147,13 +158,24 @@ fn make_vectors() -> Value {
         }));
     };
     let mut b = good.clone();
-    b[2] = 2;
+    b[2] = 3;
     bad(
-        "protocol version 2 in the header",
+        "protocol version 3 in the header",
         b,
         WireError::WrongVersion {
             ours: PROTOCOL_VERSION,
-            theirs: 2,
+            theirs: 3,
+        },
+    );
+    // A version-1 command (8-byte header, 120 bytes): refused as another version.
+    let mut b = good[..120].to_vec();
+    b[2] = 1;
+    bad(
+        "a protocol version 1 command",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 1,
         },
     );
     let mut b = good.clone();
@@ -177,7 +199,7 @@ fn make_vectors() -> Value {
         },
     );
     let mut b = good.clone();
-    b[117] = 4;
+    b[125] = 4;
     bad(
         "body reserved byte set",
         b,
@@ -187,13 +209,13 @@ fn make_vectors() -> Value {
         },
     );
     let mut b = good.clone();
-    b[116] = 9;
+    b[124] = 9;
     bad("mode 9", b, WireError::BadMode(9));
     let mut b = good.clone();
-    b[118] = 0x04;
+    b[126] = 0x04;
     bad("unknown flag bit 2", b, WireError::BadFlags(0x04));
     let mut b = good.clone();
-    b[24..32].copy_from_slice(&f64::NAN.to_le_bytes());
+    b[32..40].copy_from_slice(&f64::NAN.to_le_bytes());
     bad("NaN in pose[0]", b, WireError::NonFinite { field: "pose" });
     bad(
         "one byte short",
@@ -275,7 +297,7 @@ fn vectors_decode_to_their_fields_and_fields_encode_to_their_bytes() {
         );
         checked += 1;
     }
-    assert_eq!(checked, 13);
+    assert_eq!(checked, 14);
 }
 
 #[test]
@@ -283,9 +305,13 @@ fn documented_offsets_match_the_encoding() {
     // docs/wire.md's offset tables, checked against the encoder: a field written at another
     // offset fails here.
     let cmd = Command {
+        session_id: 0x1122_3344_5566_7788,
         seq: 0x0102_0304_0506_0708,
         force_setpoint_n: 20.0,
+        energy_in_j: 0.25,
         arm_id: 0xBEEF,
+        mode: 2,
+        flags: 1,
         ..Command::default()
     };
     let b = encode_command(&cmd);
@@ -293,20 +319,36 @@ fn documented_offsets_match_the_encoding() {
     assert_eq!(u16::from_le_bytes([b[2], b[3]]), PROTOCOL_VERSION);
     assert_eq!((b[4], b[5]), (1, 0));
     assert_eq!(u16::from_le_bytes([b[6], b[7]]), 112);
-    assert_eq!(b[8], 0x08);
-    assert_eq!(&b[88..96], &20.0f64.to_le_bytes());
-    assert_eq!(u16::from_le_bytes([b[114], b[115]]), 0xBEEF);
-    assert_eq!(b.len(), 120);
+    assert_eq!(
+        u64::from_le_bytes(b[8..16].try_into().unwrap()),
+        cmd.session_id
+    );
+    assert_eq!(b[16], 0x08);
+    assert_eq!(&b[96..104], &20.0f64.to_le_bytes());
+    assert_eq!(&b[104..112], &0.25f64.to_le_bytes());
+    assert_eq!(u16::from_le_bytes([b[120], b[121]]), PROTOCOL_VERSION);
+    assert_eq!(u16::from_le_bytes([b[122], b[123]]), 0xBEEF);
+    assert_eq!((b[124], b[125], b[126], b[127]), (2, 0, 1, 0));
+    assert_eq!(b.len(), 128);
     let fb = Feedback {
+        session_id: 5,
         echo_send_time_ns: 99,
         energy_out_j: 1.5,
         fault_flags: FAULT_FORCE_LIMIT,
+        rejected_reasons: 0x210,
+        rejected_count: 0x0A0B_0C0D,
         ..Feedback::default()
     };
     let b = encode_feedback(&fb);
-    assert_eq!((b[4], u16::from_le_bytes([b[6], b[7]])), (2, 152));
-    assert_eq!(u64::from_le_bytes(b[32..40].try_into().unwrap()), 99);
-    assert_eq!(&b[144..152], &1.5f64.to_le_bytes());
-    assert_eq!(u16::from_le_bytes([b[158], b[159]]), FAULT_FORCE_LIMIT);
-    assert_eq!(b.len(), 160);
+    assert_eq!((b[4], u16::from_le_bytes([b[6], b[7]])), (2, 160));
+    assert_eq!(u64::from_le_bytes(b[8..16].try_into().unwrap()), 5);
+    assert_eq!(u64::from_le_bytes(b[40..48].try_into().unwrap()), 99);
+    assert_eq!(&b[152..160], &1.5f64.to_le_bytes());
+    assert_eq!(u16::from_le_bytes([b[166], b[167]]), FAULT_FORCE_LIMIT);
+    assert_eq!(u32::from_le_bytes(b[168..172].try_into().unwrap()), 0x210);
+    assert_eq!(
+        u32::from_le_bytes(b[172..176].try_into().unwrap()),
+        0x0A0B_0C0D
+    );
+    assert_eq!(b.len(), 176);
 }

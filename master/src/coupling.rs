@@ -815,6 +815,8 @@ impl MasterCoupling {
         let t = self.last.slave_target;
         self.sent[(self.seq % SENT_HISTORY as u64) as usize] = (self.seq, [t[0], t[1], t[2]]);
         Command {
+            // Set by the endpoint (`MasterTeleop`) that owns the session.
+            session_id: 0,
             seq: self.seq,
             send_time_ns: now_ns,
             pose: t,

@@ -18,6 +18,7 @@ use h4_shared::recording::BackgroundRecorder;
 use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
+use h4_transport::gate::GateCounters;
 use serde::{Deserialize, Serialize};
 
 use crate::session::{SessionConfig, SessionError};
@@ -86,9 +87,13 @@ pub struct MasterRunSummary {
     pub round_trip_max_us: f64,
     /// Feedback messages received from the link (before the gate).
     pub feedback_received: u64,
-    /// Feedback messages the gate rejected as malformed (undecodable included), of another
-    /// protocol version or for another arm: they never reach the coupling.
+    /// Feedback messages rejected for any reason but `stale` (duplicates and reordered
+    /// messages): undecodable, wrong version, wrong arm, reserved bits, length mismatch,
+    /// wild sequence number, wrong session, implausible energy. They never reach the coupling.
     pub feedback_invalid: u64,
+    /// The master's receive gate: feedback accepted, rejected by reason, pairings with a
+    /// slave session (docs/processes.md).
+    pub gate: GateCounters,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
     /// Largest force rendered to the operator, N.
@@ -297,8 +302,10 @@ pub fn run_then<L: Link<Command, Feedback>>(
     s.round_trip_p999_us = us(r.quantile(0.999));
     s.round_trip_max_us = us(r.max());
     let gate = side.gate_counters();
-    s.feedback_received = side.counters().feedback_received + gate.undecodable;
-    s.feedback_invalid = gate.wrong_version + gate.malformed + gate.wrong_arm + gate.undecodable;
+    s.feedback_received =
+        side.counters().feedback_received + side.gate().link_decode_rejects().total();
+    s.feedback_invalid = gate.rejected() - gate.stale;
+    s.gate = *gate;
     s.link_errors = side.counters().link_errors;
     s.force_transparency_err_pct = stats.transparency_err_pct();
     let (sent, arrived) = link_stats.totals();

@@ -8,8 +8,8 @@
 //! 1. the operator's hand acts on the handle (the simulated master arm, [`SimMasterArm`]),
 //!    and the handle is read;
 //! 2. drains the link through the receive gate, the only check of incoming feedback (wrong
-//!    version, wrong arm, malformed, undecodable, duplicated or reordered feedback is
-//!    counted and dropped); each accepted message goes to the coupling and to the round-trip
+//!    version, wrong arm, undecodable, reserved bits, length, session, sequence number or
+//!    energy is counted by reason and dropped); each accepted message goes to the coupling and to the round-trip
 //!    figure ([`RoundTrip`]);
 //! 3. the coupling step ([`MasterCoupling`]: mapping of the handle into the slave's
 //!    workspace, the rendered force with its passivity port, clutch, fade);
@@ -24,7 +24,7 @@ use h4_shared::passivity::PassivityParams;
 use h4_shared::rt::Histogram;
 use h4_shared::wire::{Command, Feedback};
 use h4_transport::Link;
-use h4_transport::gate::{Gate, GateCounters};
+use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;
 
 use crate::coupling::{CouplingConfig, CouplingParams, MasterCoupling, MasterStep, ScaleConfig};
@@ -37,6 +37,9 @@ const RESTART_SILENCE_MS: f64 = 1000.0;
 
 /// Share of the slave controller's speed limit the master commands at most.
 const SLAVE_SPEED_MARGIN: f64 = 0.9;
+
+/// The largest force limit a slave accepts, N (the bound of the feedback's energy check).
+const SLAVE_FORCE_LIMIT_BOUND_N: f64 = 1000.0;
 
 /// What the master's endpoint is built from: the master's sections of a session file
 /// (master arm, operator's hand, coupling, scale, passivity) and the slave it maps into.
@@ -184,6 +187,7 @@ pub struct MasterCycle {
 /// The master's teleoperation endpoint: the simulated master arm with the operator's hand
 /// on it, the receive gate, the coupling.
 pub struct MasterTeleop {
+    session_id: u64,
     device: SimMasterArm,
     operator: Operator,
     gate: Gate<Feedback>,
@@ -196,10 +200,16 @@ impl MasterTeleop {
     /// An endpoint from its configuration; the operator follows `script`.
     pub fn new(cfg: &MasterTeleopConfig, script: Script) -> Result<Self, MasterTeleopError> {
         let device = SimMasterArm::new(cfg.master).map_err(MasterTeleopError::Device)?;
+        // The slave's energy fields are bounded by the largest force limit a slave accepts
+        // (1000 N) at its speed limit, four times over (docs/wire.md).
+        let energy =
+            EnergyBound::from_limits(SLAVE_FORCE_LIMIT_BOUND_N, cfg.slave_max_speed_mm_per_s, 4.0);
         Ok(MasterTeleop {
+            session_id: h4_shared::wire::new_session_id(),
             device,
             operator: Operator::new(cfg.hand, script, cfg.master.home_pose),
-            gate: Gate::new(cfg.arm_id, (RESTART_SILENCE_MS * 1e6) as u64),
+            gate: Gate::new(cfg.arm_id, (RESTART_SILENCE_MS * 1e6) as u64)
+                .with_energy_bound(energy),
             coupling: MasterCoupling::new(cfg.coupling_params()),
             round_trip: RoundTrip::new(),
             counters: MasterTeleopCounters::default(),
@@ -250,20 +260,22 @@ impl MasterTeleop {
     /// true once one was accepted. For waiting until a slave answers, before the first
     /// [`MasterTeleop::step`].
     pub fn poll_peer<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
-        match link.try_recv() {
-            Ok(Some(fb)) => {
-                self.counters.feedback_received += 1;
-                self.gate.accept(&fb, now_ns).is_ok()
-            }
-            Ok(None) => {
-                self.gate.note_undecodable(link.undecodable());
-                false
-            }
-            Err(_) => {
-                self.counters.link_errors += 1;
-                false
-            }
+        let d = self.gate.drain(link, now_ns, 1, |_| {});
+        self.counters.feedback_received += d.received;
+        if d.link_error {
+            self.counters.link_errors += 1;
         }
+        d.accepted > 0
+    }
+
+    /// The receive gate (its paired session, last rejection).
+    pub fn gate(&self) -> &Gate<Feedback> {
+        &self.gate
+    }
+
+    /// This master's session id (sent in every command).
+    pub fn session_id(&self) -> u64 {
+        self.session_id
     }
 
     /// Drains the link through the gate; true if a message was accepted.
@@ -305,7 +317,8 @@ impl MasterTeleop {
         let fresh = self.receive(link, now_ns);
         let step = self.coupling.step(&dev, now_ns, dt_s);
         let rendered_wrench = self.device.write_wrench(&step.wrench);
-        let cmd = self.coupling.finish(&rendered_wrench, &dev, now_ns);
+        let mut cmd = self.coupling.finish(&rendered_wrench, &dev, now_ns);
+        cmd.session_id = self.session_id;
         match link.publish(&cmd) {
             Ok(()) => self.counters.commands_published += 1,
             Err(_) => self.counters.link_errors += 1,

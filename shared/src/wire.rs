@@ -1,19 +1,28 @@
 //! Master ↔ slave messages.
 //!
 //! Both messages are `#[repr(C)]`, `Copy` and fixed-size with no implicit padding, so the
-//! shared-memory path sends them as they are. The network path uses the checked
-//! little-endian encoding of [`Command::encode`] / [`Command::decode`]: an 8-byte header
-//! (magic `b"H4"`, protocol version, message kind, body length) and the fields in order.
-//! Decoding rejects a wrong size, magic, kind or version, a header body length that does not
-//! match the kind, a non-zero reserved byte, an unknown mode or state, unknown flag bits and
-//! every non-finite number, each with its own [`WireError`]. The byte layout, for clients in
-//! other languages, is in docs/wire.md with test vectors in tests/data/wire_vectors.json.
+//! shared-memory path sends them as they are (from `session_id` on). The network path uses
+//! the checked little-endian encoding of [`Command::encode`] / [`Command::decode`]: a
+//! 16-byte header (magic `b"H4"`, protocol version, message kind, reserved byte, body
+//! length, the sender's session id) and the fields in order. Decoding rejects a wrong
+//! magic, version or kind, a non-zero reserved byte, a header body length that does not
+//! match the kind, a payload whose size is not the kind's, an unknown mode or state,
+//! unknown flag bits and every non-finite number, each with its own [`WireError`], and
+//! every error belongs to one [`RejectReason`] (the receivers' counters). The byte layout,
+//! for clients in other languages, is in docs/wire.md with test vectors in
+//! tests/data/wire_vectors.json.
+
+use crate::kinematics::{Pose, Workspace};
 
 /// Version of the message layout and encoding. Bump on any change to either.
-pub const PROTOCOL_VERSION: u16 = 1;
+/// Version 2 added the session id to the header and the rejection report to the feedback.
+pub const PROTOCOL_VERSION: u16 = 2;
 
 const MAGIC: [u8; 2] = *b"H4";
-const HEADER_LEN: usize = 8;
+/// Bytes before the message's `session_id`: magic, version, kind, reserved, body length.
+const PREFIX_LEN: usize = 8;
+/// The whole header: the prefix and the session id.
+pub const HEADER_LEN: usize = PREFIX_LEN + 8;
 const KIND_COMMAND: u8 = 1;
 const KIND_FEEDBACK: u8 = 2;
 
@@ -70,6 +79,9 @@ pub enum WireError {
         /// Its value.
         value: u8,
     },
+    /// Bits of the feedback's `rejected_reasons` that this version does not define are set.
+    #[error("unknown rejection-reason bits {0:#x}")]
+    BadReasonBits(u32),
     /// The header's body-length field disagrees with the message kind's body size.
     #[error("header body length {declared} does not match the {expected}-byte body of this kind")]
     LengthMismatch {
@@ -78,6 +90,112 @@ pub enum WireError {
         /// The body size of the kind.
         expected: u16,
     },
+}
+
+impl WireError {
+    /// The counter this error is counted under.
+    pub fn reason(&self) -> RejectReason {
+        match self {
+            WireError::WrongVersion { .. } => RejectReason::WrongVersion,
+            WireError::ReservedSet { .. }
+            | WireError::BadFlags(_)
+            | WireError::BadReasonBits(_) => RejectReason::ReservedBits,
+            WireError::LengthMismatch { .. } => RejectReason::LengthMismatch,
+            WireError::WrongSize { .. }
+            | WireError::BadMagic
+            | WireError::WrongKind { .. }
+            | WireError::NonFinite { .. }
+            | WireError::BadMode(_)
+            | WireError::BadState(_) => RejectReason::Undecodable,
+        }
+    }
+}
+
+/// Why a receiver refused a message: one counter per reason in both processes' summaries
+/// (`h4_transport::gate::GateCounters`) and one bit per reason (`1 << reason as u32`) in the
+/// feedback's [`Feedback::rejected_reasons`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum RejectReason {
+    /// Not a message: wrong payload size, magic or kind, a non-finite number, an unknown
+    /// mode or state.
+    Undecodable = 0,
+    /// Another protocol version (header or body field).
+    WrongVersion = 1,
+    /// For another arm.
+    WrongArm = 2,
+    /// Sequence number not above the last accepted one of the session (duplicate, reordered,
+    /// replayed).
+    Stale = 3,
+    /// Finite but outside the receiver's limits: a target outside the workspace, a force
+    /// set-point outside [0, force limit], a speed above the speed limit.
+    OutOfRange = 4,
+    /// Energy fields the sender cannot have exchanged since its last message (more than the
+    /// power bound times the elapsed time plus a small reserve, or decreasing).
+    ImplausibleEnergy = 5,
+    /// A reserved byte or an undefined flag bit is set.
+    ReservedBits = 6,
+    /// The header's body length is not the kind's body size.
+    LengthMismatch = 7,
+    /// Sequence number far ahead of the session's (more than the sender can have sent since
+    /// its last accepted message): rejected, not adopted.
+    WildSeq = 8,
+    /// From another session than the paired one while the paired one is alive (a second
+    /// sender, or a retired session).
+    WrongSession = 9,
+}
+
+impl RejectReason {
+    /// Every reason, in bit order.
+    pub const ALL: [RejectReason; 10] = [
+        RejectReason::Undecodable,
+        RejectReason::WrongVersion,
+        RejectReason::WrongArm,
+        RejectReason::Stale,
+        RejectReason::OutOfRange,
+        RejectReason::ImplausibleEnergy,
+        RejectReason::ReservedBits,
+        RejectReason::LengthMismatch,
+        RejectReason::WildSeq,
+        RejectReason::WrongSession,
+    ];
+
+    /// Its bit in [`Feedback::rejected_reasons`].
+    pub fn bit(self) -> u32 {
+        1 << (self as u32)
+    }
+
+    /// The summary counter's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            RejectReason::Undecodable => "undecodable",
+            RejectReason::WrongVersion => "wrong_version",
+            RejectReason::WrongArm => "wrong_arm",
+            RejectReason::Stale => "stale",
+            RejectReason::OutOfRange => "out_of_range",
+            RejectReason::ImplausibleEnergy => "implausible_energy",
+            RejectReason::ReservedBits => "reserved_bits",
+            RejectReason::LengthMismatch => "length_mismatch",
+            RejectReason::WildSeq => "wild_seq",
+            RejectReason::WrongSession => "wrong_session",
+        }
+    }
+}
+
+/// All bits [`Feedback::rejected_reasons`] defines in this version.
+pub const REJECT_REASONS_KNOWN: u32 = (1 << RejectReason::ALL.len()) - 1;
+
+/// A fresh session id: random (the OS's hash seed, the clock and the process id mixed), so a
+/// restarted process announces itself with a new one.
+pub fn new_session_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    h.write_u128(now);
+    h.write_u32(std::process::id());
+    h.finish()
 }
 
 /// What the master asks the slave to do.
@@ -160,6 +278,8 @@ pub const FAULT_FLAGS_KNOWN: u16 = (1 << 6) - 1;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C)]
 pub struct Command {
+    /// The sender's session: a random id a master picks when it starts (header offset 8).
+    pub session_id: u64,
     /// Sequence number, +1 per message sent.
     pub seq: u64,
     /// Sender's clock when sent, ns.
@@ -190,6 +310,8 @@ pub struct Command {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C)]
 pub struct Feedback {
+    /// The sender's session: a random id a slave picks when it starts (header offset 8).
+    pub session_id: u64,
     /// Sequence number, +1 per message sent.
     pub seq: u64,
     /// Sender's clock when sent, ns.
@@ -218,11 +340,17 @@ pub struct Feedback {
     pub reserved: u8,
     /// `FAULT_*` bits.
     pub fault_flags: u16,
+    /// Why commands were rejected since the previous feedback: one bit per [`RejectReason`]
+    /// (`1 << reason`), 0 when every command judged was accepted.
+    pub rejected_reasons: u32,
+    /// Commands rejected since the slave started, all reasons (saturating).
+    pub rejected_count: u32,
 }
 
 impl Default for Command {
     fn default() -> Self {
         Command {
+            session_id: 0,
             seq: 0,
             send_time_ns: 0,
             pose: [0.0; 4],
@@ -242,6 +370,7 @@ impl Default for Command {
 impl Default for Feedback {
     fn default() -> Self {
         Feedback {
+            session_id: 0,
             seq: 0,
             send_time_ns: 0,
             echo_seq: 0,
@@ -256,6 +385,8 @@ impl Default for Feedback {
             state: SlaveState::Idle as u8,
             reserved: 0,
             fault_flags: 0,
+            rejected_reasons: 0,
+            rejected_count: 0,
         }
     }
 }
@@ -285,6 +416,9 @@ impl Writer<'_> {
         }
     }
     fn u16(&mut self, v: u16) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
         self.bytes(&v.to_le_bytes());
     }
     fn u8(&mut self, v: u8) {
@@ -328,26 +462,34 @@ impl Reader<'_> {
     fn u16(&mut self) -> u16 {
         u16::from_le_bytes(self.take())
     }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.take())
+    }
     fn u8(&mut self) -> u8 {
         self.take::<1>()[0]
     }
 }
 
-fn write_header(w: &mut Writer<'_>, kind: u8, body_len: usize) {
+fn write_header(w: &mut Writer<'_>, kind: u8, body_len: usize, session_id: u64) {
     w.bytes(&MAGIC);
     w.u16(PROTOCOL_VERSION);
     w.u8(kind);
     w.u8(0);
     w.u16(body_len as u16);
+    w.u64(session_id);
 }
 
+/// Checks the header and the size; returns a reader at the session id. The order (magic,
+/// version, kind, reserved byte, body length, then the payload's size) lets a message of
+/// another version be reported as such whatever its size.
 fn read_header<'a>(bytes: &'a [u8], kind: u8, body_len: usize) -> Result<Reader<'a>, WireError> {
     let expected = HEADER_LEN + body_len;
-    if bytes.len() != expected {
-        return Err(WireError::WrongSize {
-            expected,
-            got: bytes.len(),
-        });
+    let wrong_size = WireError::WrongSize {
+        expected,
+        got: bytes.len(),
+    };
+    if bytes.len() < PREFIX_LEN {
+        return Err(wrong_size);
     }
     let mut r = Reader { buf: bytes, at: 0 };
     if r.take::<2>() != MAGIC {
@@ -381,12 +523,17 @@ fn read_header<'a>(bytes: &'a [u8], kind: u8, body_len: usize) -> Result<Reader<
             expected: body_len as u16,
         });
     }
+    if bytes.len() != expected {
+        return Err(wrong_size);
+    }
     Ok(r)
 }
 
 impl Command {
     /// Size of the encoded command, bytes.
     pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 2 + 8 * 4 * 2 + 8 * 3 + 2 + 2 + 1 + 1 + 2;
+    /// Size of the body after the header, bytes (the header's body length).
+    pub const BODY_LEN: usize = Self::WIRE_SIZE - HEADER_LEN;
 
     /// Checks a command received over any transport: version, mode, reserved byte, flags and
     /// finiteness.
@@ -433,7 +580,7 @@ impl Command {
     /// Encodes into `out` (little-endian, with header).
     pub fn encode(&self, out: &mut [u8; Self::WIRE_SIZE]) {
         let mut w = Writer { buf: out, at: 0 };
-        write_header(&mut w, KIND_COMMAND, Self::WIRE_SIZE - HEADER_LEN);
+        write_header(&mut w, KIND_COMMAND, Self::BODY_LEN, self.session_id);
         w.u64(self.seq);
         w.u64(self.send_time_ns);
         w.f64s(&self.pose);
@@ -450,8 +597,9 @@ impl Command {
 
     /// Decodes and validates a command.
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
-        let mut r = read_header(bytes, KIND_COMMAND, Self::WIRE_SIZE - HEADER_LEN)?;
+        let mut r = read_header(bytes, KIND_COMMAND, Self::BODY_LEN)?;
         let cmd = Command {
+            session_id: r.u64(),
             seq: r.u64(),
             send_time_ns: r.u64(),
             pose: r.f64s("pose")?,
@@ -472,7 +620,9 @@ impl Command {
 
 impl Feedback {
     /// Size of the encoded feedback, bytes.
-    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 4 + 8 * 4 * 3 + 8 * 2 + 2 + 2 + 1 + 1 + 2;
+    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 4 + 8 * 4 * 3 + 8 * 2 + 2 + 2 + 1 + 1 + 2 + 4 + 4;
+    /// Size of the body after the header, bytes (the header's body length).
+    pub const BODY_LEN: usize = Self::WIRE_SIZE - HEADER_LEN;
 
     /// Checks feedback received over any transport: version, state, reserved byte, flags and
     /// finiteness.
@@ -493,6 +643,11 @@ impl Feedback {
         if self.fault_flags & !FAULT_FLAGS_KNOWN != 0 {
             return Err(WireError::BadFlags(self.fault_flags & !FAULT_FLAGS_KNOWN));
         }
+        if self.rejected_reasons & !REJECT_REASONS_KNOWN != 0 {
+            return Err(WireError::BadReasonBits(
+                self.rejected_reasons & !REJECT_REASONS_KNOWN,
+            ));
+        }
         let fields: [(&'static str, &[f64]); 5] = [
             ("pose", &self.pose),
             ("wrench_measured", &self.wrench_measured),
@@ -511,7 +666,7 @@ impl Feedback {
     /// Encodes into `out` (little-endian, with header).
     pub fn encode(&self, out: &mut [u8; Self::WIRE_SIZE]) {
         let mut w = Writer { buf: out, at: 0 };
-        write_header(&mut w, KIND_FEEDBACK, Self::WIRE_SIZE - HEADER_LEN);
+        write_header(&mut w, KIND_FEEDBACK, Self::BODY_LEN, self.session_id);
         w.u64(self.seq);
         w.u64(self.send_time_ns);
         w.u64(self.echo_seq);
@@ -526,12 +681,15 @@ impl Feedback {
         w.u8(self.state);
         w.u8(self.reserved);
         w.u16(self.fault_flags);
+        w.u32(self.rejected_reasons);
+        w.u32(self.rejected_count);
     }
 
     /// Decodes and validates feedback.
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
-        let mut r = read_header(bytes, KIND_FEEDBACK, Self::WIRE_SIZE - HEADER_LEN)?;
+        let mut r = read_header(bytes, KIND_FEEDBACK, Self::BODY_LEN)?;
         let fb = Feedback {
+            session_id: r.u64(),
             seq: r.u64(),
             send_time_ns: r.u64(),
             echo_seq: r.u64(),
@@ -546,21 +704,71 @@ impl Feedback {
             state: r.u8(),
             reserved: r.u8(),
             fault_flags: r.u16(),
+            rejected_reasons: r.u32(),
+            rejected_count: r.u32(),
         };
         fb.validate()?;
         Ok(fb)
     }
 }
 
-/// What every transport needs of a message: its sequence number, its send time, a check of
-/// its contents and the checked byte encoding of the network path.
+/// The receiver's limits on a command's values (finite values outside them are rejected as
+/// [`RejectReason::OutOfRange`] before anything acts on them).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CommandLimits {
+    /// The slave arm's workspace: the pose of a position or force-guided command must be in it.
+    pub workspace: Workspace,
+    /// Largest commanded translational speed, mm/s.
+    pub max_speed_mm_per_s: f64,
+    /// Largest force set-point, N (the smallest is 0).
+    pub force_limit_n: f64,
+}
+
+impl CommandLimits {
+    /// Why `cmd` is outside these limits (a reason code: the kinematics' workspace codes,
+    /// `speed_above_limit`, `setpoint_out_of_range`), or `None`. The pose is checked in
+    /// position and force-guided mode (hold mode ignores it); the set-point and the speed in
+    /// every mode.
+    pub fn check(&self, cmd: &Command) -> Option<&'static str> {
+        let v = &cmd.velocity;
+        let speed = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if speed.is_nan() || speed > self.max_speed_mm_per_s * (1.0 + 1e-9) {
+            return Some("speed_above_limit");
+        }
+        let sp = cmd.force_setpoint_n;
+        if !(0.0..=self.force_limit_n).contains(&sp) {
+            return Some("setpoint_out_of_range");
+        }
+        let moves = cmd.mode == Mode::Position as u8 || cmd.mode == Mode::ForceGuided as u8;
+        if moves && let Err(e) = self.workspace.ik(&Pose::from(cmd.pose)) {
+            return Some(e.reason_code());
+        }
+        None
+    }
+}
+
+/// What every transport needs of a message: its session, sequence number and send time,
+/// its energy fields, a check of its contents and the checked byte encoding of the network
+/// path.
 pub trait WireMessage: Copy + Send + 'static {
+    /// The receiver's limits on this message's values ([`CommandLimits`] for a command, none
+    /// for feedback).
+    type Limits: Copy + core::fmt::Debug;
     /// Size of the encoded message, bytes.
     const WIRE_SIZE: usize;
     /// Short name for logs and errors ("command", "feedback").
     const NAME: &'static str;
+    /// The sender's session id.
+    fn session_id(&self) -> u64;
     /// Sequence number.
     fn seq(&self) -> u64;
+    /// The passivity energy fields `(energy_in_j, energy_out_j)`, cumulative, J.
+    fn energies_j(&self) -> (f64, f64);
+    /// Whether the sender started a new energy ledger with this message (a command carrying
+    /// [`CMD_FLAG_ACK_SAFE_STOP`]): its energy fields start again near 0.
+    fn starts_new_ledger(&self) -> bool;
+    /// Why the message is outside `limits` (a reason code), or `None`.
+    fn out_of_range(&self, limits: &Self::Limits) -> Option<&'static str>;
     /// Sender's clock when sent, ns.
     fn send_time_ns(&self) -> u64;
     /// Arm the message belongs to.
@@ -574,12 +782,27 @@ pub trait WireMessage: Copy + Send + 'static {
 }
 
 macro_rules! impl_wire_message {
-    ($ty:ty, $name:literal) => {
+    ($ty:ty, $name:literal, $limits:ty, $check:expr, $ledger:expr) => {
         impl WireMessage for $ty {
+            type Limits = $limits;
             const WIRE_SIZE: usize = <$ty>::WIRE_SIZE;
             const NAME: &'static str = $name;
+            fn session_id(&self) -> u64 {
+                self.session_id
+            }
             fn seq(&self) -> u64 {
                 self.seq
+            }
+            fn energies_j(&self) -> (f64, f64) {
+                (self.energy_in_j, self.energy_out_j)
+            }
+            fn starts_new_ledger(&self) -> bool {
+                let ledger: fn(&Self) -> bool = $ledger;
+                ledger(self)
+            }
+            fn out_of_range(&self, limits: &Self::Limits) -> Option<&'static str> {
+                let check: fn(&Self, &$limits) -> Option<&'static str> = $check;
+                check(self, limits)
             }
             fn send_time_ns(&self) -> u64 {
                 self.send_time_ns
@@ -607,8 +830,11 @@ macro_rules! impl_wire_message {
     };
 }
 
-impl_wire_message!(Command, "command");
-impl_wire_message!(Feedback, "feedback");
+impl_wire_message!(Command, "command", CommandLimits, |c, l| l.check(c), |c| c
+    .flags
+    & CMD_FLAG_ACK_SAFE_STOP
+    != 0);
+impl_wire_message!(Feedback, "feedback", (), |_, _| None, |_| false);
 
 fn check_all_finite(fields: &[(&'static str, &[f64])]) -> Result<(), WireError> {
     for (field, values) in fields {
@@ -619,9 +845,10 @@ fn check_all_finite(fields: &[(&'static str, &[f64])]) -> Result<(), WireError> 
     Ok(())
 }
 
-// The in-memory layout has no implicit padding: the shared-memory path copies it as is.
-const _: () = assert!(core::mem::size_of::<Command>() == Command::WIRE_SIZE - HEADER_LEN);
-const _: () = assert!(core::mem::size_of::<Feedback>() == Feedback::WIRE_SIZE - HEADER_LEN);
+// The in-memory layout has no implicit padding: the shared-memory path copies it as is. It
+// is the encoding from the session id on.
+const _: () = assert!(core::mem::size_of::<Command>() == Command::WIRE_SIZE - PREFIX_LEN);
+const _: () = assert!(core::mem::size_of::<Feedback>() == Feedback::WIRE_SIZE - PREFIX_LEN);
 
 #[cfg(test)]
 mod tests {

@@ -4,8 +4,10 @@
 //! there is one piece of code for the slave's per-cycle logic.
 //!
 //! One [`SlaveTeleop::step`]:
-//! 1. drains the link through the receive gate (wrong version, wrong arm, malformed,
-//!    duplicated or reordered commands are counted and dropped);
+//! 1. drains the link through the receive gate, which judges every command once (wire
+//!    checks, arm, session, sequence number, the workspace/set-point/speed limits, energy
+//!    plausibility) and counts each rejection by reason; rejected commands are dropped and
+//!    their reasons go out in the next feedback's `rejected_reasons`;
 //! 2. the watchdog: no valid command for `watchdog_ms` while active → the controller's safe
 //!    stop (force ramped down, retract, hold), state `SafeStop`, `FAULT_COMMAND_TIMEOUT`;
 //!    a fresh valid command after that → `clear_safe_stop()` and re-pairing with no jump
@@ -24,11 +26,11 @@ use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::process::Watchdog;
 use h4_shared::vec3::norm3;
 use h4_shared::wire::{
-    CMD_FLAG_ACK_SAFE_STOP, Command, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
+    CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
     FAULT_FORCE_LIMIT, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
 };
 use h4_transport::Link;
-use h4_transport::gate::{Gate, GateCounters};
+use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;
 
 use crate::arm::ArmDriver;
@@ -229,6 +231,7 @@ pub struct TeleopCycle {
 pub struct SlaveTeleop<A: ArmDriver> {
     p: TeleopParams,
     gate: Gate<Command>,
+    session_id: u64,
     watchdog: Watchdog,
     port: AdmittancePort,
     ctrl: SlaveController,
@@ -302,8 +305,19 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             "0 to 1",
         )?;
         let watchdog_ns = ((p.watchdog_ms * 1e6) as u64).saturating_sub(period_ns);
+        let cp = ctrl.params();
+        let limits = CommandLimits {
+            workspace: *ctrl.workspace(),
+            max_speed_mm_per_s: cp.max_speed_mm_per_s,
+            force_limit_n: cp.force_limit_n,
+        };
+        let energy =
+            EnergyBound::from_limits(cp.force_limit_n, cp.max_speed_mm_per_s, ENERGY_POWER_MARGIN);
         Ok(SlaveTeleop {
-            gate: Gate::new(p.arm_id, (p.restart_silence_ms * 1e6) as u64),
+            gate: Gate::new(p.arm_id, (p.restart_silence_ms * 1e6) as u64)
+                .with_limits(limits)
+                .with_energy_bound(energy),
+            session_id: h4_shared::wire::new_session_id(),
             watchdog: Watchdog::new(watchdog_ns),
             port: AdmittancePort::from_params(&p.passivity),
             ctrl,
@@ -352,6 +366,16 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     /// What the receive gate accepted and rejected.
     pub fn gate_counters(&self) -> &GateCounters {
         &self.gate.counters
+    }
+
+    /// The receive gate (its paired session, pairing energies, last rejection).
+    pub fn gate(&self) -> &Gate<Command> {
+        &self.gate
+    }
+
+    /// This slave's session id (sent in every feedback).
+    pub fn session_id(&self) -> u64 {
+        self.session_id
     }
 
     /// The state.
@@ -815,6 +839,9 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             state: self.state as u8,
             reserved: 0,
             fault_flags: self.faults,
+            session_id: self.session_id,
+            rejected_reasons: self.gate.take_reasons(),
+            rejected_count: u32::try_from(self.gate.counters.rejected()).unwrap_or(u32::MAX),
         };
         if fb.validate().is_ok() {
             match link.publish(&fb) {
@@ -864,6 +891,11 @@ fn depth_mm(h: &HeldContact, x: &[f64; 3]) -> f64 {
 }
 
 /// Most commands taken from the link in one cycle (more than any queue holds).
+/// The energy plausibility bound on the master's energy fields: this many times the power
+/// the slave can exchange at its force and speed limits (the master's handle may move faster
+/// than the slave follows; docs/wire.md).
+const ENERGY_POWER_MARGIN: f64 = 4.0;
+
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 
 #[cfg(test)]
@@ -915,6 +947,7 @@ mod tests {
         slave: InprocEnd<Feedback, Command>,
         now: u64,
         seq: u64,
+        reasons: u32,
         /// Commands carry the safe-stop acknowledgement.
         ack: bool,
     }
@@ -933,7 +966,9 @@ mod tests {
                 self.master.publish(&c).unwrap();
             }
             let c = self.ep.step(&mut self.slave, self.now, 1e-3);
-            while self.master.try_recv().unwrap().is_some() {}
+            while let Some(fb) = self.master.try_recv().unwrap() {
+                self.reasons |= fb.rejected_reasons;
+            }
             self.ep.arm_mut().advance(PERIOD_NS);
             self.now += PERIOD_NS;
             c
@@ -949,6 +984,7 @@ mod tests {
             slave,
             now: 0,
             seq: 0,
+            reasons: 0,
             ack: false,
         };
         assert_eq!(r.ep.state(), SlaveState::Idle);
@@ -1016,6 +1052,7 @@ mod tests {
             slave,
             now: 0,
             seq: 0,
+            reasons: 0,
             ack: false,
         };
         for _ in 0..200 {
@@ -1031,10 +1068,19 @@ mod tests {
         let c = r.cycle(None);
         assert!(!c.fresh);
         assert_eq!(r.ep.gate_counters().rejected(), 2);
-        // Outside the workspace: the controller rejects it, the fault flag is raised.
+        // Outside the workspace: the gate rejects it as out of range (issue 14: before
+        // anything acts on it), and the feedback reports the reason.
         let c = r.cycle(Some(-2000.0));
-        assert!(c.fault_flags & FAULT_COMMAND_REJECTED != 0, "{c:?}");
-        assert!(r.ep.counters().commands_rejected_by_controller >= 1);
+        assert!(!c.fresh, "{c:?}");
+        assert_eq!(r.ep.gate_counters().out_of_range, 1);
+        assert_eq!(r.ep.gate_counters().rejected(), 3);
         assert!((c.out.commanded_pose[2] + 250.0).abs() < 0.5);
+        use h4_shared::wire::RejectReason;
+        assert_eq!(
+            r.reasons,
+            RejectReason::WrongArm.bit()
+                | RejectReason::WrongVersion.bit()
+                | RejectReason::OutOfRange.bit()
+        );
     }
 }

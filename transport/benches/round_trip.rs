@@ -61,6 +61,7 @@ trait Endpoint {
 
 fn command(seq: u64) -> Command {
     Command {
+        session_id: 1,
         seq,
         send_time_ns: seq,
         pose: [1.0, 2.0, 3.0, 0.1],
@@ -78,6 +79,7 @@ fn command(seq: u64) -> Command {
 
 fn feedback(echo_seq: u64) -> Feedback {
     Feedback {
+        session_id: 2,
         seq: echo_seq,
         send_time_ns: 0,
         echo_seq,
@@ -92,6 +94,8 @@ fn feedback(echo_seq: u64) -> Feedback {
         state: 1,
         reserved: 0,
         fault_flags: 0,
+        rejected_reasons: 0,
+        rejected_count: 0,
     }
 }
 

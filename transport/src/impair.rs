@@ -380,7 +380,7 @@ where
         self.inner.try_recv()
     }
 
-    fn undecodable(&self) -> u64 {
-        self.inner.undecodable()
+    fn decode_rejects(&self) -> crate::DecodeRejects {
+        self.inner.decode_rejects()
     }
 }

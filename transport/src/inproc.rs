@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 
 use h4_shared::wire::{Command, Feedback, WireMessage};
 
-use crate::{Link, LinkError};
+use crate::{DecodeRejects, Link, LinkError};
 
 /// A bounded queue that drops its oldest entry when full; never reallocates.
 #[derive(Debug)]
@@ -87,6 +87,88 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for InprocEnd<Out, In> {
     fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
         let mut q = self.rx.lock().map_err(|_| LinkError::Closed)?;
         Ok(q.pop())
+    }
+}
+
+/// The outside client's end of a byte-level in-process link: it sends and receives raw
+/// payloads, as a client in another language does over Zenoh (for tests of the wire format
+/// and of the receive path; it allocates per message).
+#[derive(Debug)]
+pub struct RawEnd {
+    tx: Shared<Vec<u8>>,
+    rx: Shared<Vec<u8>>,
+}
+
+impl RawEnd {
+    /// Sends one payload.
+    pub fn send(&mut self, bytes: &[u8]) {
+        if let Ok(mut q) = self.tx.lock() {
+            q.push(bytes.to_vec());
+        }
+    }
+
+    /// The next payload that has arrived, or `None`.
+    pub fn recv(&mut self) -> Option<Vec<u8>> {
+        self.rx.lock().ok().and_then(|mut q| q.pop())
+    }
+}
+
+/// An endpoint's end of a byte-level in-process link: it encodes what it publishes and
+/// decodes what it receives exactly as the Zenoh link does (payloads that do not decode are
+/// counted by reason in [`Link::decode_rejects`] and never delivered).
+#[derive(Debug)]
+pub struct DecodingEnd<Out, In> {
+    tx: Shared<Vec<u8>>,
+    rx: Shared<Vec<u8>>,
+    rejects: DecodeRejects,
+    _marker: PhantomData<(Out, In)>,
+}
+
+/// A byte-level pair: the outside client's raw end (a master) and the slave's decoding end.
+pub fn raw_pair(capacity: usize) -> (RawEnd, DecodingEnd<Feedback, Command>) {
+    let commands = Arc::new(Mutex::new(Ring::new(capacity)));
+    let feedback = Arc::new(Mutex::new(Ring::new(capacity)));
+    (
+        RawEnd {
+            tx: commands.clone(),
+            rx: feedback.clone(),
+        },
+        DecodingEnd {
+            tx: feedback,
+            rx: commands,
+            rejects: DecodeRejects::default(),
+            _marker: PhantomData,
+        },
+    )
+}
+
+impl<Out: WireMessage, In: WireMessage> Link<Out, In> for DecodingEnd<Out, In> {
+    fn publish(&mut self, msg: &Out) -> Result<(), LinkError> {
+        let mut bytes = vec![0u8; Out::WIRE_SIZE];
+        msg.encode_into(&mut bytes)
+            .map_err(|_| LinkError::SendFailed {
+                transport: "inproc-bytes",
+            })?;
+        let mut q = self.tx.lock().map_err(|_| LinkError::Closed)?;
+        q.push(bytes);
+        Ok(())
+    }
+
+    fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
+        loop {
+            let next = self.rx.lock().map_err(|_| LinkError::Closed)?.pop();
+            let Some(bytes) = next else {
+                return Ok(None);
+            };
+            match In::decode_from(&bytes) {
+                Ok(msg) => return Ok(Some(msg)),
+                Err(e) => self.rejects.count(&e),
+            }
+        }
+    }
+
+    fn decode_rejects(&self) -> DecodeRejects {
+        self.rejects
     }
 }
 

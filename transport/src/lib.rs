@@ -21,7 +21,38 @@ pub mod open;
 #[cfg(feature = "zenoh")]
 pub mod zenoh;
 
-use h4_shared::wire::WireMessage;
+use h4_shared::wire::{RejectReason, WireError, WireMessage};
+
+/// Payloads a link end dropped because they did not decode, by reason (totals since it was
+/// opened; see [`WireError::reason`]). The gate folds them into its counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DecodeRejects {
+    /// Wrong size, magic or kind, non-finite numbers, unknown enums.
+    pub undecodable: u64,
+    /// Another protocol version.
+    pub wrong_version: u64,
+    /// Reserved bytes or undefined flag bits set.
+    pub reserved_bits: u64,
+    /// A header body length other than the kind's.
+    pub length_mismatch: u64,
+}
+
+impl DecodeRejects {
+    /// Counts one payload refused with `e`.
+    pub fn count(&mut self, e: &WireError) {
+        match e.reason() {
+            RejectReason::WrongVersion => self.wrong_version += 1,
+            RejectReason::ReservedBits => self.reserved_bits += 1,
+            RejectReason::LengthMismatch => self.length_mismatch += 1,
+            _ => self.undecodable += 1,
+        }
+    }
+
+    /// All of them.
+    pub fn total(&self) -> u64 {
+        self.undecodable + self.wrong_version + self.reserved_bits + self.length_mismatch
+    }
+}
 
 /// Why a link operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
@@ -60,12 +91,17 @@ pub trait Link<Out: WireMessage, In: WireMessage> {
         Ok(latest)
     }
 
-    /// Received payloads this end dropped because they did not decode (wrong size, version
-    /// or content), in total since it was opened: they are never delivered, so a receiver
-    /// hands this count to its gate ([`gate::Gate::note_undecodable`]). 0 for links that
-    /// carry typed messages and decode nothing (in-process, iceoryx2).
+    /// Received payloads this end dropped because they did not decode, by reason, in total
+    /// since it was opened: they are never delivered, so the gate's drain folds these counts
+    /// into its own ([`gate::Gate::note_decode_rejects`]). 0 for links that carry typed
+    /// messages and decode nothing (in-process, iceoryx2: their gate judges every message).
+    fn decode_rejects(&self) -> DecodeRejects {
+        DecodeRejects::default()
+    }
+
+    /// All payloads this end dropped undecoded ([`Link::decode_rejects`]'s total).
     fn undecodable(&self) -> u64 {
-        0
+        self.decode_rejects().total()
     }
 }
 
@@ -76,7 +112,7 @@ impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In>
     fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
         (**self).try_recv()
     }
-    fn undecodable(&self) -> u64 {
-        (**self).undecodable()
+    fn decode_rejects(&self) -> DecodeRejects {
+        (**self).decode_rejects()
     }
 }

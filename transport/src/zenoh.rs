@@ -8,7 +8,7 @@
 //! thread) decodes each payload and pushes it into a bounded queue preallocated at
 //! construction (drop-oldest when full), which [`Link::try_recv`] drains without blocking.
 //! Payloads that do not decode (wrong size, magic, kind or version, a non-finite number, an
-//! unknown enum or flag) are counted in [`Link::undecodable`] and never delivered.
+//! unknown enum or flag) are counted by reason in [`Link::decode_rejects`] and never delivered.
 //!
 //! Publications are `express` (not batched), [`Priority::RealTime`] and
 //! [`CongestionControl::Drop`]: a late message is worth less than the next one.
@@ -21,7 +21,6 @@
 //! itself allocates per publication and per received sample (its buffers and task queues).
 
 use std::marker::PhantomData;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use ::zenoh::Wait;
@@ -34,7 +33,7 @@ use h4_shared::wire::{Command, Feedback, WireError, WireMessage};
 use serde::{Deserialize, Serialize};
 
 use crate::inproc::Ring;
-use crate::{Link, LinkError};
+use crate::{DecodeRejects, Link, LinkError};
 
 const TRANSPORT: &str = "zenoh";
 
@@ -247,7 +246,7 @@ pub const ROLE_SETTLE: std::time::Duration = std::time::Duration::from_millis(10
 /// What the subscriber callback shares with the link end.
 struct Inbox<In> {
     queue: Mutex<Ring<In>>,
-    undecodable: AtomicU64,
+    rejects: Mutex<DecodeRejects>,
     last_decode_error: Mutex<Option<WireError>>,
 }
 
@@ -279,7 +278,9 @@ impl<In: WireMessage> Inbox<In> {
                 }
             }
             Err(e) => {
-                self.undecodable.fetch_add(1, Ordering::Relaxed);
+                if let Ok(mut r) = self.rejects.lock() {
+                    r.count(&e);
+                }
                 if let Ok(mut last) = self.last_decode_error.lock() {
                     *last = Some(e);
                 }
@@ -351,7 +352,7 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
             })?;
         let inbox = Arc::new(Inbox {
             queue: Mutex::new(Ring::new(config.queue_capacity)),
-            undecodable: AtomicU64::new(0),
+            rejects: Mutex::new(DecodeRejects::default()),
             last_decode_error: Mutex::new(None),
         });
         let cb_inbox = Arc::clone(&inbox);
@@ -474,8 +475,11 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for ZenohLink<Out, In> {
         Ok(q.pop())
     }
 
-    fn undecodable(&self) -> u64 {
-        self.inbox.undecodable.load(Ordering::Relaxed)
+    fn decode_rejects(&self) -> DecodeRejects {
+        self.inbox
+            .rejects
+            .lock()
+            .map_or(DecodeRejects::default(), |r| *r)
     }
 }
 

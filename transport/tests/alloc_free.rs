@@ -86,7 +86,7 @@ fn inproc_link_and_gate_allocate_nothing_per_message() {
     assert_eq!(accepted, CYCLES);
     assert_eq!(command_gate.counters.stale, CYCLES);
     assert_eq!(command_gate.counters.wrong_arm, CYCLES / 100);
-    assert_eq!(command_gate.counters.malformed, CYCLES / 100);
+    assert_eq!(command_gate.counters.undecodable, CYCLES / 100);
     assert_eq!(feedback_gate.counters.accepted, CYCLES);
 }
 

@@ -125,9 +125,9 @@ fn undecodable_payloads_are_counted_never_delivered() {
     assert_eq!(slave.undecodable(), 0);
 
     let good = encode(&command(3, 50));
-    // A NaN in pose[0]: the body starts after the 8-byte header with seq and send time.
+    // A NaN in pose[0]: the body starts after the 16-byte header with seq and send time.
     let mut nan = good.clone();
-    nan[24..32].copy_from_slice(&f64::NAN.to_le_bytes());
+    nan[32..40].copy_from_slice(&f64::NAN.to_le_bytes());
     // Another protocol version in the header (bytes 2..4).
     let mut version = good.clone();
     version[2..4].copy_from_slice(&99u16.to_le_bytes());
@@ -149,6 +149,8 @@ fn undecodable_payloads_are_counted_never_delivered() {
         std::thread::sleep(Duration::from_millis(1));
     }
     assert_eq!(slave.undecodable(), 4);
+    let by_reason = slave.decode_rejects();
+    assert_eq!((by_reason.undecodable, by_reason.wrong_version), (3, 1));
     assert!(slave.last_decode_error().is_some());
     assert_eq!(slave.try_recv().unwrap(), None);
 }

@@ -183,8 +183,14 @@ pub struct Summary {
     pub passivity_dissipated_j: f64,
     /// Messages lost in both directions (loss, blackouts, overflow).
     pub packets_lost: u64,
-    /// Messages the receive gates rejected (duplicates, reordered).
+    /// Messages the receive gates rejected, all reasons, both directions (duplicates and
+    /// reordered messages of the impaired link are `stale`).
     pub packets_rejected: u64,
+    /// The slave's receive gate (commands): accepted, rejected by reason, pairings
+    /// (docs/processes.md).
+    pub slave_gate: h4_transport::gate::GateCounters,
+    /// The master's receive gate (feedback), same fields.
+    pub master_gate: h4_transport::gate::GateCounters,
     /// Mean round-trip time measured by the master from the echoed send times, ms.
     pub rtt_mean_ms: f64,
     /// Settled contact time (contact episodes after `detector.settle_s`), s.
@@ -719,6 +725,8 @@ impl Evaluator {
             contact_bounces: bounces,
             bouncing_impacts: impacts,
             slave_rejected_cycles: self.rejected,
+            slave_gate: Default::default(),
+            master_gate: Default::default(),
             cycles,
             sim_time_s,
             wall_time_s,

@@ -191,7 +191,7 @@ impl Session {
             master_saw_safe_stops: self.master.coupling().safe_stops_seen,
             repairs: self.slave.counters().repairs,
         };
-        Ok(ev.finish(
+        let mut summary = ev.finish(
             self.cfg.name.clone(),
             dissipated,
             lost,
@@ -200,7 +200,10 @@ impl Session {
             cycles,
             wall_time_s,
             &facts,
-        ))
+        );
+        summary.slave_gate = *self.slave.gate_counters();
+        summary.master_gate = *self.master.gate_counters();
+        Ok(summary)
     }
 }
 

@@ -190,6 +190,11 @@ impl SlaveController {
         self
     }
 
+    /// The arm's workspace the commands are checked against.
+    pub fn workspace(&self) -> &h4_shared::kinematics::Workspace {
+        &self.arm.ws
+    }
+
     /// The parameters.
     pub fn params(&self) -> &ControllerParams {
         &self.p
