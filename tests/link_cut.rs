@@ -26,9 +26,9 @@ use std::time::{Duration, Instant};
 use h4_master::server::MasterRunSummary;
 use h4_slave::server::SlaveRunSummary;
 use h4_tests::netns::{Host, TwoHosts};
-use h4_tests::procs::{self, Pair, PairSpec, Scratch};
 use h4_tests::record::{self, SafeEpisode};
 use h4_tests::relay::{Proto, Relay};
+use h4_tests::remote_procs::{self, Pair, PairSpec, Scratch};
 use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
@@ -43,8 +43,8 @@ fn overrides() -> Vec<String> {
 
 /// The criteria for one cut of `cut_s` seconds.
 fn check_cut(m: &MasterRunSummary, s: &SlaveRunSummary, cycles: &[record::SlaveCycle], cut_s: f64) {
-    let session = procs::session(SESSION, &overrides()).unwrap();
-    let why = procs::judge(m, s, &session);
+    let session = remote_procs::session(SESSION, &overrides()).unwrap();
+    let why = remote_procs::judge(m, s, &session);
     assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");
     // The cut's episode: the re-paired one with the longest outage (a host stall can add
     // short ones; the end of the run adds one that never re-pairs).

@@ -10,7 +10,7 @@
 //!   `SKIPPED` line, where network namespaces cannot be made.
 //!
 //! Each cell is the wall-push session cut to 7 s (approach, push with 6 N, hold, release).
-//! Criteria, from physical evidence in both summaries (`h4_tests::procs::judge`): every force
+//! Criteria, from physical evidence in both summaries (`h4_tests::remote_procs::judge`): every force
 //! finite, the slave's true contact force within `detector.force_limit_n` (100 N), the
 //! rendered force within `coupling.force_limit_n`, both passivity observers ≥ −1 mJ, round
 //! trips completed — the energy floor and force limits of the simulated matrix
@@ -36,8 +36,8 @@ use std::sync::Mutex;
 use h4_master::server::MasterRunSummary;
 use h4_slave::server::SlaveRunSummary;
 use h4_tests::netns::{Host, TwoHosts};
-use h4_tests::procs::{self, Running, Scratch};
 use h4_tests::relay::{Proto, Relay};
+use h4_tests::remote_procs::{self, Running, Scratch};
 use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
@@ -137,9 +137,9 @@ fn impair_lost(log: &str) -> u64 {
 }
 
 fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
-    let (master_bin, slave_bin) = procs::binaries()?;
+    let (master_bin, slave_bin) = remote_procs::binaries()?;
     let tag = cell.name();
-    let (world, passivity) = procs::slave_config(scratch, &tag, SESSION, &cell.overrides())?;
+    let (world, passivity) = remote_procs::slave_config(scratch, &tag, SESSION, &cell.overrides())?;
     let slave_summary = scratch.path(&format!("{tag}-slave.json"));
     let master_summary = scratch.path(&format!("{tag}-master.json"));
     let seed = 11;
@@ -221,8 +221,8 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
             slave.log()
         ));
     }
-    let m: MasterRunSummary = procs::read_summary(&master_summary)?;
-    let s: SlaveRunSummary = procs::read_summary(&slave_summary)?;
+    let m: MasterRunSummary = remote_procs::read_summary(&master_summary)?;
+    let s: SlaveRunSummary = remote_procs::read_summary(&slave_summary)?;
     let lost = match &relay {
         Some(r) => r.counters().dropped,
         None => impair_lost(&slave.log()) + impair_lost(&master.log()),
@@ -231,13 +231,13 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
     drop(hosts);
     Ok(Outcome {
         cell,
-        reasons: procs::judge(&m, &s, &procs::session(SESSION, &cell.overrides())?),
-        starved: procs::starved(&m, &s),
+        reasons: remote_procs::judge(&m, &s, &remote_procs::session(SESSION, &cell.overrides())?),
+        starved: remote_procs::starved(&m, &s),
         master: m,
         slave: s,
         lost,
         attempts: 1,
-        coupling_limit_n: procs::session(SESSION, &cell.overrides())?
+        coupling_limit_n: remote_procs::session(SESSION, &cell.overrides())?
             .coupling
             .force_limit_n,
     })

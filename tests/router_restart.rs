@@ -15,8 +15,8 @@ use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
 use h4_tests::netns::{Host, TwoHosts};
-use h4_tests::procs::{self, Pair, PairSpec, Scratch};
 use h4_tests::record::{self, SafeEpisode};
+use h4_tests::remote_procs::{self, Pair, PairSpec, Scratch};
 
 const SESSION: &str = "config/sessions/wall-push.toml";
 
@@ -93,7 +93,11 @@ fn a_router_restart_under_clients_safe_stops_fades_and_repairs() {
     r.0 = Some(router(&hosts, &endpoint));
     let down_s = t.elapsed().as_secs_f64();
     let (m, s) = pair.finish().unwrap();
-    let why = procs::judge(&m, &s, &procs::session(SESSION, &spec.overrides).unwrap());
+    let why = remote_procs::judge(
+        &m,
+        &s,
+        &remote_procs::session(SESSION, &spec.overrides).unwrap(),
+    );
     assert!(why.is_empty(), "{why:?}");
     let cycles = record::slave_cycles(&pair.slave_record).unwrap();
     let episodes = record::safe_episodes(&cycles);

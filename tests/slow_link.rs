@@ -17,9 +17,9 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use h4_tests::netns::{Host, TwoHosts};
-use h4_tests::procs::{self, Pair, PairSpec, Scratch};
 use h4_tests::record;
 use h4_tests::relay::{Proto, Relay};
+use h4_tests::remote_procs::{self, Pair, PairSpec, Scratch};
 use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
@@ -66,7 +66,11 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
     relay.set(ImpairmentConfig::default());
     let (m, s) = pair.finish().unwrap();
     // No energy generated, forces within limits.
-    let why = procs::judge(&m, &s, &procs::session(SESSION, &spec.overrides).unwrap());
+    let why = remote_procs::judge(
+        &m,
+        &s,
+        &remote_procs::session(SESSION, &spec.overrides).unwrap(),
+    );
     assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");
     // The slow stretch really was slow.
     assert!(m.round_trip_max_us >= 600_000.0, "{m:#?}");
