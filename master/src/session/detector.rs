@@ -587,6 +587,23 @@ impl Evaluator {
         }
     }
 
+    /// The mean drift over the last 0.5 s of settled contact (`cycle`: the settled contact
+    /// cycles; only those in touch count), mm.
+    fn settled_drift_mm(&self, cycle: &[usize], contact_threshold_n: f64) -> f64 {
+        let drift_tail: Vec<f64> = cycle
+            .iter()
+            .rev()
+            .filter(|&&k| self.force_n[k] > contact_threshold_n)
+            .take(500)
+            .map(|&k| self.drift_mm[k])
+            .collect();
+        if drift_tail.is_empty() {
+            0.0
+        } else {
+            drift_tail.iter().sum::<f64>() / drift_tail.len() as f64
+        }
+    }
+
     #[allow(clippy::too_many_arguments)]
     pub(super) fn finish(
         self,
@@ -626,19 +643,7 @@ impl Evaluator {
         let early = rms(&residual[..win.min(n)]);
         let late = rms(&residual[n.saturating_sub(win)..]);
         let growth = late / early.max(d.oscillation_floor_n);
-        // The drift over the last 0.5 s of settled contact (cycles in touch).
-        let drift_tail: Vec<f64> = cycle
-            .iter()
-            .rev()
-            .filter(|&&k| self.force_n[k] > d.contact_threshold_n)
-            .take(500)
-            .map(|&k| self.drift_mm[k])
-            .collect();
-        let drift = if drift_tail.is_empty() {
-            0.0
-        } else {
-            drift_tail.iter().sum::<f64>() / drift_tail.len() as f64
-        };
+        let drift = self.settled_drift_mm(&cycle, d.contact_threshold_n);
         let mut reasons = Vec::new();
         if self.diverged {
             reasons.push("diverged".to_string());
