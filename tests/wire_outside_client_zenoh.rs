@@ -10,14 +10,12 @@
 
 #[path = "common/outside_client.rs"]
 mod outside_client;
-#[path = "common/procs.rs"]
-mod procs;
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use h4_tests::procs::{Running, Scratch, binaries, read_json};
 use outside_client::{Cmd, Fb, bad_messages};
-use procs::{Running, Scratch, binaries, read_json};
 use zenoh::Wait;
 
 struct Client {

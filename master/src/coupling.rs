@@ -452,6 +452,12 @@ impl MasterCoupling {
         self.model.reset_used();
     }
 
+    /// The master is acknowledging the slave's safe stop (it has faded out and started a new
+    /// ledger; the slave starts its own on the acknowledgement).
+    pub fn acking(&self) -> bool {
+        self.acking
+    }
+
     /// The slave is in its safe stop (as the newest feedback reports).
     pub fn slave_safe_stop(&self) -> bool {
         self.slave_stopped

@@ -280,6 +280,9 @@ impl MasterTeleop {
 
     /// Drains the link through the gate; true if a message was accepted.
     fn receive<L: Link<Command, Feedback>>(&mut self, link: &mut L, now_ns: u64) -> bool {
+        // Acknowledging the slave's safe stop: its feedback may start a new ledger.
+        self.gate
+            .set_peer_ledger_may_restart(self.coupling.acking());
         let coupling = &mut self.coupling;
         let round_trip = &mut self.round_trip;
         let restarts = self.gate.counters.repaired;

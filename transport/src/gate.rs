@@ -229,6 +229,7 @@ pub struct Gate<M: WireMessage> {
     link_seen: DecodeRejects,
     reasons: u32,
     last_rejection: Option<Rejection>,
+    peer_ledger_may_restart: bool,
     /// Counters.
     pub counters: GateCounters,
 }
@@ -262,8 +263,18 @@ impl<M: WireMessage> Gate<M> {
             link_seen: DecodeRejects::default(),
             reasons: 0,
             last_rejection: None,
+            peer_ledger_may_restart: false,
             counters: GateCounters::default(),
         }
+    }
+
+    /// While `on`, the peer may start a new energy ledger inside the session without flagging
+    /// it: a message whose energies fall is taken as a new ledger (within the reserve), not as
+    /// implausible. The master sets it while it acknowledges the slave's safe stop: the slave
+    /// starts its new ledger on that acknowledgement, and its feedback says so only by its
+    /// energies.
+    pub fn set_peer_ledger_may_restart(&mut self, on: bool) {
+        self.peer_ledger_may_restart = on;
     }
 
     /// With limits on the messages' values (out-of-range messages are rejected).
@@ -350,10 +361,11 @@ impl<M: WireMessage> Gate<M> {
             return Err(Rejection::OutOfRange(code));
         }
         let energy_j = msg.energies_j();
+        let restarts = msg.starts_new_ledger()
+            || (self.peer_ledger_may_restart
+                && current.is_some_and(|s| energy_j.0 < s.energy_j.0 || energy_j.1 < s.energy_j.1));
         let next = match current {
-            Some(s) if !msg.starts_new_ledger() => {
-                self.energy_step(&s, energy_j, silence.unwrap_or(0))
-            }
+            Some(s) if !restarts => self.energy_step(&s, energy_j, silence.unwrap_or(0)),
             _ => {
                 // A new session, or a new ledger inside one (the safe-stop acknowledgement):
                 // energies ≥ 0, and a new ledger starts within the reserve.
@@ -687,5 +699,37 @@ mod tests {
         assert!(g.accept(&with(6, 1e6), 14_000_000).is_err());
         assert_eq!(g.counters.implausible_energy, 3);
         assert_eq!(g.energy_since_pairing_j(&with(7, 6.5)), (1.5, 0.0));
+    }
+
+    #[test]
+    fn a_peer_ledger_restart_is_taken_only_while_expected_and_within_the_reserve() {
+        let bound = EnergyBound {
+            max_power_w: 10.0,
+            reserve_j: 1.0,
+        };
+        let mut g = Gate::<Command>::new(4, 50_000_000).with_energy_bound(bound);
+        let with = |seq, e| Command {
+            energy_in_j: e,
+            ..cmd(seq)
+        };
+        assert!(g.accept(&with(1, 5.0), 0).is_ok());
+        assert!(g.accept(&with(2, 0.1), 1_000_000).is_err(), "not expected");
+        g.set_peer_ledger_may_restart(true);
+        assert!(
+            g.accept(&with(3, 5.1), 2_000_000).is_ok(),
+            "the old ledger goes on"
+        );
+        assert!(
+            g.accept(&with(4, 2.0), 3_000_000).is_err(),
+            "beyond the reserve"
+        );
+        assert!(g.accept(&with(5, 0.2), 4_000_000).is_ok(), "a new ledger");
+        g.set_peer_ledger_may_restart(false);
+        assert!(
+            g.accept(&with(6, 0.1), 5_000_000).is_err(),
+            "decreasing again"
+        );
+        assert!(g.accept(&with(7, 0.25), 6_000_000).is_ok());
+        assert_eq!(g.counters.implausible_energy, 3);
     }
 }
