@@ -307,20 +307,17 @@ fn loopback_serves_both_processes_live() {
             s[0].2
         );
     }
-    // Decimated to ~100 Hz of the 1 kHz loops: consecutive messages are ~10 cycles apart
-    // in the loop's own clock (time_ns), whatever the wall clock did.
+    // Decimated to one cycle in ten of the 1 kHz loops: consecutive messages are ten periods
+    // apart in the loop's own clock (time_ns, the wake-up time: less only by the loop's
+    // lateness, so 5 ms is the bound; undecimated they would be 1 ms apart). More is allowed:
+    // a loop that missed deadlines (a loaded host) or a message dropped makes a longer gap.
     let gaps: Vec<u64> = s
         .windows(2)
         .map(|w| w[1].2["time_ns"].as_u64().unwrap() - w[0].2["time_ns"].as_u64().unwrap())
         .collect();
-    let median = {
-        let mut g = gaps.clone();
-        g.sort_unstable();
-        g[g.len() / 2]
-    };
     assert!(
-        (9_000_000..=11_000_000).contains(&median),
-        "median gap {median} ns: {gaps:?}"
+        gaps.iter().all(|&g| g >= 5_000_000),
+        "messages closer than decimation allows: {gaps:?}"
     );
     drop(master);
     drop(slave);
