@@ -299,10 +299,23 @@ impl LoopArgs {
 /// What both `run` commands (`h4-slave run`, `h4-master run`) take about their loop: how
 /// long, where the summary and the recording go, real-time settings (flattened into their
 /// clap arguments).
+/// `--duration-s`: a positive finite number of seconds (0, negative, `nan` and `inf` are usage
+/// errors, exit 2, not a run of no cycles).
+pub fn positive_seconds(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!(
+            "{v} s: expected a positive finite number of seconds"
+        )),
+        Err(e) => Err(format!("{text:?}: {e}")),
+    }
+}
+
 #[derive(Clone, Debug, Default, clap::Args)]
 pub struct LoopArgs {
-    /// Stop by itself after this many seconds (default: until SIGINT/SIGTERM).
-    #[arg(long)]
+    /// Stop by itself after this many seconds, a positive finite number (default: until
+    /// SIGINT/SIGTERM).
+    #[arg(long, value_parser = positive_seconds)]
     pub duration_s: Option<f64>,
     /// Write the summary as JSON here (it is also printed on stdout).
     #[arg(long)]
@@ -321,6 +334,15 @@ pub struct LoopArgs {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn durations_must_be_positive_and_finite() {
+        assert_eq!(super::positive_seconds("2.5"), Ok(2.5));
+        for bad in ["0", "-1", "nan", "inf", "-inf", "", "ten"] {
+            assert!(super::positive_seconds(bad).is_err(), "{bad}");
+        }
+    }
+
     use super::*;
 
     #[test]

@@ -24,8 +24,9 @@ use serde::Serialize;
 /// summary (fields in docs/processes.md).
 #[derive(Clone, Debug, clap::Args)]
 pub struct LoopbackArgs {
-    /// How long the master runs, s (default: the session's duration_s).
-    #[arg(long)]
+    /// How long the master runs, s, a positive finite number (default: the session's
+    /// duration_s).
+    #[arg(long, value_parser = h4_shared::process::positive_seconds)]
     pub duration_s: Option<f64>,
     /// Write the summary as JSON here (it is also printed on stdout).
     #[arg(long)]
