@@ -140,18 +140,11 @@ fn a_2_s_cut_between_two_hosts_over_zenoh_safe_stops_fades_and_repairs() {
         session: SESSION,
         overrides: overrides(),
         duration_s: 5.6,
-        slave_args: vec![
-            "--transport".into(),
-            "zenoh".into(),
-            "--zenoh-listen".into(),
-            format!("tcp/{target}"),
-        ],
-        master_args: vec![
-            "--transport".into(),
-            "zenoh".into(),
-            "--zenoh-connect".into(),
-            format!("tcp/{}", relay.listen_addr()),
-        ],
+        slave_args: remote_procs::zenoh_args("--zenoh-listen", &format!("tcp/{target}")),
+        master_args: remote_procs::zenoh_args(
+            "--zenoh-connect",
+            &format!("tcp/{}", relay.listen_addr()),
+        ),
     };
     let mut pair = Pair::start(&spec, &scratch, |slave, bin| {
         hosts.command(if slave { Host::Slave } else { Host::Master }, bin)

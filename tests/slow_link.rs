@@ -41,18 +41,11 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
             "duration_s=9.5".into(),
         ],
         duration_s: 9.5,
-        slave_args: vec![
-            "--transport".into(),
-            "zenoh".into(),
-            "--zenoh-listen".into(),
-            format!("tcp/{target}"),
-        ],
-        master_args: vec![
-            "--transport".into(),
-            "zenoh".into(),
-            "--zenoh-connect".into(),
-            format!("tcp/{}", relay.listen_addr()),
-        ],
+        slave_args: remote_procs::zenoh_args("--zenoh-listen", &format!("tcp/{target}")),
+        master_args: remote_procs::zenoh_args(
+            "--zenoh-connect",
+            &format!("tcp/{}", relay.listen_addr()),
+        ),
     };
     let mut pair = Pair::start(&spec, &scratch, |slave, bin| {
         hosts.command(if slave { Host::Slave } else { Host::Master }, bin)

@@ -426,3 +426,12 @@ pub fn session(
 ) -> Result<h4_master::session::SessionConfig, String> {
     h4_master::session::load(&workspace().join(session), overrides).map_err(|e| e.to_string())
 }
+
+/// The arguments of one side of a Zenoh link between the two hosts: `--transport zenoh`
+/// and `flag` (`--zenoh-listen` for the slave, `--zenoh-connect` for the master) `endpoint`.
+pub fn zenoh_args(flag: &str, endpoint: &str) -> Vec<String> {
+    ["--transport", "zenoh", flag, endpoint]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+}
