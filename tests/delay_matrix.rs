@@ -26,131 +26,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
-use std::sync::Mutex;
 
-use h4_master::session::{self, Summary};
-
-const RTT_MS: [f64; 8] = [0.0, 10.0, 50.0, 100.0, 250.0, 500.0, 1000.0, 2000.0];
-const RTT_SCALE_1_MS: [f64; 4] = [0.0, 10.0, 50.0, 100.0];
-const JITTER: [f64; 2] = [0.0, 0.2];
-const LOSS: [Loss; 4] = [Loss::None, Loss::P5, Loss::P20, Loss::Blackout];
-const WALLS: [Wall; 4] = [Wall::Soft, Wall::Resin, Wall::Aluminium, Wall::Steel];
-/// The slave controller's force limit (`slave.controller.force_limit_n` default), N.
-const SLAVE_LIMIT_N: f64 = 80.0;
-/// `coupling.force_limit_n` in wall-push.toml, N.
-const RENDER_LIMIT_N: f64 = 30.0;
-
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Loss {
-    None,
-    P5,
-    P20,
-    Blackout,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Wall {
-    /// 1 N/mm.
-    Soft,
-    /// Resin, 200 N/mm.
-    Resin,
-    /// Aluminium, 1000 N/mm.
-    Aluminium,
-    /// Steel, 2000 N/mm.
-    Steel,
-}
-
-impl Wall {
-    fn stiffness_n_per_mm(self) -> f64 {
-        match self {
-            Wall::Soft => 1.0,
-            Wall::Resin => 200.0,
-            Wall::Aluminium => 1000.0,
-            Wall::Steel => 2000.0,
-        }
-    }
-
-    fn metal(self) -> bool {
-        matches!(self, Wall::Aluminium | Wall::Steel)
-    }
-}
-
-#[derive(Clone, Copy, Debug)]
-struct Case {
-    rtt_ms: f64,
-    jitter: f64,
-    loss: Loss,
-    wall: Wall,
-    force_scale: f64,
-    passivity: bool,
-    /// The master's local contact model (`coupling.model`, off in wall-push.toml).
-    model: bool,
-    /// The slave's contact hand-over (`slave.contact.enabled`, on by default).
-    handover: bool,
-    seed: u64,
-}
-
-impl Case {
-    fn shipped(rtt_ms: f64, jitter: f64, loss: Loss, wall: Wall, force_scale: f64) -> Self {
-        Case {
-            rtt_ms,
-            jitter,
-            loss,
-            wall,
-            force_scale,
-            passivity: true,
-            model: false,
-            handover: true,
-            seed: 4,
-        }
-    }
-
-    fn overrides(&self) -> Vec<String> {
-        let one_way = self.rtt_ms / 2.0;
-        let mut o = vec![
-            format!("link.delay_ms={one_way}"),
-            format!("link.jitter_ms={}", one_way * self.jitter),
-            format!("passivity.enabled={}", self.passivity),
-            format!("coupling.model={}", self.model),
-            format!("slave.contact.enabled={}", self.handover),
-            format!("scale.force={}", self.force_scale),
-            format!(
-                "environment.stiffness_n_per_mm={}",
-                self.wall.stiffness_n_per_mm()
-            ),
-            format!("seed={}", self.seed),
-        ];
-        match self.loss {
-            Loss::None => {}
-            Loss::P5 => o.push("link.loss=0.05".into()),
-            Loss::P20 => o.push("link.loss=0.2".into()),
-            Loss::Blackout => {
-                o.push("link.blackout_ms=200".into());
-                o.push("link.blackout_every_ms=2000".into());
-            }
-        }
-        o
-    }
-
-    fn label(&self) -> String {
-        format!(
-            "{:<9} rtt {:>4} ms, jitter {:>2} %, loss {:<8}, scale {}, seed {}, passivity {}, model {}, hand-over {}",
-            format!("{:?}", self.wall),
-            self.rtt_ms,
-            self.jitter * 100.0,
-            format!("{:?}", self.loss),
-            self.force_scale,
-            self.seed,
-            on(self.passivity),
-            on(self.model),
-            on(self.handover),
-        )
-    }
-}
-
-fn on(b: bool) -> &'static str {
-    if b { "on" } else { "off" }
-}
+use h4_master::matrix::{
+    self, Case, Limits, Loss, Matrix, RTT_MS, Wall, misses, safety_misses, shipped_cases,
+    worst_report,
+};
+use h4_master::session::Summary;
 
 fn session_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml")
@@ -169,211 +50,34 @@ fn extra_overrides() -> Vec<String> {
         .unwrap_or_default()
 }
 
-fn run_case(c: &Case) -> Summary {
-    let mut o = c.overrides();
-    o.extend(extra_overrides());
-    let cfg = session::load(&session_path(), &o).unwrap_or_else(|e| panic!("{}: {e}", c.label()));
-    session::run(&cfg, None).unwrap_or_else(|e| panic!("{}: {e}", c.label()))
+fn the_matrix() -> Matrix {
+    Matrix::new(&session_path(), &extra_overrides())
 }
 
-/// Runs the cases on two threads (this machine has two cores), in order.
+fn limits() -> Limits {
+    the_matrix().limits(&[]).unwrap()
+}
+
+/// Runs the cases on two threads (this machine has two cores), in order (the library's
+/// runner, the one `h4-master matrix` uses).
 fn run_all(cases: &[Case]) -> Vec<Summary> {
-    let next = Mutex::new(0usize);
-    let out: Mutex<Vec<Option<Summary>>> = Mutex::new(vec![None; cases.len()]);
-    std::thread::scope(|s| {
-        for _ in 0..2 {
-            s.spawn(|| {
-                loop {
-                    let i = {
-                        let mut n = next.lock().unwrap();
-                        let i = *n;
-                        *n += 1;
-                        i
-                    };
-                    if i >= cases.len() {
-                        break;
-                    }
-                    let r = run_case(&cases[i]);
-                    out.lock().unwrap()[i] = Some(r);
-                }
-            });
-        }
-    });
-    out.into_inner()
+    the_matrix()
+        .run_all(cases, 2, &|| false, &|_, _| {})
         .unwrap()
         .into_iter()
         .map(|s| s.expect("every case ran"))
         .collect()
 }
 
-/// The shipped matrix with `seed`: scale 0.5 at every round trip, scale 1.0 at 0–100 ms.
-fn matrix_cases(seed: u64, with_scale_1: bool) -> Vec<Case> {
-    let mut cases = Vec::new();
-    let mut rows = vec![(0.5, &RTT_MS[..])];
-    if with_scale_1 {
-        rows.push((1.0, &RTT_SCALE_1_MS[..]));
-    }
-    for (scale, rtts) in rows {
-        for wall in WALLS {
-            for loss in LOSS {
-                for jitter in JITTER {
-                    for &rtt_ms in rtts {
-                        let mut c = Case::shipped(rtt_ms, jitter, loss, wall, scale);
-                        c.seed = seed;
-                        cases.push(c);
-                    }
-                }
-            }
-        }
-    }
-    cases
-}
-
-/// The guarantees that hold by construction in every cell; empty when all hold.
-fn safety_misses(s: &Summary) -> Vec<String> {
-    let mut m = Vec::new();
-    if s.max_force_n > SLAVE_LIMIT_N {
-        m.push(format!(
-            "true force {:.1} N > {SLAVE_LIMIT_N}",
-            s.max_force_n
-        ));
-    }
-    if s.max_master_force_n > RENDER_LIMIT_N + 1e-9 {
-        m.push(format!(
-            "rendered {:.1} N > {RENDER_LIMIT_N}",
-            s.max_master_force_n
-        ));
-    }
-    if s.energy_min_j < -1e-3 {
-        m.push(format!("observer {:.2} mJ < -1", s.energy_min_j * 1e3));
-    }
-    m
-}
-
-/// Every target of issue 12 for one cell; empty when all are met.
-fn misses(c: &Case, s: &Summary) -> Vec<String> {
-    let mut m = safety_misses(s);
-    if !s.stable {
-        m.push(format!("unstable ({})", s.unstable_reasons.join("; ")));
-    }
-    let held_first = s.hold_force_n.first().copied().unwrap_or(0.0);
-    let ratio = if c.wall.metal() { 3.0 } else { 2.0 };
-    if s.first_touch_peak_n > ratio * held_first {
-        m.push(format!(
-            "first touch {:.1} N > {ratio} x held {:.1} N",
-            s.first_touch_peak_n, held_first
-        ));
-    }
-    let tol = if c.rtt_ms <= 250.0 { 0.20 } else { 0.35 };
-    for (h, t) in s.hold_force_n.iter().zip(&s.hold_target_n) {
-        if (h - t).abs() > tol * t {
-            m.push(format!("held {h:.1} N vs {t:.1} N ± {:.0} %", tol * 100.0));
-        }
-    }
-    if s.hold_force_n.len() < 2 {
-        m.push(format!("{} holds found (2 expected)", s.hold_force_n.len()));
-    }
-    if s.hold_ripple_rms_n > 1.0 {
-        m.push(format!("hold ripple {:.2} N RMS > 1", s.hold_ripple_rms_n));
-    }
-    if s.position_drift_mm > 2.0 {
-        m.push(format!("drift {:.2} mm > 2", s.position_drift_mm));
-    }
-    let t = s.force_transparency_err_pct;
-    if c.rtt_ms <= 100.0 && (t.is_nan() || t > 10.0) {
-        m.push(format!("transparency {t:.1} % > 10"));
-    }
-    m
-}
-
-fn fmt_cell(s: &Summary, ok: bool) -> String {
-    format!(
-        "{}{} {:.0}/{:.1}/{:.1}/{}",
-        if ok { "ok" } else { "**x**" },
-        if s.stable { "" } else { " U" },
-        s.max_force_n,
-        s.hold_ripple_rms_n,
-        s.hold_force_n.first().copied().unwrap_or(0.0),
-        s.bounces
-    )
-}
-
-/// Markdown table: one row per (scale, wall, loss, jitter), one column per round trip.
-/// Cells: verdict, true force max / hold ripple RMS / first held force / bounces.
-fn table(cases: &[Case], sums: &[Summary]) -> String {
-    let mut t = String::from("| scale | wall | loss | jitter |");
-    for r in RTT_MS {
-        t.push_str(&format!(" {r} ms |"));
-    }
-    t.push_str("\n|---|---|---|---|");
-    for _ in RTT_MS {
-        t.push_str("---|");
-    }
-    t.push('\n');
-    let mut i = 0;
-    while i < cases.len() {
-        let c0 = cases[i];
-        let mut j = i;
-        while j < cases.len()
-            && cases[j].force_scale == c0.force_scale
-            && cases[j].wall == c0.wall
-            && cases[j].loss == c0.loss
-            && cases[j].jitter == c0.jitter
-        {
-            j += 1;
-        }
-        t.push_str(&format!(
-            "| {} | {:?} | {:?} | {:.0} % |",
-            c0.force_scale,
-            c0.wall,
-            c0.loss,
-            c0.jitter * 100.0
-        ));
-        for k in i..j {
-            t.push_str(&format!(
-                " {} |",
-                fmt_cell(&sums[k], misses(&cases[k], &sums[k]).is_empty())
-            ));
-        }
-        t.push('\n');
-        i = j;
-    }
-    t
-}
-
-/// The worst value of each criterion over `sums`, with its cell.
-fn worst_report(cases: &[Case], sums: &[Summary]) -> String {
-    let worst = |f: &dyn Fn(&Summary) -> f64| {
-        cases.iter().zip(sums).map(|(c, s)| (f(s), c.label())).fold(
-            (f64::NEG_INFINITY, String::new()),
-            |a, b| {
-                if b.0 > a.0 { b } else { a }
-            },
-        )
-    };
-    let mut out = String::new();
-    for (name, f) in [
-        (
-            "true force max, N",
-            &(|s: &Summary| s.max_force_n) as &dyn Fn(&Summary) -> f64,
-        ),
-        ("rendered max, N", &|s: &Summary| s.max_master_force_n),
-        ("observer min, -mJ", &|s: &Summary| -s.energy_min_j * 1e3),
-        ("hold ripple, N RMS", &|s: &Summary| s.hold_ripple_rms_n),
-        ("bounces", &|s: &Summary| s.bounces as f64),
-        ("drift, mm", &|s: &Summary| s.position_drift_mm),
-    ] {
-        let (v, l) = worst(f);
-        out.push_str(&format!("worst {name}: {v:.3} ({l})\n"));
-    }
-    out
+fn some(sums: &[Summary]) -> Vec<Option<Summary>> {
+    sums.iter().cloned().map(Some).collect()
 }
 
 /// What holds today (a floor, not the issue's targets): the guarantees in every cell up to
 /// 100 ms round trip without blackouts, on all four walls at both force scales.
 #[test]
 fn matrix_safety_up_to_100_ms_without_blackouts() {
-    let cases: Vec<Case> = matrix_cases(4, true)
+    let cases: Vec<Case> = shipped_cases(4, true)
         .into_iter()
         .filter(|c| c.rtt_ms <= 100.0 && c.loss != Loss::Blackout)
         .collect();
@@ -386,17 +90,18 @@ fn matrix_safety_up_to_100_ms_without_blackouts() {
 #[test]
 #[ignore = "issue 12: the guarantees do not hold in every cell yet (docs/sessions.md)"]
 fn matrix_safety_in_every_cell() {
-    check_safety(&matrix_cases(4, true));
+    check_safety(&shipped_cases(4, true));
 }
 
 fn check_safety(cases: &[Case]) {
+    let l = limits();
     let sums = run_all(cases);
-    println!("{}", worst_report(cases, &sums));
+    println!("{}", worst_report(cases, &some(&sums)));
     let failed: Vec<String> = cases
         .iter()
         .zip(&sums)
         .filter_map(|(c, s)| {
-            let m = safety_misses(s);
+            let m = safety_misses(s, &l);
             (!m.is_empty()).then(|| format!("{}: {}", c.label(), m.join(", ")))
         })
         .collect();
@@ -414,25 +119,29 @@ fn check_safety(cases: &[Case]) {
 #[test]
 #[ignore = "issue 12's full targets are not met yet (docs/sessions.md)"]
 fn matrix_meets_the_issue_targets() {
-    let cases = matrix_cases(4, true);
+    let l = limits();
+    let cases = shipped_cases(4, true);
     let sums = run_all(&cases);
-    println!("{}", table(&cases, &sums));
+    println!(
+        "{}",
+        matrix::table(&cases, &some(&sums), &RTT_MS, &limits())
+    );
     let count = |f: &dyn Fn(&Case, &Summary) -> bool| {
         cases.iter().zip(&sums).filter(|(c, s)| f(c, s)).count()
     };
     println!(
         "cells: {}; meeting every target: {}; unstable: {}; safety: {}",
         cases.len(),
-        count(&|c, s| misses(c, s).is_empty()),
+        count(&|c, s| misses(c, s, &l).is_empty()),
         count(&|_, s| !s.stable),
-        count(&|_, s| !safety_misses(s).is_empty()),
+        count(&|_, s| !safety_misses(s, &l).is_empty()),
     );
-    println!("{}", worst_report(&cases, &sums));
+    println!("{}", worst_report(&cases, &some(&sums)));
     let failed: Vec<String> = cases
         .iter()
         .zip(&sums)
         .filter_map(|(c, s)| {
-            let m = misses(c, s);
+            let m = misses(c, s, &l);
             (!m.is_empty()).then(|| format!("{}: {}", c.label(), m.join(", ")))
         })
         .collect();
@@ -450,14 +159,17 @@ fn matrix_meets_the_issue_targets() {
 #[test]
 #[ignore = "issue 12: the guarantees do not hold in every cell yet (docs/sessions.md)"]
 fn seeds_1_to_6_worst_cell() {
-    let cases: Vec<Case> = (1..=6).flat_map(|seed| matrix_cases(seed, false)).collect();
+    let l = limits();
+    let cases: Vec<Case> = (1..=6)
+        .flat_map(|seed| shipped_cases(seed, false))
+        .collect();
     let sums = run_all(&cases);
-    println!("{}", worst_report(&cases, &sums));
+    println!("{}", worst_report(&cases, &some(&sums)));
     let failed: Vec<String> = cases
         .iter()
         .zip(&sums)
         .filter_map(|(c, s)| {
-            let m = safety_misses(s);
+            let m = safety_misses(s, &l);
             (!m.is_empty()).then(|| format!("{}: {}", c.label(), m.join(", ")))
         })
         .collect();
@@ -472,7 +184,7 @@ fn steel(rtts_ms: &[f64], passivity: bool, model: bool, handover: bool) -> Vec<C
             passivity,
             model,
             handover,
-            ..Case::shipped(rtt_ms, 0.0, Loss::None, Wall::Steel, 0.5)
+            ..Case::shipped(rtt_ms, 0.0, Loss::None, Wall::STEEL, 0.5)
         })
         .collect()
 }
@@ -499,6 +211,7 @@ fn control_both_off_unstable_from_20_ms() {
 /// where the model alone fails; there are some, and each is seen in the true force.
 #[test]
 fn control_model_without_passivity_shows_where_it_fails() {
+    let l = limits();
     let cases = steel(&RTT_MS, false, true, true);
     let sums = run_all(&cases);
     let mut failing = 0;
@@ -512,7 +225,7 @@ fn control_model_without_passivity_shows_where_it_fails() {
             s.max_force_n,
             s.energy_min_j * 1e3
         );
-        if !misses(c, s).is_empty() {
+        if !misses(c, s, &l).is_empty() {
             failing += 1;
         }
     }

@@ -16,11 +16,14 @@
 //!   process alike.
 //! * passivity: `h4_shared::passivity` (both sides use it).
 //! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
+//! * [`matrix`]: the delay matrix, sessions over wall × round trip × jitter × loss × force
+//!   scale, and its verdicts (`h4-master matrix`, `tests/delay_matrix.rs`).
 
 pub mod contact_model;
 pub mod coupling;
 pub mod device;
 pub mod link_stats;
+pub mod matrix;
 pub mod operator;
 pub mod server;
 pub mod session;

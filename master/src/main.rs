@@ -23,6 +23,10 @@ enum Command {
     /// Start the slave and the master as two processes connected by iceoryx2, run the
     /// session for a while, stop, and print a summary (JSON).
     Loopback(cli::loopback::LoopbackArgs),
+    /// Run the delay matrix: a session over wall × round trip × jitter × loss × force scale
+    /// on the simulated clock, with progress; writes the per-cell table (CSV, JSON,
+    /// markdown) and a heat map per wall (PNG).
+    Matrix(cli::matrix::MatrixArgs),
     /// Write the slave's world and passivity files of a session, for
     /// `h4-slave run --config WORLD --passivity-config PASSIVITY`.
     SlaveConfig(cli::loopback::SlaveConfigArgs),
@@ -38,6 +42,7 @@ fn main() -> std::process::ExitCode {
         Command::Sim(args) => args.run(),
         Command::Run(args) => args.run(),
         Command::Loopback(args) => args.run(),
+        Command::Matrix(args) => args.run(),
         Command::SlaveConfig(args) => args.run(),
         Command::Report(args) => args
             .run()

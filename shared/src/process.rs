@@ -1,9 +1,9 @@
 //! Process plumbing for the 1 kHz programs: an orderly-stop flag set by SIGINT/SIGTERM/SIGHUP, a
-//! watchdog on the last valid message, a terminal status line that stays quiet when the
-//! output is not a terminal, and the loop options both `run` commands share ([`LoopArgs`]).
+//! watchdog on the last valid message, the exit codes, and the loop options both `run`
+//! commands share ([`LoopArgs`]).
 #![allow(unsafe_code)]
 
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -152,51 +152,6 @@ impl Watchdog {
     /// Tripped: something was seen, and nothing valid for longer than the timeout.
     pub fn tripped(&self, now_ns: u64) -> bool {
         self.silence_ns(now_ns).is_some_and(|s| s > self.timeout_ns)
-    }
-}
-
-/// A single status line rewritten a few times a second on a terminal (stderr), silent
-/// otherwise. Formatting happens only when a line is due, never on the other cycles.
-#[derive(Debug)]
-pub struct StatusLine {
-    enabled: bool,
-    interval_ns: u64,
-    next_ns: u64,
-}
-
-impl StatusLine {
-    /// Enabled when stderr is a terminal; `hz` lines per second.
-    pub fn new(hz: f64) -> Self {
-        StatusLine {
-            enabled: std::io::stderr().is_terminal(),
-            interval_ns: (1e9 / hz.max(0.1)) as u64,
-            next_ns: 0,
-        }
-    }
-
-    /// Whether a line is due at `now_ns` (always false when disabled).
-    pub fn due(&mut self, now_ns: u64) -> bool {
-        if !self.enabled || now_ns < self.next_ns {
-            return false;
-        }
-        self.next_ns = now_ns + self.interval_ns;
-        true
-    }
-
-    /// Rewrites the line.
-    pub fn show(&self, text: &str) {
-        if self.enabled {
-            let mut err = std::io::stderr().lock();
-            let _ = write!(err, "\r\x1b[2K{text}");
-            let _ = err.flush();
-        }
-    }
-
-    /// Ends the line so later output starts on a fresh one.
-    pub fn finish(&self) {
-        if self.enabled {
-            let _ = writeln!(std::io::stderr());
-        }
     }
 }
 

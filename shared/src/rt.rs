@@ -323,20 +323,23 @@ pub struct CycleCtx<'a> {
     pub tick: Tick,
     /// Cycles run, this one included.
     pub cycles: u64,
-    /// `Some` a few times a second on a terminal: the status line to write.
+    /// `Some` when the progress reporter wants the status text (a few times a second for a
+    /// bar, once per plain line): the text to write.
     pub status: Option<StatusDue<'a>>,
 }
 
 /// The real-time shell both processes (`h4-slave run`, `h4-master run`) run their 1 kHz
 /// cycle in: a [`Pacer`] on absolute deadlines, the monotonic clock, the stop request
 /// (SIGINT/SIGTERM or [`crate::process::request_stop`]) and the fixed duration, the lateness
-/// histogram and deadline misses, and the rate-limited status line. The per-cycle body is a
+/// histogram and deadline misses, and the progress it hands to a [`crate::progress`]
+/// reporter (position every cycle, the status text when due). The per-cycle body is a
 /// closure; the shell allocates nothing per cycle.
 #[derive(Debug)]
 pub struct RtLoop {
     pacer: Pacer,
     clock: crate::clock::MonotonicClock,
-    status_line: crate::process::StatusLine,
+    progress: crate::progress::ProgressHandle,
+    next_status_ns: u64,
     text: String,
     end_ns: Option<u64>,
     cycles: u64,
@@ -354,11 +357,19 @@ impl RtLoop {
         RtLoop {
             pacer,
             clock: crate::clock::MonotonicClock::new(),
-            status_line: crate::process::StatusLine::new(4.0),
-            text: String::with_capacity(256),
+            progress: crate::progress::ProgressHandle::off(),
+            next_status_ns: 0,
+            text: String::with_capacity(512),
             end_ns: duration_s.map(|s| (s * 1e9) as u64),
             cycles: 0,
         }
+    }
+
+    /// Reports to `progress`: the cycles run, every cycle; the body's status text (asked for
+    /// through [`CycleCtx::status`]) as often as the reporter shows it.
+    pub fn with_progress(mut self, progress: crate::progress::ProgressHandle) -> Self {
+        self.progress = progress;
+        self
     }
 
     /// Runs `body` once per period until a stop is requested or the duration is over (the
@@ -407,7 +418,15 @@ impl RtLoop {
                 break;
             }
             self.cycles += 1;
-            let due = self.status_line.due(now_ns);
+            self.progress.set(self.cycles);
+            let due = self
+                .progress
+                .detail_interval_ns()
+                .is_some_and(|every| now_ns >= self.next_status_ns && every > 0);
+            if due {
+                let every = self.progress.detail_interval_ns().unwrap_or(u64::MAX);
+                self.next_status_ns = now_ns.saturating_add(every);
+            }
             let status = if due {
                 self.text.clear();
                 Some(StatusDue {
@@ -427,10 +446,9 @@ impl RtLoop {
             };
             body(&mut ctx)?;
             if due {
-                self.status_line.show(&self.text);
+                self.progress.set_detail(&self.text);
             }
         }
-        self.status_line.finish();
         Ok(())
     }
 
@@ -517,6 +535,15 @@ pub fn set_fifo_priority(priority: i32) -> Result<(), RtError> {
     } else {
         Err(rt_error("SCHED_FIFO"))
     }
+}
+
+/// Puts the calling thread back under normal scheduling (`SCHED_OTHER`): a helper thread
+/// started by a loop that runs under `SCHED_FIFO` inherits that policy. Lowering is always
+/// permitted; a failure leaves the thread as it was.
+pub fn set_normal_scheduling() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: plain syscall on the calling thread with a valid, initialised parameter.
+    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) };
 }
 
 /// Locks current and future memory so the loop never page-faults.

@@ -721,8 +721,9 @@ impl ReportArgs {
     }
 }
 
-/// The embedded font (DejaVu Sans), so the figures have text on any machine.
-fn register_fonts() {
+/// Registers the embedded font (DejaVu Sans) as plotters' `sans-serif`, so the figures have
+/// text on any machine (once per process; `h4-master matrix` draws with it too).
+pub fn register_fonts() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // A font that fails to register leaves the figures without text, never without lines.

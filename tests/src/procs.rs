@@ -61,12 +61,27 @@ pub struct Running {
 
 impl Running {
     pub fn spawn(name: &'static str, bin: &Path, args: &[String], scratch: &Scratch) -> Self {
+        Self::spawn_in(name, bin, args, scratch, &workspace(), &[])
+    }
+
+    /// [`Running::spawn`] in the working directory `cwd` with the extra environment `env`;
+    /// standard output goes to `<name>.out` in the scratch directory ([`Running::stdout`]).
+    pub fn spawn_in(
+        name: &'static str,
+        bin: &Path,
+        args: &[String],
+        scratch: &Scratch,
+        cwd: &Path,
+        env: &[(&str, &str)],
+    ) -> Self {
         let log = scratch.path(&format!("{name}.log"));
+        let out = scratch.path(&format!("{name}.out"));
         let child = Proc::new(bin)
             .args(args)
-            .current_dir(workspace())
+            .current_dir(cwd)
+            .envs(env.iter().copied())
             .stdin(Stdio::null())
-            .stdout(Stdio::null())
+            .stdout(std::fs::File::create(&out).expect("stdout file"))
             .stderr(std::fs::File::create(&log).expect("log file"))
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
@@ -75,6 +90,11 @@ impl Running {
             child: Some(child),
             log,
         }
+    }
+
+    /// What the process wrote on standard output (`<name>.out`, see [`Running::spawn_in`]).
+    pub fn stdout(&self) -> String {
+        std::fs::read_to_string(self.log.with_extension("out")).unwrap_or_default()
     }
 
     pub fn log(&self) -> String {

@@ -1,5 +1,10 @@
 //! The subcommands.
 
 pub mod loopback;
+pub mod matrix;
 pub mod run;
 pub mod sim;
+
+/// The default session file of `run`, `loopback` and `matrix`, relative to the repository
+/// (found by `h4_shared::paths::default_config`).
+pub const SESSION: &str = "config/sessions/wall-push.toml";
