@@ -10,6 +10,7 @@ use std::path::Path;
 use h4_master::server::MasterRunOptions;
 use h4_master::session::{self, SessionConfig};
 use h4_shared::alloc_count::{CountingAllocator, count_allocations};
+use h4_shared::progress::{Mode, ProgressConfig};
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::RunOptions;
 use h4_transport::inproc;
@@ -29,12 +30,23 @@ fn world() -> ExperimentConfig {
     h4_shared::config::load(&config_path("config/slave/sim-resin.toml"), &[]).unwrap()
 }
 
+/// Plain progress lines every 50 ms: the status text is formatted and handed to the
+/// reporter many times in each measured run.
+fn progress(label: &str) -> ProgressConfig {
+    ProgressConfig {
+        mode: Mode::Plain,
+        plain_interval_s: 0.05,
+        label: label.into(),
+    }
+}
+
 fn master_opts(duration_s: f64) -> MasterRunOptions {
     MasterRunOptions {
         duration_s: Some(duration_s),
         wait_for_slave_s: 0.0,
         // The live view on: its per-cycle hand-off is on the measured thread too.
         foxglove_ws: Some("127.0.0.1:0".into()),
+        progress: progress("alloc test, master"),
         ..MasterRunOptions::default()
     }
 }
@@ -43,6 +55,7 @@ fn slave_opts(duration_s: f64) -> RunOptions {
     RunOptions {
         duration_s: Some(duration_s),
         foxglove_ws: Some("127.0.0.1:0".into()),
+        progress: progress("alloc test, slave"),
         ..RunOptions::default()
     }
 }

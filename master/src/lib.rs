@@ -16,6 +16,8 @@
 //!   process alike.
 //! * passivity: `h4_shared::passivity` (both sides use it).
 //! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
+//! * [`plausible`]: settings the coupling cannot render stably (`scale.force` against the
+//!   force limit and the master's passive stiffness), refused before a run.
 //! * [`matrix`]: the delay matrix, sessions over wall × round trip × jitter × loss × force
 //!   scale, and its verdicts (`h4-master matrix`, `tests/delay_matrix.rs`).
 
@@ -25,6 +27,7 @@ pub mod device;
 pub mod link_stats;
 pub mod matrix;
 pub mod operator;
+pub mod plausible;
 pub mod server;
 pub mod session;
 pub mod teleop;

@@ -14,6 +14,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use h4_shared::process::stop_requested;
+use h4_shared::progress::{Progress, ProgressConfig, Unit};
 use h4_shared::recording::BackgroundRecorder;
 use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
@@ -33,10 +34,10 @@ pub struct MasterRunOptions {
     pub period_ns: u64,
     /// How long before each deadline the loop stops sleeping and spins, ns.
     pub spin_ns: u64,
-    /// Run under SCHED_FIFO at this priority (None: normal scheduling).
-    pub fifo_priority: Option<i32>,
-    /// Lock all memory (mlockall).
-    pub lock_memory: bool,
+    /// Real-time settings (SCHED_FIFO, locked memory; `--realtime`): default off.
+    pub realtime: h4_shared::rt::RealtimePlan,
+    /// Progress on stderr (waiting for the slave, then the loop): default off.
+    pub progress: h4_shared::progress::ProgressConfig,
     /// Stop by itself after this long, s (None: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
     /// Wait this long for the slave's first feedback before starting the operator's script,
@@ -54,8 +55,8 @@ impl Default for MasterRunOptions {
             arm_id: 0,
             period_ns: 1_000_000,
             spin_ns: 200_000,
-            fifo_priority: None,
-            lock_memory: false,
+            realtime: h4_shared::rt::RealtimePlan::off(),
+            progress: h4_shared::progress::ProgressConfig::off(),
             duration_s: None,
             wait_for_slave_s: 10.0,
             record: None,
@@ -141,6 +142,8 @@ pub struct MasterRunSummary {
     /// The link's state in the last cycle: `waiting`, `up`, `fading` or `down`.
     #[serde(default)]
     pub link_state: crate::link_stats::LinkState,
+    /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
+    pub realtime: h4_shared::rt::RealtimeStatus,
 }
 
 /// Why the master could not run.
@@ -163,6 +166,9 @@ pub enum MasterRunError {
     /// The live view could not start.
     #[error("{0}")]
     Live(#[from] h4_shared::live::LiveError),
+    /// `--realtime enforce` and a setting was not permitted.
+    #[error("--realtime enforce: {0}")]
+    Realtime(#[from] h4_shared::rt::RtError),
 }
 
 /// One master cycle as recorded (topic `/master/cycle`, schema `h4.MasterProcessCycle`).
@@ -237,14 +243,18 @@ pub fn run_then<L: Link<Command, Feedback>>(
         1e9 / opts.period_ns.max(1) as f64,
     );
 
-    h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
+    let mut realtime = opts.realtime.prepare()?;
     let mut s = MasterRunSummary {
         waited_for_slave_s: wait_for_slave(&mut side, &mut link, opts)?,
         ..MasterRunSummary::default()
     };
     let period_ns = opts.period_ns.max(1);
     let dt_s = period_ns as f64 * 1e-9;
-    let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
+    let progress = loop_progress(&opts.progress, opts.duration_s, period_ns);
+    opts.realtime.enter(&mut realtime)?;
+    s.realtime = realtime;
+    let mut rt =
+        RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
     let mut stats = RenderStats::new(cfg.scale.force);
     let mut link_stats = crate::link_stats::LossMeter::new();
     rt.run(|cx| {
@@ -295,6 +305,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
         Ok::<(), MasterRunError>(())
     })?;
     at_loop_end();
+    progress.finish();
     let r = side.round_trip().histogram();
     s.round_trip_samples = r.count();
     s.round_trip_p50_us = us(r.quantile(0.5));
@@ -329,17 +340,45 @@ fn wait_for_slave<L: Link<Command, Feedback>>(
 ) -> Result<f64, MasterRunError> {
     let wait = std::time::Instant::now();
     if opts.wait_for_slave_s > 0.0 {
+        // Said at once and every second (at most) while it lasts: how long, of how long.
+        let mut cfg = opts.progress.clone();
+        cfg.label = format!("{}: waiting for a slave (arm {})", cfg.label, opts.arm_id);
+        cfg.plain_interval_s = cfg.plain_interval_s.min(1.0);
+        let progress = Progress::start(
+            &cfg,
+            Unit::Seconds {
+                per_step_s: 1e-3,
+                what: "",
+            },
+            Some((opts.wait_for_slave_s * 1e3).round() as u64),
+        );
+        let handle = progress.handle();
         loop {
             if stop_requested() || side.poll_peer(link, 0) {
                 break;
             }
-            if wait.elapsed().as_secs_f64() > opts.wait_for_slave_s {
+            let waited_s = wait.elapsed().as_secs_f64();
+            handle.set((waited_s * 1e3) as u64);
+            if waited_s > opts.wait_for_slave_s {
                 return Err(MasterRunError::NoSlave(opts.wait_for_slave_s));
             }
             std::thread::sleep(Duration::from_millis(1));
         }
     }
     Ok(wait.elapsed().as_secs_f64())
+}
+
+/// The loop's progress: seconds run (of `--duration-s`, if any), with the status text.
+fn loop_progress(cfg: &ProgressConfig, duration_s: Option<f64>, period_ns: u64) -> Progress {
+    let per_step_s = period_ns as f64 * 1e-9;
+    Progress::start(
+        cfg,
+        Unit::Seconds {
+            per_step_s,
+            what: "",
+        },
+        duration_s.map(|d| (d / per_step_s).round() as u64),
+    )
 }
 
 /// The master loop's running statistics of the rendered force, the feedback-loss fade and

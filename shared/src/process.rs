@@ -278,13 +278,49 @@ pub struct LoopArgs {
     /// Write an MCAP recording of every cycle here.
     #[arg(long)]
     pub record: Option<std::path::PathBuf>,
-    /// Run the loop under SCHED_FIFO at this priority (1–99; needs root or
-    /// CAP_SYS_NICE, otherwise a warning and normal scheduling).
+    /// Real time: `try` (default) runs the loop under SCHED_FIFO and locks all memory where
+    /// permitted, with a one-line note for what is not; `enforce` makes a refusal an error
+    /// (exit 2) before the run; `off` asks for neither.
+    #[arg(long, value_enum, default_value_t = crate::rt::RealtimeMode::Try)]
+    pub realtime: crate::rt::RealtimeMode,
+    /// The SCHED_FIFO priority `--realtime try|enforce` uses (1–99; default 80).
     #[arg(long)]
     pub fifo_priority: Option<i32>,
-    /// Lock all memory (mlockall; refused ⇒ a warning).
+    /// Lock all memory (mlockall): implied by `--realtime try|enforce`, kept for scripts.
     #[arg(long)]
     pub lock_memory: bool,
+}
+
+impl LoopArgs {
+    /// The real-time plan of the flags, prepared before the run ([`realtime_preflight`]).
+    pub fn realtime_preflight(&self, label: &str) -> Result<crate::rt::RealtimePlan, String> {
+        realtime_preflight(self.realtime, self.fifo_priority, self.lock_memory, label)
+    }
+}
+
+/// Resolves `--realtime`, `--fifo-priority` and `--lock-memory` into a plan and prepares it
+/// before anything else runs: under `enforce` a setting that is not permitted is an error
+/// (exit 2); under `try` each refusal is one line on stderr (`LABEL: real time: …`) and the
+/// run goes on without it.
+pub fn realtime_preflight(
+    mode: crate::rt::RealtimeMode,
+    fifo_priority: Option<i32>,
+    lock_memory: bool,
+    label: &str,
+) -> Result<crate::rt::RealtimePlan, String> {
+    let plan = crate::rt::RealtimePlan::from_flags(mode, fifo_priority, lock_memory)?;
+    let status = plan
+        .prepare()
+        .map_err(|e| format!("--realtime enforce: {e}"))?;
+    for why in &status.not_permitted {
+        crate::progress::verdict_line(
+            label,
+            &format!(
+                "real time: {why}; running without it (--realtime enforce makes this an error, --realtime off silences it)"
+            ),
+        );
+    }
+    Ok(plan)
 }
 
 #[cfg(test)]

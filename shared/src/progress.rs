@@ -310,6 +310,8 @@ fn new_bar(cfg: &ProgressConfig, total: u64) -> indicatif::ProgressBar {
 /// One progress text: position (and share of the total), elapsed time, a time-left estimate
 /// for known ends, then the detail.
 pub fn text(unit: Unit, pos: u64, total: u64, elapsed_s: f64, detail: &str) -> String {
+    // Work after the planned end (a slave bringing its arm to rest) shows as the end.
+    let pos = if total > 0 { pos.min(total) } else { pos };
     let mut t = match unit {
         Unit::Seconds { per_step_s, what } => {
             let sp = if what.is_empty() { "" } else { " " };

@@ -469,7 +469,7 @@ impl RtLoop {
 pub enum RtError {
     /// The process lacks the privilege (CAP_SYS_NICE / CAP_IPC_LOCK or an rlimit).
     #[error(
-        "{what} not permitted (errno {errno}): run as root, grant CAP_SYS_NICE/CAP_IPC_LOCK, or raise the rtprio/memlock limits; continuing without it"
+        "{what} not permitted (errno {errno}): run as root, grant CAP_SYS_NICE/CAP_IPC_LOCK, or raise the rtprio/memlock limits"
     )]
     NotPermitted {
         /// The setting.
@@ -562,18 +562,191 @@ pub fn lock_memory() -> Result<(), RtError> {
 /// on stderr says which and why, and the loop runs without it.
 pub fn apply_realtime(fifo_priority: Option<i32>, lock: bool) {
     if lock && let Err(e) = lock_memory() {
-        eprintln!("warning: {e}");
+        eprintln!("warning: {e}; continuing without it");
     }
     if let Some(p) = fifo_priority
         && let Err(e) = set_fifo_priority(p)
     {
-        eprintln!("warning: {e}");
+        eprintln!("warning: {e}; continuing without it");
+    }
+}
+
+/// `--realtime`: what a process asks of the scheduler and the memory manager.
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum RealtimeMode {
+    /// SCHED_FIFO for the 1 kHz loop and all memory locked where permitted; a one-line note
+    /// for what is not, and the run goes on without it.
+    #[default]
+    Try,
+    /// The same, but a setting that is not permitted is an error (exit 2) before the run.
+    Enforce,
+    /// Normal scheduling, memory not locked.
+    Off,
+}
+
+/// The SCHED_FIFO priority `--realtime try|enforce` uses when `--fifo-priority` does not
+/// name one (the priority README's measurements were taken at; below the kernel's own
+/// threaded interrupts at 50 only on a PREEMPT_RT kernel, where those matter less than 1 ms).
+pub const DEFAULT_FIFO_PRIORITY: i32 = 80;
+
+/// The real-time settings a process resolved from its flags (`--realtime`,
+/// `--fifo-priority`, `--lock-memory`): [`RealtimePlan::prepare`] applies the process-wide
+/// part before the run, [`RealtimePlan::enter`] the loop thread's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RealtimePlan {
+    /// The mode.
+    pub mode: RealtimeMode,
+    /// SCHED_FIFO at this priority for the loop thread (None: normal scheduling).
+    pub fifo_priority: Option<i32>,
+    /// Lock all memory (mlockall).
+    pub lock_memory: bool,
+}
+
+/// What a process got of its [`RealtimePlan`] (both process summaries carry it as
+/// `realtime`).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct RealtimeStatus {
+    /// `try`, `enforce` or `off`.
+    pub mode: RealtimeMode,
+    /// The loop ran under SCHED_FIFO at this priority (None: normal scheduling).
+    pub sched_fifo_priority: Option<i32>,
+    /// All memory was locked.
+    pub memory_locked: bool,
+    /// What was asked for and not permitted (under `try`), one sentence each.
+    pub not_permitted: Vec<String>,
+}
+
+impl RealtimePlan {
+    /// Nothing asked.
+    pub fn off() -> Self {
+        RealtimePlan {
+            mode: RealtimeMode::Off,
+            fifo_priority: None,
+            lock_memory: false,
+        }
+    }
+
+    /// From the flags: `try` and `enforce` ask for SCHED_FIFO at `fifo_priority` (default
+    /// [`DEFAULT_FIFO_PRIORITY`]) and locked memory; `off` asks for nothing, and naming a
+    /// priority or `--lock-memory` with it is a usage error. A priority outside 1–99 is one
+    /// too.
+    pub fn from_flags(
+        mode: RealtimeMode,
+        fifo_priority: Option<i32>,
+        lock_memory: bool,
+    ) -> Result<Self, String> {
+        if let Some(p) = fifo_priority
+            && !(1..=99).contains(&p)
+        {
+            return Err(format!(
+                "--fifo-priority {p}: a SCHED_FIFO priority is 1 to 99"
+            ));
+        }
+        match mode {
+            RealtimeMode::Off if fifo_priority.is_some() || lock_memory => Err(
+                "--realtime off asks for normal scheduling: drop --fifo-priority/--lock-memory, \
+                 or use --realtime try|enforce"
+                    .into(),
+            ),
+            RealtimeMode::Off => Ok(Self::off()),
+            RealtimeMode::Try | RealtimeMode::Enforce => Ok(RealtimePlan {
+                mode,
+                fifo_priority: Some(fifo_priority.unwrap_or(DEFAULT_FIFO_PRIORITY)),
+                lock_memory: true,
+            }),
+        }
+    }
+
+    /// Before the run (before any link or helper thread exists): locks all memory, and
+    /// tries SCHED_FIFO on a short-lived thread (the loop thread gets it in
+    /// [`RealtimePlan::enter`]). Under `enforce` the first refusal is the error; under `try`
+    /// each refusal is a sentence in [`RealtimeStatus::not_permitted`] and the run goes on.
+    pub fn prepare(&self) -> Result<RealtimeStatus, RtError> {
+        let mut st = RealtimeStatus {
+            mode: self.mode,
+            ..RealtimeStatus::default()
+        };
+        let refused = |e: RtError, st: &mut RealtimeStatus| {
+            if self.mode == RealtimeMode::Enforce {
+                Err(e)
+            } else {
+                st.not_permitted.push(e.to_string());
+                Ok(())
+            }
+        };
+        if self.lock_memory {
+            match lock_memory() {
+                Ok(()) => st.memory_locked = true,
+                Err(e) => refused(e, &mut st)?,
+            }
+        }
+        if let Some(p) = self.fifo_priority {
+            let probe = std::thread::spawn(move || set_fifo_priority(p))
+                .join()
+                .unwrap_or(Err(RtError::Failed {
+                    what: "SCHED_FIFO",
+                    errno: 0,
+                }));
+            match probe {
+                Ok(()) => st.sched_fifo_priority = Some(p),
+                Err(e) => refused(e, &mut st)?,
+            }
+        }
+        Ok(st)
+    }
+
+    /// On the loop thread, after [`RealtimePlan::prepare`]: SCHED_FIFO if the probe got it.
+    /// A refusal now (the permission changed in between) is an error under `enforce`, a
+    /// sentence in `status` under `try`.
+    pub fn enter(&self, status: &mut RealtimeStatus) -> Result<(), RtError> {
+        if let Some(p) = status.sched_fifo_priority
+            && let Err(e) = set_fifo_priority(p)
+        {
+            status.sched_fifo_priority = None;
+            if self.mode == RealtimeMode::Enforce {
+                return Err(e);
+            }
+            status.not_permitted.push(e.to_string());
+        }
+        Ok(())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn realtime_flags_resolve_and_conflicts_are_usage_errors() {
+        let p = RealtimePlan::from_flags(RealtimeMode::Try, None, false).unwrap();
+        assert_eq!(p.fifo_priority, Some(DEFAULT_FIFO_PRIORITY));
+        assert!(p.lock_memory);
+        let p = RealtimePlan::from_flags(RealtimeMode::Enforce, Some(10), false).unwrap();
+        assert_eq!(p.fifo_priority, Some(10));
+        assert_eq!(
+            RealtimePlan::from_flags(RealtimeMode::Off, None, false).unwrap(),
+            RealtimePlan::off()
+        );
+        assert!(RealtimePlan::from_flags(RealtimeMode::Off, Some(10), false).is_err());
+        assert!(RealtimePlan::from_flags(RealtimeMode::Off, None, true).is_err());
+        assert!(RealtimePlan::from_flags(RealtimeMode::Try, Some(0), false).is_err());
+        assert!(RealtimePlan::from_flags(RealtimeMode::Try, Some(100), false).is_err());
+        // Off asks nothing and gets nothing.
+        let st = RealtimePlan::off().prepare().unwrap();
+        assert!(st.sched_fifo_priority.is_none() && !st.memory_locked);
+    }
 
     #[test]
     fn quantiles_are_within_bucket_width() {

@@ -40,10 +40,10 @@ pub struct RunOptions {
     pub restart_silence_ms: f64,
     /// The slave's passivity port.
     pub passivity: PassivityParams,
-    /// Run under SCHED_FIFO at this priority (None: normal scheduling).
-    pub fifo_priority: Option<i32>,
-    /// Lock all memory (mlockall).
-    pub lock_memory: bool,
+    /// Real-time settings (SCHED_FIFO, locked memory; `--realtime`): default off.
+    pub realtime: h4_shared::rt::RealtimePlan,
+    /// Progress on stderr: default off.
+    pub progress: h4_shared::progress::ProgressConfig,
     /// Stop by itself after this long, s (None: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
     /// Write an MCAP recording here.
@@ -64,8 +64,8 @@ impl Default for RunOptions {
             watchdog_ms: 20.0,
             restart_silence_ms: 100.0,
             passivity: PassivityParams::default(),
-            fifo_priority: None,
-            lock_memory: false,
+            realtime: h4_shared::rt::RealtimePlan::off(),
+            progress: h4_shared::progress::ProgressConfig::off(),
             duration_s: None,
             record: None,
             shutdown_limit_s: 2.0,
@@ -119,6 +119,8 @@ pub struct SlaveRunSummary {
     /// The stop: the loop kept running with commands ignored until the arm was in its safe
     /// state with the force released (or the time limit); what it reached.
     pub shutdown: ShutdownReport,
+    /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
+    pub realtime: h4_shared::rt::RealtimeStatus,
 }
 
 /// How the slave left: after a stop request (signal, parent gone, duration) the loop ignores
@@ -175,6 +177,9 @@ pub enum ServerError {
     /// The live view could not start.
     #[error("{0}")]
     Live(#[from] h4_shared::live::LiveError),
+    /// `--realtime enforce` and a setting was not permitted.
+    #[error("--realtime enforce: {0}")]
+    Realtime(#[from] h4_shared::rt::RtError),
 }
 
 /// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
@@ -256,10 +261,22 @@ pub fn run<L: Link<Feedback, Command>>(
         1e9 / period_ns as f64,
     );
 
-    h4_shared::rt::apply_realtime(opts.fifo_priority, opts.lock_memory);
-    let mut rt = RtLoop::new(period_ns, opts.spin_ns, opts.duration_s);
+    let mut realtime = opts.realtime.prepare()?;
+    let per_step_s = period_ns as f64 * 1e-9;
+    let progress = h4_shared::progress::Progress::start(
+        &opts.progress,
+        h4_shared::progress::Unit::Seconds {
+            per_step_s,
+            what: "",
+        },
+        opts.duration_s.map(|d| (d / per_step_s).round() as u64),
+    );
+    opts.realtime.enter(&mut realtime)?;
+    let mut rt =
+        RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
     let mut s = SlaveRunSummary {
         force_limit_n: cfg.controller.force_limit_n,
+        realtime,
         ..SlaveRunSummary::default()
     };
     let mut error_sum = 0.0;
@@ -314,6 +331,7 @@ pub fn run<L: Link<Feedback, Command>>(
     });
     let k = *teleop.counters();
     s.shutdown = shut_down(&mut teleop, link, &mut rt, &mut recorder, opts);
+    progress.finish();
     s.commands_rejected_by_controller = k.commands_rejected_by_controller;
     s.link_errors = k.link_errors;
     s.safe_stops = k.safe_stops;

@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 use h4_master::server::MasterRunSummary;
 use h4_master::session::{self, SessionConfig};
 use h4_shared::process::{ExitStatus, LoopArgs};
+use h4_shared::progress::{grouped, verdict_line};
+use h4_shared::rt::RealtimeMode;
 use h4_slave::experiment::{
     ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
@@ -38,9 +40,10 @@ pub struct LoopbackArgs {
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// The session file: operator script, master arm, coupling, and the slave's world
-    /// (environment and slave sections).
-    #[arg(long, default_value = "config/sessions/wall-push.toml")]
-    pub config: PathBuf,
+    /// (environment and slave sections); default: config/sessions/wall-push.toml of the
+    /// repository (found from the binary, not the working directory).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Override a field of the session file (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
@@ -54,8 +57,12 @@ pub struct LoopbackArgs {
     /// The slave's command watchdog, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
-    /// Run both loops under SCHED_FIFO at this priority (1–99; needs root or CAP_SYS_NICE,
-    /// otherwise a warning and normal scheduling).
+    /// Real time for both loops: `try` (default: SCHED_FIFO and locked memory where
+    /// permitted, a one-line note otherwise), `enforce` (not permitted: exit 2), `off`.
+    #[arg(long, value_enum, default_value_t = RealtimeMode::Try)]
+    pub realtime: RealtimeMode,
+    /// The SCHED_FIFO priority of both loops under `--realtime try|enforce` (1–99; default
+    /// 80).
     #[arg(long)]
     pub fifo_priority: Option<i32>,
     /// Link impairment, passed to both processes (each impairs what it sends: round trip
@@ -113,6 +120,9 @@ pub struct LoopbackSummary {
     /// Both processes ran to the end and reported (false: the slave process died; its
     /// summary fields are then zero and `faults` says how it ended).
     pub complete: bool,
+    /// SIGINT, SIGTERM or SIGHUP stopped the run before its end (exit 130): the figures
+    /// cover the cycles run, and the cycles not run are not a real-time failure.
+    pub interrupted: bool,
     /// With `--record`: what was merged and what was lost.
     pub recording: Option<RecordingReport>,
     /// The master process's own summary.
@@ -126,8 +136,12 @@ impl LoopbackArgs {
     /// slave process died), 130 if a signal stopped it early.
     pub fn run(self) -> Result<ExitCode, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
-        let cfg = session::load(&self.config, &self.set)
-            .map_err(|e| format!("{}: {e}", self.config.display()))?;
+        h4_shared::process::realtime_preflight(self.realtime, self.fifo_priority, false, LABEL)?;
+        let config =
+            h4_shared::paths::default_config(self.config.as_deref(), super::SESSION, "--config")?;
+        let cfg =
+            session::load(&config, &self.set).map_err(|e| format!("{}: {e}", config.display()))?;
+        super::plausible::check_session(&cfg, LABEL)?;
         let parts = self.record.as_deref().map(RecordingParts::next_to);
         self.check_outputs(parts.as_ref())?;
         let slave_bin = find_slave_binary(self.slave_bin.as_deref())?;
@@ -138,7 +152,7 @@ impl LoopbackArgs {
         let slave_pid = slave.pid;
         let duration_s = self.duration_s.unwrap_or(cfg.duration_s);
         let master_args = super::run::RunArgs {
-            config: self.config.clone(),
+            config: Some(config),
             set: self.set.clone(),
             transport,
             impair: self.impair.clone(),
@@ -146,15 +160,17 @@ impl LoopbackArgs {
                 duration_s: Some(duration_s),
                 summary: None,
                 record: parts.as_ref().map(|p| p.master.clone()),
+                realtime: self.realtime,
                 fifo_priority: self.fifo_priority,
                 lock_memory: false,
             },
             wait_for_slave_s: 20.0,
             live: self.live.clone(),
+            prechecked: true,
         };
         // The slave is told to stop the moment the master's loop ends, before its watchdog
         // sees the master's silence.
-        let master = master_args.run_summary_then(|| {
+        let master = master_args.run_summary_then(LABEL, || {
             // SAFETY: plain syscall; the slave is our child, reaped only in `SlaveChild::stop`.
             unsafe {
                 libc::kill(slave_pid, libc::SIGTERM);
@@ -177,7 +193,8 @@ impl LoopbackArgs {
             (Some(out), Some(p)) => Some(p.merge_into(out, ended.died_unix_ns)?),
             _ => None,
         };
-        let mut summary = combine(&cfg, duration_s, master, slave);
+        let interrupted = h4_shared::process::signal_received();
+        let mut summary = combine(&cfg, duration_s, interrupted, master, slave);
         if let Some(e) = &slave_fault {
             summary.complete = false;
             summary.faults.push(format!("slave process: {e}"));
@@ -189,7 +206,8 @@ impl LoopbackArgs {
         }
         summary.recording = recording;
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
-        Ok(if h4_shared::process::signal_received() {
+        verdict_line(LABEL, &summary.in_words(duration_s));
+        Ok(if interrupted {
             ExitStatus::Interrupted.into()
         } else if summary.stable && summary.realtime_ok && summary.complete {
             ExitCode::SUCCESS
@@ -274,9 +292,16 @@ impl SlaveChild {
         if let Some(p) = parts {
             cmd.arg("--record").arg(&p.slave);
         }
+        cmd.arg("--realtime").arg(match args.realtime {
+            RealtimeMode::Try => "try",
+            RealtimeMode::Enforce => "enforce",
+            RealtimeMode::Off => "off",
+        });
         if let Some(p) = args.fifo_priority {
             cmd.arg("--fifo-priority").arg(p.to_string());
         }
+        // The master shows the run's progress; the slave's log is printed only at the end.
+        cmd.env("H4_PROGRESS", "off");
         if let Some(addr) = args.live.slave_address() {
             if !addr.ends_with(":0") {
                 eprintln!("h4-master loopback: the slave's live view at ws://{addr}");
@@ -570,6 +595,57 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
     }
 }
 
+const LABEL: &str = "h4-master loopback";
+
+impl LoopbackSummary {
+    /// The verdict in one line of words (`stable, 14 000 cycles, round trip p99 1.06 ms, max
+    /// force 13.9 N, …` / `UNSTABLE: …` / `interrupted after …`), for a run planned for
+    /// `duration_s`.
+    pub fn in_words(&self, duration_s: f64) -> String {
+        let figures = format!(
+            "round trip p99 {:.2} ms, max force {:.1} N (true, at the slave; limit {} N), \
+             rendered {:.1} N, observer min {:.2} mJ, loop lateness p99 {:.0} µs, {} deadline misses",
+            self.round_trip_p99_us / 1e3,
+            self.max_force_n,
+            self.force_limit_n,
+            self.max_master_force_n,
+            self.energy_min_j * 1e3,
+            self.lateness_p99_us,
+            self.deadline_misses
+        );
+        let cycles = grouped(self.cycles);
+        if self.interrupted {
+            let so_far = if self.stable {
+                "stable so far".to_string()
+            } else {
+                format!("UNSTABLE so far: {}", self.unstable_reasons.join("; "))
+            };
+            return format!(
+                "interrupted after {cycles} of {} cycles: {so_far}; {figures}",
+                grouped((duration_s * 1000.0).round() as u64)
+            );
+        }
+        let mut head = if self.stable {
+            "stable".to_string()
+        } else {
+            format!("UNSTABLE: {}", self.unstable_reasons.join("; "))
+        };
+        if !self.complete {
+            head = format!("INCOMPLETE (the slave process ended early), {head}");
+        }
+        if !self.realtime_ok {
+            let rt: Vec<&str> = self
+                .faults
+                .iter()
+                .filter(|f| f.starts_with("real time"))
+                .map(String::as_str)
+                .collect();
+            head = format!("{head}, but real time missed ({})", rt.join("; "));
+        }
+        format!("{head}, {cycles} cycles, {figures}")
+    }
+}
+
 /// A loop that missed more than this share of its deadlines did not run in real time.
 const MAX_MISSED_SHARE: f64 = 0.01;
 /// The master must have run at least this share of the requested cycles.
@@ -578,6 +654,7 @@ const MIN_CYCLE_SHARE: f64 = 0.9;
 fn combine(
     cfg: &SessionConfig,
     duration_s: f64,
+    interrupted: bool,
     m: MasterRunSummary,
     s: SlaveRunSummary,
 ) -> LoopbackSummary {
@@ -642,7 +719,7 @@ fn combine(
         }
     }
     let expected = (duration_s * 1000.0).round() as u64;
-    if (m.run.cycles as f64) < MIN_CYCLE_SHARE * expected as f64 {
+    if !interrupted && (m.run.cycles as f64) < MIN_CYCLE_SHARE * expected as f64 {
         realtime_ok = false;
         faults.push(format!(
             "real time: the master ran {} of {expected} cycles (< {:.0} %)",
@@ -677,6 +754,7 @@ fn combine(
         force_transparency_err_pct: m.force_transparency_err_pct,
         contact_time_s: m.contact_cycles as f64 * 1e-3,
         complete: true,
+        interrupted,
         recording: None,
         master: m,
         slave: s,
@@ -776,18 +854,31 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
         let cfg = session::load(&path, &[]).expect("wall-push session");
         let (m, s) = summaries(5, 2000);
-        let ok = combine(&cfg, 2.0, m, s);
+        let ok = combine(&cfg, 2.0, false, m, s);
         assert!(ok.stable && ok.realtime_ok, "{ok:?}");
         let (m, s) = summaries(100, 1900);
-        let missed = combine(&cfg, 2.0, m, s);
+        let missed = combine(&cfg, 2.0, false, m, s);
         assert!(missed.stable && !missed.realtime_ok, "{missed:?}");
         assert!(missed.faults.iter().any(|f| f.contains("missed")));
         let (m, s) = summaries(0, 1500);
-        let short = combine(&cfg, 2.0, m, s);
+        let short = combine(&cfg, 2.0, false, m, s);
         assert!(!short.realtime_ok, "{short:?}");
+        assert!(
+            short.in_words(2.0).contains("but real time missed"),
+            "{short:?}"
+        );
+        // Cut short by a signal: not a real-time failure, and it says so.
+        let (m, s) = summaries(0, 1500);
+        let cut = combine(&cfg, 2.0, true, m, s);
+        assert!(cut.realtime_ok && cut.interrupted, "{cut:?}");
+        let words = cut.in_words(2.0);
+        assert!(
+            words.starts_with("interrupted after 1 500 of 2 000 cycles: stable so far"),
+            "{words}"
+        );
         let (m, mut s) = summaries(0, 2000);
         s.max_force_n = 81.0;
-        let over = combine(&cfg, 2.0, m, s);
+        let over = combine(&cfg, 2.0, false, m, s);
         assert!(!over.stable && over.force_limit_n == 80.0, "{over:?}");
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod loopback;
 pub mod matrix;
+pub mod plausible;
 pub mod run;
 pub mod sim;
 

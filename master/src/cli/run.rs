@@ -6,6 +6,8 @@ use std::process::ExitCode;
 use h4_master::server::{self, MasterRunOptions, MasterRunSummary};
 use h4_master::session;
 use h4_shared::process::LoopArgs;
+use h4_shared::progress::{ProgressConfig, grouped, verdict_line};
+use h4_shared::rt::RealtimePlan;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 
@@ -14,9 +16,11 @@ use h4_transport::open::TransportArgs;
 #[derive(Clone, Debug, clap::Args)]
 pub struct RunArgs {
     /// The session file: master arm, operator script, coupling, scaling, passivity
-    /// (docs/sessions.md; the link and slave sections are not used by a real process).
-    #[arg(long, default_value = "config/sessions/wall-push.toml")]
-    pub config: PathBuf,
+    /// (docs/sessions.md; the link and slave sections are not used by a real process);
+    /// default: config/sessions/wall-push.toml of the repository (found from the binary,
+    /// not the working directory).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Override a field of the session file (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
@@ -35,27 +39,50 @@ pub struct RunArgs {
     /// Wait this long for the slave's first feedback before the operator's script starts, s.
     #[arg(long, default_value_t = 10.0)]
     pub wait_for_slave_s: f64,
+    /// Set by `loopback`, which did the checks before the run itself (the real-time
+    /// preflight, the plausibility of the session): they are not repeated.
+    #[arg(skip)]
+    pub prechecked: bool,
 }
 
 impl RunArgs {
     /// Runs the master until stopped and returns its summary.
-    pub fn run_summary(&self) -> Result<MasterRunSummary, String> {
-        self.run_summary_then(|| {})
+    pub fn run_summary(&self, label: &str) -> Result<MasterRunSummary, String> {
+        self.run_summary_then(label, || {})
     }
 
-    /// [`RunArgs::run_summary`], calling `at_loop_end` as soon as the loop has stopped.
-    pub fn run_summary_then(&self, at_loop_end: impl FnOnce()) -> Result<MasterRunSummary, String> {
+    /// [`RunArgs::run_summary`], calling `at_loop_end` as soon as the loop has stopped;
+    /// `label` starts the progress lines and notes (`h4-master run`, `h4-master loopback`).
+    pub fn run_summary_then(
+        &self,
+        label: &str,
+        at_loop_end: impl FnOnce(),
+    ) -> Result<MasterRunSummary, String> {
         h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         self.run.check_outputs()?;
-        let cfg = session::load(&self.config, &self.set)
-            .map_err(|e| format!("{}: {e}", self.config.display()))?;
+        let realtime = if self.prechecked {
+            RealtimePlan::from_flags(
+                self.run.realtime,
+                self.run.fifo_priority,
+                self.run.lock_memory,
+            )?
+        } else {
+            self.run.realtime_preflight(label)?
+        };
+        let path =
+            h4_shared::paths::default_config(self.config.as_deref(), super::SESSION, "--config")?;
+        let cfg =
+            session::load(&path, &self.set).map_err(|e| format!("{}: {e}", path.display()))?;
+        if !self.prechecked {
+            super::plausible::check_session(&cfg, label)?;
+        }
         let link = self.transport.open_master().map_err(|e| e.to_string())?;
         let link = impaired::wrap(link, self.impair.impair.as_ref(), Direction::Commands)
             .map_err(|e| e.to_string())?;
         let opts = MasterRunOptions {
             arm_id: self.transport.arm_id,
-            fifo_priority: self.run.fifo_priority,
-            lock_memory: self.run.lock_memory,
+            realtime,
+            progress: ProgressConfig::from_env(label),
             duration_s: self.run.duration_s,
             wait_for_slave_s: self.wait_for_slave_s,
             record: self.run.record.clone(),
@@ -65,12 +92,39 @@ impl RunArgs {
         server::run_then(&cfg, &opts, link, at_loop_end).map_err(|e| e.to_string())
     }
 
-    /// Runs the master process; prints and writes the summary.
+    /// Runs the master process; prints and writes the summary, then its verdict line.
     pub fn run(self) -> Result<ExitCode, String> {
-        let summary = self.run_summary()?;
+        let summary = self.run_summary(LABEL)?;
         h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
-        Ok(h4_shared::process::exit_after_run(
-            self.run.duration_s.is_some(),
-        ))
+        let code = h4_shared::process::exit_after_run(self.run.duration_s.is_some());
+        let interrupted = self.run.duration_s.is_some() && h4_shared::process::signal_received();
+        verdict_line(LABEL, &in_words(&summary, interrupted));
+        Ok(code)
     }
+}
+
+const LABEL: &str = "h4-master run";
+
+/// The master run's line: how it ended, then its figures.
+pub fn in_words(s: &MasterRunSummary, interrupted: bool) -> String {
+    let r = &s.run;
+    format!(
+        "{} after {} cycles ({:.1} s), round trip p99 {:.2} ms, rendered force max {:.1} N, \
+         slave force max {:.1} N (reported), observer min {:.2} mJ, feedback lost {:.1} %, \
+         loop lateness p99 {:.0} µs, {} deadline misses",
+        if interrupted {
+            "interrupted"
+        } else {
+            "stopped"
+        },
+        grouped(r.cycles),
+        r.run_time_s,
+        s.round_trip_p99_us / 1e3,
+        s.max_rendered_force_n,
+        s.max_slave_force_n,
+        s.energy_min_j * 1e3,
+        s.feedback_loss_pct,
+        r.lateness_p99_us,
+        r.deadline_misses
+    )
 }

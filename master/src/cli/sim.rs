@@ -4,7 +4,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use h4_master::session;
+use h4_shared::process::ExitStatus;
+use h4_shared::progress::{Progress, ProgressConfig, Unit, verdict_line};
 use h4_shared::recording::Recorder;
+
+const LABEL: &str = "h4-master sim";
 
 /// Simulate a whole teleoperation session on the simulated clock.
 #[derive(clap::Args)]
@@ -23,9 +27,13 @@ pub struct SimArgs {
 }
 
 impl SimArgs {
-    /// Runs the session; exit code 0 if the detector says stable, 1 if not.
+    /// Runs the session with progress on stderr; prints the summary (stdout) and the verdict
+    /// line (stderr); exit code 0 if the detector says stable, 1 if not, 130 if SIGINT cut
+    /// it short (the summary then covers the cycles run, and there is no verdict).
     pub fn run(self) -> Result<ExitCode, String> {
+        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.session, &self.set).map_err(|e| e.to_string())?;
+        super::plausible::check_session(&cfg, LABEL)?;
         if let Some(p) = &self.summary {
             h4_shared::process::check_writable("--summary", p)?;
         }
@@ -33,15 +41,43 @@ impl SimArgs {
             Some(p) => Some(Recorder::create(p).map_err(|e| e.to_string())?),
             None => None,
         };
-        let summary = session::run(&cfg, recorder.as_mut()).map_err(|e| e.to_string())?;
+        let planned = (cfg.duration_s * 1000.0).round() as u64;
+        let progress = Progress::start(
+            &ProgressConfig::from_env(LABEL),
+            Unit::Seconds {
+                per_step_s: 1e-3,
+                what: "simulated",
+            },
+            Some(planned),
+        );
+        let handle = progress.handle();
+        let result = session::Session::new(&cfg).and_then(|s| {
+            s.run_with(recorder.as_mut(), &mut |k| {
+                handle.set(k);
+                !h4_shared::process::stop_requested()
+            })
+        });
+        progress.finish();
+        let summary = result.map_err(|e| e.to_string())?;
         if let Some(r) = recorder {
             r.finish().map_err(|e| e.to_string())?;
         }
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
+        if summary.cycles < planned {
+            verdict_line(
+                LABEL,
+                &format!(
+                    "interrupted after {:.1} of {:.1} s simulated: no verdict (the summary covers the cycles run)",
+                    summary.sim_time_s, cfg.duration_s
+                ),
+            );
+            return Ok(ExitStatus::Interrupted.into());
+        }
+        verdict_line(LABEL, &summary.in_words());
         Ok(if summary.stable {
-            ExitCode::SUCCESS
+            ExitStatus::Ok.into()
         } else {
-            h4_shared::process::ExitStatus::VerdictFailed.into()
+            ExitStatus::VerdictFailed.into()
         })
     }
 }

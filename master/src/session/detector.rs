@@ -231,6 +231,28 @@ pub struct Summary {
     pub repairs: u64,
 }
 
+impl Summary {
+    /// The verdict in one line of words: `stable, 14 000 cycles (14.0 s simulated), round
+    /// trip mean 1.0 ms, max force 12.5 N, rendered 13.0 N` or `UNSTABLE: <reasons>; …`.
+    pub fn in_words(&self) -> String {
+        let figures = format!(
+            "{} cycles ({:.1} s simulated), round trip mean {:.1} ms, max force {:.1} N \
+             (true, at the slave), rendered {:.1} N, observer min {:.2} mJ",
+            h4_shared::progress::grouped(self.cycles),
+            self.sim_time_s,
+            self.rtt_mean_ms,
+            self.max_force_n,
+            self.max_master_force_n,
+            self.energy_min_j * 1e3
+        );
+        if self.stable {
+            format!("stable, {figures}")
+        } else {
+            format!("UNSTABLE: {}; {figures}", self.unstable_reasons.join("; "))
+        }
+    }
+}
+
 /// The holds of a run and what they show (see [`Summary`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(super) struct Holds {

@@ -156,15 +156,27 @@ impl Session {
 
     /// Runs the whole session; with a recorder every cycle of both sides and every link
     /// event is recorded.
-    pub fn run(mut self, mut recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+    pub fn run(self, recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+        self.run_with(recorder, &mut |_| true)
+    }
+
+    /// [`Session::run`], calling `on_cycle(cycles run)` after every cycle (progress); when it
+    /// returns false the session stops there (interrupted) and the summary covers the cycles
+    /// run.
+    pub fn run_with(
+        mut self,
+        mut recorder: Option<&mut Recorder>,
+        on_cycle: &mut dyn FnMut(u64) -> bool,
+    ) -> Result<Summary, SessionError> {
         let channels = match recorder.as_deref_mut() {
             Some(r) => Some(Channels::add(r)?),
             None => None,
         };
-        let cycles = (self.cfg.duration_s * 1000.0).round() as u64;
-        let mut ev = Evaluator::new(self.cfg.detector, cycles as usize);
+        let planned = (self.cfg.duration_s * 1000.0).round() as u64;
+        let mut ev = Evaluator::new(self.cfg.detector, planned as usize);
         let wall = Instant::now();
-        for _ in 0..cycles {
+        let mut cycles = 0;
+        while cycles < planned {
             let t_ns = self.clock.now_ns();
             let (m, s) = self.cycle()?;
             let true_wrench_slave = self.slave.arm().true_contact_wrench();
@@ -176,6 +188,10 @@ impl Session {
             ev.push(self.sample(&m, &s, &true_force_slave_n));
             if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
                 self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_force_slave_n)?;
+            }
+            cycles += 1;
+            if !on_cycle(cycles) {
+                break;
             }
         }
         let wall_time_s = wall.elapsed().as_secs_f64();

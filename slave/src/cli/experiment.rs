@@ -4,7 +4,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use h4_shared::process::ExitStatus;
+use h4_shared::progress::{Progress, ProgressConfig, Unit, grouped, verdict_line};
 use h4_shared::recording::Recorder;
+use h4_slave::experiment::Summary;
+
+const LABEL: &str = "h4-slave experiment";
 
 /// Run one autonomous force-tracking experiment on the simulated clock.
 #[derive(Debug, clap::Args)]
@@ -23,8 +27,11 @@ pub struct ExperimentArgs {
 }
 
 impl ExperimentArgs {
-    /// Runs the experiment and prints its summary.
+    /// Runs the experiment with progress on stderr, prints its summary (stdout) and its
+    /// verdict line (stderr): exit 0 when the file's targets are met, 1 when not, 130 when
+    /// SIGINT cut it short (the summary then covers the cycles run, no verdict).
     pub fn run(self) -> Result<ExitCode, String> {
+        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
         let cfg: h4_slave::experiment::ExperimentConfig =
             h4_shared::config::load(&self.file, &self.set).map_err(|e| e.to_string())?;
         if let Some(p) = &self.summary {
@@ -34,19 +41,65 @@ impl ExperimentArgs {
             Some(path) => Some(Recorder::create(path).map_err(|e| e.to_string())?),
             None => None,
         };
-        let summary = h4_slave::experiment::run(&cfg, recorder.as_mut())
-            .map_err(|e| format!("{}: {e}", self.file.display()))?;
+        let planned = (cfg.duration_s * 1000.0).round() as u64;
+        let progress = Progress::start(
+            &ProgressConfig::from_env(LABEL),
+            Unit::Seconds {
+                per_step_s: 1e-3,
+                what: "simulated",
+            },
+            Some(planned),
+        );
+        let handle = progress.handle();
+        let result = h4_slave::experiment::run_with(&cfg, recorder.as_mut(), &mut |k| {
+            handle.set(k);
+            !h4_shared::process::stop_requested()
+        });
+        progress.finish();
+        let summary = result.map_err(|e| format!("{}: {e}", self.file.display()))?;
         if let Some(rec) = recorder {
             rec.finish().map_err(|e| e.to_string())?;
         }
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
-        if summary.verdict.passed {
-            Ok(ExitStatus::Ok.into())
-        } else {
-            for why in &summary.verdict.failures {
-                eprintln!("h4-slave experiment: {}: {why}", self.file.display());
-            }
-            Ok(ExitStatus::VerdictFailed.into())
+        if summary.cycles < planned {
+            verdict_line(
+                LABEL,
+                &format!(
+                    "interrupted after {:.1} of {:.1} s simulated: no verdict (the summary covers the cycles run)",
+                    summary.sim_time_s, cfg.duration_s
+                ),
+            );
+            return Ok(ExitStatus::Interrupted.into());
         }
+        verdict_line(LABEL, &in_words(&summary));
+        Ok(if summary.verdict.passed {
+            ExitStatus::Ok.into()
+        } else {
+            ExitStatus::VerdictFailed.into()
+        })
+    }
+}
+
+/// The experiment's line: `targets met, …` or `TARGETS MISSED: …`, then its figures.
+fn in_words(s: &Summary) -> String {
+    let figures = format!(
+        "{} cycles ({:.1} s simulated), force error p99 {:.2} N (whole contact {:.2} N, max \
+         {:.2} N), overshoot {:.1} %, settling {:.0} ms, max force {:.1} N",
+        grouped(s.cycles),
+        s.sim_time_s,
+        s.force_error_p99_n,
+        s.force_error_p99_contact_n,
+        s.force_error_max_n,
+        s.overshoot_pct,
+        s.settling_ms,
+        s.max_force_n
+    );
+    if s.verdict.passed {
+        format!("targets met, {figures}")
+    } else {
+        format!(
+            "TARGETS MISSED: {}; {figures}",
+            s.verdict.failures.join("; ")
+        )
     }
 }

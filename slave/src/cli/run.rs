@@ -17,8 +17,10 @@ pub struct RunArgs {
     /// The simulated world (arm, surface, sensor, plant, controller): an experiment file,
     /// e.g. config/experiments/fig6b.toml (its force and track sections are not used: the
     /// master commands the motion).
-    #[arg(long, default_value = "config/slave/sim-resin.toml")]
-    pub config: PathBuf,
+    /// Default: config/slave/sim-resin.toml of the repository (found from the binary, not
+    /// the working directory).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Override any field of the config file (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
@@ -68,8 +70,14 @@ impl RunArgs {
                 .map_err(|e| format!("--parent-pid {pid}: {e}"))?;
         }
         self.run.check_outputs()?;
+        let realtime = self.run.realtime_preflight(LABEL)?;
+        let path = h4_shared::paths::default_config(
+            self.config.as_deref(),
+            "config/slave/sim-resin.toml",
+            "--config",
+        )?;
         let cfg: ExperimentConfig =
-            h4_shared::config::load(&self.config, &self.set).map_err(|e| e.to_string())?;
+            h4_shared::config::load(&path, &self.set).map_err(|e| e.to_string())?;
         let passivity = match &self.passivity_config {
             Some(p) => {
                 h4_shared::config::load::<PassivityFile>(p, &[])
@@ -85,8 +93,8 @@ impl RunArgs {
             passivity,
             arm_id: self.transport.arm_id,
             watchdog_ms: self.watchdog_ms,
-            fifo_priority: self.run.fifo_priority,
-            lock_memory: self.run.lock_memory,
+            realtime,
+            progress: h4_shared::progress::ProgressConfig::from_env(LABEL),
             duration_s: self.run.duration_s,
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
@@ -94,8 +102,36 @@ impl RunArgs {
         };
         let summary = server::run(&cfg, &opts, &mut link).map_err(|e| e.to_string())?;
         h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
+        let interrupted = self.run.duration_s.is_some() && h4_shared::process::signal_received();
+        h4_shared::progress::verdict_line(LABEL, &in_words(&summary, interrupted));
         Ok(h4_shared::process::exit_after_run(
             self.run.duration_s.is_some(),
         ))
     }
+}
+
+const LABEL: &str = "h4-slave run";
+
+/// The slave run's line: how it ended, then its figures.
+fn in_words(s: &server::SlaveRunSummary, interrupted: bool) -> String {
+    format!(
+        "{} after {} cycles ({:.1} s), max force {:.1} N (true; limit {} N), {} safe stop(s), \
+         {} command(s) rejected, observer min {:.2} mJ, loop lateness p99 {:.0} µs, {} deadline \
+         misses, ended {}",
+        if interrupted {
+            "interrupted"
+        } else {
+            "stopped"
+        },
+        h4_shared::progress::grouped(s.run.cycles),
+        s.run.run_time_s,
+        s.max_force_n,
+        s.force_limit_n,
+        s.safe_stops,
+        s.gate.rejected(),
+        s.energy_min_j * 1e3,
+        s.run.lateness_p99_us,
+        s.run.deadline_misses,
+        s.final_state
+    )
 }

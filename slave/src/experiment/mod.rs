@@ -19,7 +19,7 @@ pub use config::{
     TrackConfig,
 };
 pub use metrics::{EventSummary, Summary, Verdict};
-pub use run::run;
+pub use run::{run, run_with};
 
 use h4_shared::config::ConfigError;
 use h4_shared::recording::RecordingError;

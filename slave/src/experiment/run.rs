@@ -164,7 +164,17 @@ impl Trace {
 /// `/slave/pose` and `/slave/contact`, stamped with the simulated time.
 pub fn run(
     cfg: &ExperimentConfig,
+    recorder: Option<&mut Recorder>,
+) -> Result<Summary, ExperimentError> {
+    run_with(cfg, recorder, &mut |_| true)
+}
+
+/// [`run`], calling `on_cycle(cycles run)` after every cycle (progress); when it returns
+/// false the experiment stops there (interrupted) and the summary covers the cycles run.
+pub fn run_with(
+    cfg: &ExperimentConfig,
     mut recorder: Option<&mut Recorder>,
+    on_cycle: &mut dyn FnMut(u64) -> bool,
 ) -> Result<Summary, ExperimentError> {
     cfg.validate()?;
     let p = cfg.surface.contact_point_mm;
@@ -207,6 +217,9 @@ pub fn run(
         trace.truth(k, &truth);
         if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
             ch.write(r, arm.time_ns(), &out, &truth, setpoint)?;
+        }
+        if !on_cycle(k + 1) {
+            break;
         }
     }
     let wall_time_s = wall.elapsed().as_secs_f64();
