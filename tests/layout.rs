@@ -1,5 +1,6 @@
 //! The layout a newcomer can change (issue 11): no function in a crate's `src/` is longer than
-//! 150 lines, and the crates keep the one-directional order shared → transport → slave → master.
+//! 150 lines, the crates keep the one-directional order shared → transport → slave → master,
+//! and `.ci/run` runs README's two commands as README writes them.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::{Path, PathBuf};
@@ -192,4 +193,42 @@ fn crates_depend_in_one_direction() {
             );
         }
     }
+}
+
+/// `.ci/run` runs README's two commands exactly as README writes them (a changed README
+/// command that CI no longer runs fails here), and the main job's summary goes where git
+/// ignores it.
+#[test]
+fn ci_runs_the_readme_commands() {
+    let readme = std::fs::read_to_string(repo().join("README.md")).unwrap();
+    let ci = std::fs::read_to_string(repo().join(".ci/run")).unwrap();
+    let commands: Vec<&str> = readme
+        .split("## The two commands")
+        .nth(1)
+        .and_then(|rest| rest.split("\n## ").next())
+        .unwrap_or("")
+        .split("```sh\n")
+        .skip(1)
+        .filter_map(|block| block.split("```").next())
+        .map(str::trim)
+        .collect();
+    assert_eq!(commands.len(), 2, "{commands:?}");
+    for c in &commands {
+        assert!(
+            ci.lines().any(|l| l.trim() == *c),
+            ".ci/run does not run `{c}`"
+        );
+    }
+    let main = commands[0];
+    let out = main
+        .split("--summary ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .unwrap();
+    let dir = out.split('/').next().unwrap();
+    let ignore = std::fs::read_to_string(repo().join(".gitignore")).unwrap();
+    assert!(
+        out.contains('/') && ignore.lines().any(|l| l.trim() == format!("{dir}/")),
+        "the main job's summary {out} is not under a directory .gitignore names"
+    );
 }

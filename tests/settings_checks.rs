@@ -69,7 +69,12 @@ fn an_implausible_force_scale_is_refused_with_its_reason() {
     let (master, _) = binaries();
     let ws = workspace();
     let session = "config/sessions/wall-push.toml";
-    let (code, out, err) = run(master, &["sim", session, "--set", "scale.force=100"], &ws, false);
+    let (code, out, err) = run(
+        master,
+        &["sim", session, "--set", "scale.force=100"],
+        &ws,
+        false,
+    );
     assert_eq!(code, 2, "{err}");
     assert!(out.is_empty(), "no run, no summary: {out}");
     assert!(err.contains("refused: scale.force = 100"), "{err}");
@@ -101,9 +106,17 @@ fn an_implausible_force_scale_is_refused_with_its_reason() {
     assert!(err.contains("refused: scale.force = 100"), "{err}");
     assert!(!err.contains("waiting for a slave"), "{err}");
     // A push the slave's force guard must cap: a warning, and the run goes on.
-    let (code, _, err) = run(master, &["sim", session, "--set", "scale.force=0.05"], &ws, false);
+    let (code, _, err) = run(
+        master,
+        &["sim", session, "--set", "scale.force=0.05"],
+        &ws,
+        false,
+    );
     assert!(code == 0 || code == 1, "{err}");
-    assert!(err.contains("h4-master sim: warning: scale.force = 0.05"), "{err}");
+    assert!(
+        err.contains("h4-master sim: warning: scale.force = 0.05"),
+        "{err}"
+    );
 }
 
 fn realtime_of(summary: &str) -> Value {
@@ -138,8 +151,14 @@ fn realtime_try_enforce_and_off() {
         .filter(|l| l.starts_with("h4-slave run: real time: "))
         .collect();
     assert_eq!(notes.len(), 2, "{err}");
-    assert!(notes.iter().any(|l| l.contains("SCHED_FIFO not permitted")), "{err}");
-    assert!(notes.iter().any(|l| l.contains("mlockall not permitted")), "{err}");
+    assert!(
+        notes.iter().any(|l| l.contains("SCHED_FIFO not permitted")),
+        "{err}"
+    );
+    assert!(
+        notes.iter().any(|l| l.contains("mlockall not permitted")),
+        "{err}"
+    );
     let rt = realtime_of(&out);
     assert_eq!(rt["mode"], "try");
     assert_eq!(rt["sched_fifo_priority"], Value::Null);
@@ -147,7 +166,10 @@ fn realtime_try_enforce_and_off() {
     let (code, out, err) = run(slave, &with(&["--realtime", "enforce"]), &ws, true);
     assert_eq!(code, 2, "{err}");
     assert!(out.is_empty(), "{out}");
-    assert!(err.contains("--realtime enforce: ") && err.contains("not permitted"), "{err}");
+    assert!(
+        err.contains("--realtime enforce: ") && err.contains("not permitted"),
+        "{err}"
+    );
     // Off: nothing asked, nothing said; naming a priority with it is a usage error.
     let (code, out, err) = run(slave, &with(&["--realtime", "off"]), &ws, true);
     assert_eq!(code, 0, "{err}");
