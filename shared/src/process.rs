@@ -85,21 +85,13 @@ pub fn stop_with_parent(parent_pid: u32) -> std::io::Result<()> {
 }
 
 /// Checks before a run that `path` (the value of `flag`, e.g. `--summary`) can be written:
-/// not a directory, its directory exists (a missing one is created, e.g. `out/` for
-/// `--summary out/loopback.json`), and the file can be opened for writing. A file that did not
-/// exist is created for the check and removed again. The error names the flag, the path and
-/// the reason.
+/// not a directory, its directory exists, and the file can be opened for writing. A file that
+/// did not exist is created for the check and removed again. The error names the flag, the
+/// path and the reason.
 pub fn check_writable(flag: &str, path: &std::path::Path) -> Result<(), String> {
     let fail = |why: String| format!("{flag} {}: cannot be written: {why}", path.display());
     if path.is_dir() {
         return Err(fail("it is a directory".into()));
-    }
-    if let Some(dir) = path.parent()
-        && !dir.as_os_str().is_empty()
-        && !dir.exists()
-    {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| fail(format!("its directory could not be created: {e}")))?;
     }
     let existed = path.exists();
     std::fs::OpenOptions::new()
