@@ -723,12 +723,18 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             let f = handover_setpoint_n(&c, depth);
             [f * n[0], f * n[1], f * n[2]]
         };
-        let f_start = spring(depth_mm(h, &h.virtual_mm));
+        let depth = depth_mm(h, &h.virtual_mm);
+        let f_start = spring(depth);
+        // The bound must cover the spring's force wherever this step can end: its force at
+        // the deepest point one step at the speed limit reaches, and never less than the
+        // hold force (inside the release band the spring's force ramps up from zero: a
+        // bound of zero there would let each step in go unpaid).
+        let f_bound = spring(depth.max(0.0) + max_v * dt_s);
         let ps = self.port.step_position(
             h.virtual_mm,
             self.desired,
             v_d,
-            f_start,
+            f_bound,
             max_v,
             dt_s,
             control,
