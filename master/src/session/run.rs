@@ -1,6 +1,7 @@
 //! [`Session`]: the master's and the slave's endpoints, an impaired in-process link in each
 //! direction and both simulated arms, stepped in lockstep on the simulated clock.
 
+use std::path::Path;
 use std::time::Instant;
 
 use h4_shared::clock::{Clock, SimClock};
@@ -16,6 +17,7 @@ use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopParams};
 use h4_transport::impair::Impaired;
 use h4_transport::inproc::{self, InprocEnd};
 
+use super::cutting::{CutEvaluator, CutSample, CutSummary, write_outputs};
 use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
 use super::{CYCLE_NS, DT_S, SessionConfig, SessionError, Summary};
@@ -156,13 +158,64 @@ impl Session {
 
     /// Runs the whole session; with a recorder every cycle of both sides and every link
     /// event is recorded.
-    pub fn run(mut self, mut recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+    pub fn run(self, recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
+        self.run_to(recorder, None)
+    }
+
+    /// The evidence of the cut this cycle, for [`CutEvaluator`].
+    fn cut_sample(&self, s: &TeleopCycle) -> Option<CutSample> {
+        let cut = self.slave.arm().cut()?;
+        let p = self.slave.arm().true_pose();
+        Some(CutSample {
+            report: cut.report(),
+            tip_mm: [p[0], p[1], p[2]],
+            in_contact: s.out.status == Status::Contact,
+            fixture_active: self.slave.controller().fixture_activity().0,
+            setpoint_n: s.out.setpoint_n,
+        })
+    }
+
+    /// The cutting fields of the summary, and the part's files into `out_dir`.
+    fn finish_cut(
+        &self,
+        ev: CutEvaluator,
+        out_dir: Option<&Path>,
+    ) -> Result<Option<CutSummary>, SessionError> {
+        let Some(cut) = self.slave.arm().cut() else {
+            return Ok(None);
+        };
+        let target = self.cfg.cut_target.as_ref();
+        if let Some(dir) = out_dir {
+            write_outputs(dir, cut.stock(), cut.tool(), target)?;
+        }
+        Ok(Some(ev.finish(
+            cut.stock(),
+            cut.tool(),
+            &cut.report(),
+            target,
+            self.cfg.fixtures.depth_floor.map(|f| f.z_mm),
+            self.slave.controller().fixture_activity().1,
+        )))
+    }
+
+    /// [`Session::run`], and in a cutting session the part's files into `out_dir`
+    /// (`height.png`, `part.stl`, `deviation.png`).
+    pub fn run_to(
+        mut self,
+        mut recorder: Option<&mut Recorder>,
+        out_dir: Option<&Path>,
+    ) -> Result<Summary, SessionError> {
         let channels = match recorder.as_deref_mut() {
             Some(r) => Some(Channels::add(r)?),
             None => None,
         };
         let cycles = (self.cfg.duration_s * 1000.0).round() as u64;
         let mut ev = Evaluator::new(self.cfg.detector, cycles as usize);
+        let mut cut_ev = self
+            .slave
+            .arm()
+            .cut()
+            .map(|c| CutEvaluator::new(cycles as usize, c.tool().spindle_rpm));
         let wall = Instant::now();
         for _ in 0..cycles {
             let t_ns = self.clock.now_ns();
@@ -174,6 +227,9 @@ impl Session {
                 true_wrench_slave[2],
             ];
             ev.push(self.sample(&m, &s, &true_force_slave_n));
+            if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.cut_sample(&s)) {
+                ce.push(&cs);
+            }
             if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
                 self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_force_slave_n)?;
             }
@@ -203,8 +259,21 @@ impl Session {
         );
         summary.slave_gate = *self.slave.gate_counters();
         summary.master_gate = *self.master.gate_counters();
+        if let Some(ce) = cut_ev {
+            summary.cutting = self.finish_cut(ce, out_dir)?;
+        }
         Ok(summary)
     }
+}
+
+/// Runs a session from its configuration; a cutting session writes its part's files into
+/// `out_dir`.
+pub fn run_with_outputs(
+    cfg: &SessionConfig,
+    recorder: Option<&mut Recorder>,
+    out_dir: Option<&Path>,
+) -> Result<Summary, SessionError> {
+    Session::new(cfg)?.run_to(recorder, out_dir)
 }
 
 /// Runs a session from its configuration.

@@ -309,6 +309,8 @@ impl ExperimentConfig {
             sensor: self.sensor,
             plant: self.plant,
             controller: self.controller,
+            cutting: None,
+            fixtures: Default::default(),
         }
     }
 

@@ -146,6 +146,9 @@ impl SimArm {
             ];
             let before = [vel[0], vel[1], vel[2]];
             fc = cut.contact(&mut vs, &before, pose[2], dt, dt_over_m_tool, &rub);
+            for (i, f) in cut.force_impulse_n_s.iter_mut().zip(fc) {
+                *i += f * dt;
+            }
             vel[..3].copy_from_slice(&vs);
             for c in 0..4 {
                 pose[c] += vel[c] * dt;

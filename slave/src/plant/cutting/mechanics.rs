@@ -82,7 +82,8 @@ pub struct Engagement {
     pub bins: [[Bin; BINS]; LAYERS],
     /// Elements touching the stock.
     pub elements: u32,
-    /// Deepest penetration of the tool's lower surface into the stock (rubbing), mm.
+    /// Deepest penetration of the tool's lower surface into the stock under it (rubbing),
+    /// mm; negative: its clearance; −∞ with no stock under the tool.
     pub penetration_mm: f64,
 }
 
@@ -91,7 +92,7 @@ impl Default for Engagement {
         Engagement {
             bins: [[Bin::default(); BINS]; LAYERS],
             elements: 0,
-            penetration_mm: 0.0,
+            penetration_mm: f64::NEG_INFINITY,
         }
     }
 }
@@ -110,7 +111,7 @@ impl Engagement {
     ) {
         self.bins = [[Bin::default(); BINS]; LAYERS];
         self.elements = 0;
-        self.penetration_mm = 0.0;
+        self.penetration_mm = f64::NEG_INFINITY;
         let r = tool.radius_mm;
         let cell = stock.cell_mm();
         let rim_lift = tool.lift_mm(r * r);
