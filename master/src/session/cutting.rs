@@ -136,6 +136,45 @@ pub struct CutSample {
     pub setpoint_n: f64,
 }
 
+/// The true cutting force averaged over the last spindle revolution (up to 64 cycles): the
+/// force the arm's contact carries, without the tooth-passing ripple (a milling cutter's
+/// force is pulses, zero between the teeth of an interrupted cut).
+pub struct RevolutionMean {
+    ring: [[f64; 3]; 64],
+    len: usize,
+    n: usize,
+}
+
+impl RevolutionMean {
+    /// The mean over one revolution at `spindle_rpm` (whole cycles, 1 to 64).
+    pub fn new(spindle_rpm: f64) -> Self {
+        let len = if spindle_rpm > 0.0 {
+            ((60_000.0 / spindle_rpm).round() as usize).clamp(1, 64)
+        } else {
+            1
+        };
+        RevolutionMean {
+            ring: [[0.0; 3]; 64],
+            len,
+            n: 0,
+        }
+    }
+
+    /// Adds this cycle's mean force (N) and returns the mean over the revolution.
+    pub fn push(&mut self, f_n: [f64; 3]) -> [f64; 3] {
+        self.ring[self.n % self.len] = f_n;
+        self.n += 1;
+        let k = self.n.min(self.len);
+        let mut m = [0.0; 3];
+        for f in &self.ring[..k] {
+            for (a, b) in m.iter_mut().zip(f) {
+                *a += b / k as f64;
+            }
+        }
+        m
+    }
+}
+
 /// Ring length for the steady-feed criteria, cycles (100 ms).
 const HISTORY: usize = 100;
 /// The feed speed counted as feeding, mm/s.

@@ -17,7 +17,7 @@ use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopParams};
 use h4_transport::impair::Impaired;
 use h4_transport::inproc::{self, InprocEnd};
 
-use super::cutting::{CutEvaluator, CutSample, CutSummary, write_outputs};
+use super::cutting::{CutEvaluator, CutSample, CutSummary, RevolutionMean, write_outputs};
 use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
 use super::{CYCLE_NS, DT_S, SessionConfig, SessionError, Summary};
@@ -216,16 +216,26 @@ impl Session {
             .arm()
             .cut()
             .map(|c| CutEvaluator::new(cycles as usize, c.tool().spindle_rpm));
+        let mut rev_mean = self
+            .slave
+            .arm()
+            .cut()
+            .map(|c| RevolutionMean::new(c.tool().spindle_rpm));
         let wall = Instant::now();
         for _ in 0..cycles {
             let t_ns = self.clock.now_ns();
             let (m, s) = self.cycle()?;
             let true_wrench_slave = self.slave.arm().true_contact_wrench();
-            let true_force_slave_n = [
-                true_wrench_slave[0],
-                true_wrench_slave[1],
-                true_wrench_slave[2],
-            ];
+            // Cutting: the true force averaged over a spindle revolution (the instant's sample
+            // aliases the tooth-passing pulses into the detector's 1 kHz record).
+            let true_force_slave_n = match (self.slave.arm().cut(), rev_mean.as_mut()) {
+                (Some(c), Some(r)) => r.push(c.report().mean_force_n),
+                _ => [
+                    true_wrench_slave[0],
+                    true_wrench_slave[1],
+                    true_wrench_slave[2],
+                ],
+            };
             ev.push(self.sample(&m, &s, &true_force_slave_n));
             if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.cut_sample(&s)) {
                 ce.push(&cs);
