@@ -92,3 +92,44 @@ fn the_pocket_meets_the_issue_targets() {
         c.cutting_force_dev_p99_pct
     );
 }
+
+/// `--out` writes the part (height map, deviation map, a closed binary STL) and the
+/// recording carries the cut: the tool's tip in the workpiece frame and the cutting force,
+/// which the public MCAP reader decodes.
+#[test]
+fn the_part_files_and_the_recording_carry_the_cut() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
+    let cfg = session::load(&path, &["duration_s=6".to_string()]).unwrap();
+    let dir = std::env::temp_dir().join(format!("h4-cut-pocket-{}", std::process::id()));
+    let mut rec = h4_shared::recording::Recorder::in_memory().unwrap();
+    let s = session::run_with_outputs(&cfg, Some(&mut rec), Some(&dir)).unwrap();
+    let bytes = rec.finish_into_bytes().unwrap();
+    for f in ["height.png", "deviation.png"] {
+        let b = std::fs::read(dir.join(f)).unwrap();
+        assert_eq!(&b[1..4], b"PNG", "{f}");
+    }
+    let stl = std::fs::read(dir.join("part.stl")).unwrap();
+    let n = u32::from_le_bytes(stl[80..84].try_into().unwrap()) as usize;
+    assert_eq!(stl.len(), 84 + 50 * n);
+    std::fs::remove_dir_all(&dir).unwrap();
+    let mut last: Option<serde_json::Value> = None;
+    let mut count = 0;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/slave/cut" {
+            count += 1;
+            last = Some(serde_json::from_slice(&m.data).unwrap());
+        }
+    }
+    assert_eq!(count, 6000);
+    let last = last.unwrap();
+    let removed = last["removed_mm3"].as_f64().unwrap();
+    let summary_removed = s.cutting.as_ref().unwrap().removed_volume_mm3;
+    assert!(
+        (removed - summary_removed).abs() < 1e-6,
+        "{removed} vs {summary_removed}"
+    );
+    let tip = last["tool_tip_in_workpiece_mm"].as_array().unwrap();
+    assert!(tip[2].as_f64().unwrap() < -251.0, "{last}");
+    assert_eq!(last["cutting_force_n"].as_array().unwrap().len(), 3);
+}

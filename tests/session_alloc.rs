@@ -63,7 +63,13 @@ fn cutting_cycles_allocate_nothing() {
         }
     });
     let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
-    assert!(removed > 10.0, "nothing cut in the counted cycles: {removed} mm³");
-    assert!(s.slave.controller().fixture_activity().1 > 0, "the floor never acted");
+    assert!(
+        removed > 10.0,
+        "nothing cut in the counted cycles: {removed} mm³"
+    );
+    assert!(
+        s.slave.controller().fixture_activity().1 > 0,
+        "the floor never acted"
+    );
     assert_eq!(n, 0, "{n} allocations in 4000 cutting cycles");
 }

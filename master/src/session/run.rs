@@ -152,6 +152,7 @@ impl Session {
     ) -> Result<(), RecordingError> {
         let me = self.master.coupling().port.energy;
         ch.write_cycle(r, t_ns, (m, me), (s, &self.slave), true_force_slave_n)?;
+        ch.write_cut(r, t_ns, &self.slave)?;
         ch.write_link_events(r, "command", |f| self.master_end.drain_events(f))?;
         ch.write_link_events(r, "feedback", |f| self.slave_end.drain_events(f))
     }
@@ -206,7 +207,7 @@ impl Session {
         out_dir: Option<&Path>,
     ) -> Result<Summary, SessionError> {
         let channels = match recorder.as_deref_mut() {
-            Some(r) => Some(Channels::add(r)?),
+            Some(r) => Some(Channels::add(r, self.slave.arm().cut().is_some())?),
             None => None,
         };
         let cycles = (self.cfg.duration_s * 1000.0).round() as u64;
