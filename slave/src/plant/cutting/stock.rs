@@ -156,9 +156,10 @@ impl Stock {
     }
 
     /// Lowers every cell the tool's swept volume goes below, for the tool's tip moving in a
-    /// straight line from `from_tip_mm` to `to_tip_mm` (workpiece frame), never below the
-    /// block's bottom; returns the volume removed, mm³. Samples the segment at most half a
-    /// cell apart (at most [`SWEEP_SAMPLES_MAX`] samples). Allocates nothing.
+    /// straight line from `from_tip_mm` (swept by the previous call) to `to_tip_mm`
+    /// (workpiece frame), never below the block's bottom; returns the volume removed, mm³.
+    /// Samples the segment at most half a cell apart after its start (at most
+    /// [`SWEEP_SAMPLES_MAX`] samples). Allocates nothing.
     pub fn sweep(&mut self, tool: &Tool, from_tip_mm: [f64; 3], to_tip_mm: [f64; 3]) -> f64 {
         let d = [
             to_tip_mm[0] - from_tip_mm[0],
@@ -173,7 +174,8 @@ impl Stock {
         let mut removed_cells_mm = 0.0;
         let r = tool.radius_mm;
         let floor = self.bottom_mm as f32;
-        for s in 0..=steps {
+        // The segment's start is the last update's end, swept then.
+        for s in 1..=steps {
             let t = s as f64 / steps as f64;
             let p = [
                 from_tip_mm[0] + t * d[0],
@@ -198,7 +200,8 @@ impl Stock {
                 for (ix, h) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
                     let dx = self.corner_mm[0] + (ix as f64 + 0.5) * self.cell_mm - p[0];
                     let rho2 = dx * dx + dy * dy;
-                    if rho2 > r * r {
+                    // The tool's lower surface is nowhere below its tip.
+                    if rho2 > r * r || f64::from(*h) <= p[2] {
                         continue;
                     }
                     let env = ((p[2] + tool.lift_mm(rho2)) as f32).max(floor);
