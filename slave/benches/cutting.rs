@@ -3,6 +3,7 @@
 //! engagement the next servo periods cut with) with a 3 mm ball end feeding at 10 mm/s 2 mm
 //! deep in resin, then the whole simulated arm's millisecond (20 servo periods) cutting and
 //! touching a plane. Run with `cargo bench -p h4-slave --bench cutting`.
+#![allow(clippy::expect_used)]
 
 use std::hint::black_box;
 use std::time::Instant;

@@ -270,7 +270,7 @@ pub fn solve_damped(m: &[[f64; 3]; 3], c: f64, v: &[f64; 3]) -> [f64; 3] {
     let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
         - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
         + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
-    if !(det.abs() > 1e-12) {
+    if det.is_nan() || det.abs() <= 1e-12 {
         return *v;
     }
     let col = |k: usize| -> f64 {

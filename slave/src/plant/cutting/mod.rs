@@ -467,9 +467,11 @@ mod tests {
         c.tool.radius_mm = 0.0;
         let e = c.validate_at("cutting.").unwrap_err().to_string();
         assert!(e.contains("cutting.tool.radius_mm"), "{e}");
-        let mut c = CuttingConfig::default();
-        c.cell_mm = 0.05;
-        c.stock_size_mm = [1000.0, 1000.0];
+        let c = CuttingConfig {
+            cell_mm: 0.05,
+            stock_size_mm: [1000.0, 1000.0],
+            ..CuttingConfig::default()
+        };
         let e = c.validate_at("cutting.").unwrap_err().to_string();
         assert!(e.contains("cutting.cell_mm") && e.contains("16 M"), "{e}");
     }
