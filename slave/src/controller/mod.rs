@@ -433,11 +433,17 @@ impl SlaveController {
     /// First touch (or touch again): bumpless start of the force loop along the force's
     /// direction, at the force measured.
     fn touch(&mut self, cx: &Cycle) {
-        self.normal.normal = match self.p.force_axis_unit() {
-            Some(a) => Vector3::from(a),
-            None => cx.f3 / cx.f_mag,
+        let f_along = match self.p.force_axis_unit() {
+            Some(a) => {
+                self.normal.normal = Vector3::from(a);
+                cx.f3.dot(&self.normal.normal).max(0.0)
+            }
+            None => {
+                self.normal.normal = cx.f3 / cx.f_mag;
+                cx.f_mag
+            }
         };
-        self.setpoint.reset(cx.f3.dot(&self.normal.normal).max(0.0));
+        self.setpoint.reset(f_along);
         self.deflection.touch();
         self.force_law.touch();
         self.oscillation.touch();
