@@ -23,7 +23,7 @@ pub(crate) struct Rubbing {
 }
 
 impl CutState {
-    /// One servo period of contact between the tool (tip z `tip_z_mm`, velocity before the
+    /// One servo period of contact between the tool (tip `tip_mm`, velocity before the
     /// contact `vs`, mass `dt / dt_over_m`) and the stock: with the spindle turning the
     /// cutting force, solved implicitly with the velocity (backward Euler: stable however
     /// hard the material); stopped or stalled, rubbing. Updates `vs`; returns the force on
@@ -33,7 +33,7 @@ impl CutState {
         &mut self,
         vs: &mut [f64; 3],
         vel_before: &[f64; 3],
-        tip_z_mm: f64,
+        tip_mm: &[f64; 3],
         dt_s: f64,
         dt_over_m: f64,
         rub: &Rubbing,
@@ -55,9 +55,23 @@ impl CutState {
             *vs = v;
             return f;
         }
-        let depth = self.engagement.penetration_mm + (self.rub_z0_mm - tip_z_mm);
+        // Sideways: the stock the tool moved into without cutting pushes it back out
+        // (Kelvin–Voigt along the contact's direction, explicit as the other kernels).
+        let e = self.engagement.lateral_dir;
+        let moved_in =
+            -((tip_mm[0] - self.rub_tip0_mm[0]) * e[0] + (tip_mm[1] - self.rub_tip0_mm[1]) * e[1]);
+        let side = self.engagement.lateral_mm + moved_in;
+        let mut f_side = [0.0; 2];
+        if self.engagement.lateral_mm > 0.0 && side > 0.0 {
+            let v_in = -(vel_before[0] * e[0] + vel_before[1] * e[1]);
+            let f = (rub.k_n_per_mm * side + rub.b_n_s_per_mm * v_in).max(0.0);
+            f_side = [f * e[0], f * e[1]];
+            vs[0] += f_side[0] * dt_over_m;
+            vs[1] += f_side[1] * dt_over_m;
+        }
+        let depth = self.engagement.penetration_mm + (self.rub_tip0_mm[2] - tip_mm[2]);
         if depth <= 0.0 {
-            return [0.0; 3];
+            return [f_side[0], f_side[1], 0.0];
         }
         // Rubbing on the stock's top (normal +z): Kelvin–Voigt with the regularised
         // Coulomb friction solved for the end of the period, as the plant's other kernels.
@@ -73,8 +87,8 @@ impl CutState {
             reach / edge
         };
         let f = [
-            -vs[0] * removed / dt_over_m,
-            -vs[1] * removed / dt_over_m,
+            f_side[0] - vs[0] * removed / dt_over_m,
+            f_side[1] - vs[1] * removed / dt_over_m,
             f_n,
         ];
         vs[0] -= vs[0] * removed;
@@ -145,7 +159,8 @@ impl SimArm {
                 vel[2] + gen_f[2] * dt_over_m_tool + g[2] * dt,
             ];
             let before = [vel[0], vel[1], vel[2]];
-            fc = cut.contact(&mut vs, &before, pose[2], dt, dt_over_m_tool, &rub);
+            let tip = [pose[0], pose[1], pose[2]];
+            fc = cut.contact(&mut vs, &before, &tip, dt, dt_over_m_tool, &rub);
             for (i, f) in cut.force_impulse_n_s.iter_mut().zip(fc) {
                 *i += f * dt;
             }

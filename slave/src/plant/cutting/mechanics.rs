@@ -82,9 +82,16 @@ pub struct Engagement {
     pub bins: [[Bin; BINS]; LAYERS],
     /// Elements touching the stock.
     pub elements: u32,
-    /// Deepest penetration of the tool's lower surface into the stock under it (rubbing),
-    /// mm; negative: its clearance; −∞ with no stock under the tool.
+    /// Deepest penetration of the tool's lower surface into the stock under it where that
+    /// is the stock's shallower way out (rubbing), mm; negative: its clearance; −∞ with no
+    /// stock under the tool.
     pub penetration_mm: f64,
+    /// Deepest sideways penetration of the tool into stock it moved into without cutting
+    /// (rubbing: the cell's distance inside the tool's radius, where that is shallower than
+    /// its height above the tool's lower surface), mm; 0: none.
+    pub lateral_mm: f64,
+    /// The direction that sideways contact pushes the tool, unit (x, y).
+    pub lateral_dir: [f64; 2],
 }
 
 impl Default for Engagement {
@@ -93,6 +100,8 @@ impl Default for Engagement {
             bins: [[Bin::default(); BINS]; LAYERS],
             elements: 0,
             penetration_mm: f64::NEG_INFINITY,
+            lateral_mm: 0.0,
+            lateral_dir: [0.0; 2],
         }
     }
 }
@@ -112,6 +121,8 @@ impl Engagement {
         self.bins = [[Bin::default(); BINS]; LAYERS];
         self.elements = 0;
         self.penetration_mm = f64::NEG_INFINITY;
+        self.lateral_mm = 0.0;
+        self.lateral_dir = [0.0; 2];
         let r = tool.radius_mm;
         let cell = stock.cell_mm();
         let rim_lift = tool.lift_mm(r * r);
@@ -135,7 +146,17 @@ impl Engagement {
             let rho = rho2.sqrt();
             let (n, area, r_cut) = if inside {
                 let env = tip_mm[2] + tool.lift_mm(rho2);
-                self.penetration_mm = self.penetration_mm.max(h - env);
+                // Stock inside the tool leaves it the shallower way: up, or sideways out of
+                // the radius.
+                let sideways = r - rho;
+                if h - env > sideways && rho > 0.0 {
+                    if sideways > self.lateral_mm {
+                        self.lateral_mm = sideways;
+                        self.lateral_dir = [-dx / rho, -dy / rho];
+                    }
+                } else {
+                    self.penetration_mm = self.penetration_mm.max(h - env);
+                }
                 if (h - env).abs() > TOUCH_MM && h < env {
                     return;
                 }
@@ -385,6 +406,23 @@ mod tests {
         for i in 0..steps / 2 {
             assert!((series[i] - series[i + steps / 2]).abs() < 1e-9);
         }
+    }
+
+    /// A stopped tool pushed 0.5 mm sideways into the slot's wall, 2 mm below the top: the
+    /// stock leaves it sideways (0.5 mm, pushing back along −x), not up by the wall's 2 mm.
+    #[test]
+    fn a_stopped_tool_in_a_wall_is_pushed_back_sideways() {
+        let (s, t, tip) = cut_slot(ToolKind::Flat, 2.0);
+        let k = CuttingCoefficients::of(MaterialPreset::Steel);
+        let mut e = Engagement::default();
+        e.gather(&s, &t, &k, [tip[0] + 0.5, tip[1], tip[2]], 0.0);
+        assert!((e.lateral_mm - 0.5).abs() < 0.15, "{}", e.lateral_mm);
+        assert!(e.lateral_dir[0] < -0.9, "{:?}", e.lateral_dir);
+        assert!(
+            e.penetration_mm <= 1e-3,
+            "pushed up by {}",
+            e.penetration_mm
+        );
     }
 
     #[test]

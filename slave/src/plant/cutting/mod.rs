@@ -149,8 +149,8 @@ pub struct CutState {
     phase_rev: f64,
     /// Time since the last update, s (advanced by the servo periods).
     since_update_s: f64,
-    /// The tip's z at the last update (the reference of the rubbing penetration), mm.
-    rub_z0_mm: f64,
+    /// The tip at the last update (the reference of the rubbing penetrations), mm.
+    rub_tip0_mm: [f64; 3],
     /// The contact force summed over the servo periods since the last update, N·s.
     force_impulse_n_s: [f64; 3],
     report: CutReport,
@@ -176,7 +176,7 @@ impl CutState {
             last_tip_mm: tip_mm,
             phase_rev: 0.0,
             since_update_s: 0.0,
-            rub_z0_mm: tip_mm[2],
+            rub_tip0_mm: tip_mm,
             force_impulse_n_s: [0.0; 3],
             report: CutReport::default(),
         })
@@ -244,7 +244,7 @@ impl CutState {
             self.report.stalls += 1;
         }
         self.last_tip_mm = tip_mm;
-        self.rub_z0_mm = tip_mm[2];
+        self.rub_tip0_mm = tip_mm;
         self.engagement.gather(
             &self.stock,
             &self.tool,
@@ -252,7 +252,10 @@ impl CutState {
             tip_mm,
             self.rev_per_s(),
         );
-        if self.report.stalled && self.engagement.penetration_mm <= -RESTART_CLEARANCE_MM {
+        if self.report.stalled
+            && self.engagement.penetration_mm <= -RESTART_CLEARANCE_MM
+            && self.engagement.lateral_mm <= 0.0
+        {
             self.report.stalled = false;
             self.report.spindle_torque_n_mm = 0.0;
         }
