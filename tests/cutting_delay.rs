@@ -43,10 +43,10 @@ fn the_floor_and_the_force_limit_hold_at_100_and_500_ms() {
 /// The verdict: stable by the delay matrix's detector. Measured 2026-12-02 (seed
 /// 11): 100 ms unstable by one "bounce" (the revolution-averaged true force fell below the
 /// contact-lost level and rose past 2 N again while the operator pushed; not analysed yet);
-/// 500 ms unstable (7 bounces, 168 watchdog safe stops from the jitter, a third of the
-/// pocket cut).
+/// 500 ms unstable (1 bounce, 168 watchdog safe stops from the jitter beyond the watchdog,
+/// a fifth of the pocket cut).
 #[test]
-#[ignore = "figure: detector says unstable at 100 ms (1 bounce) and 500 ms (7 bounces, 168 safe stops); see docs/cutting.md"]
+#[ignore = "figure: detector says unstable at 100 ms (1 bounce) and 500 ms (1 bounce, 168 safe stops); see docs/cutting.md"]
 fn stable_by_the_detector_at_100_and_500_ms() {
     for rt in [100.0, 500.0] {
         let (s, _) = run(rt);
