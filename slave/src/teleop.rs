@@ -954,6 +954,8 @@ mod tests {
             sensor: SensorConfig::default(),
             plant: PlantConfig::default(),
             controller: ControllerParams::default(),
+            cutting: None,
+            fixtures: Default::default(),
         };
         let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
         let mut p = TeleopParams::default();

@@ -1,4 +1,5 @@
-//! `h4-master sim <session.toml> [--set key=value]... [--summary out.json] [--record out.mcap]`
+//! `h4-master sim <session.toml> [--set key=value]... [--summary out.json] [--record out.mcap]
+//! [--out DIR]`
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -20,6 +21,9 @@ pub struct SimArgs {
     /// Record every cycle of both sides and the link's events (MCAP).
     #[arg(long, value_name = "FILE")]
     record: Option<PathBuf>,
+    /// A cutting session writes the part here: `height.png`, `part.stl`, `deviation.png`.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
 }
 
 impl SimArgs {
@@ -33,7 +37,8 @@ impl SimArgs {
             Some(p) => Some(Recorder::create(p).map_err(|e| e.to_string())?),
             None => None,
         };
-        let summary = session::run(&cfg, recorder.as_mut()).map_err(|e| e.to_string())?;
+        let summary = session::run_with_outputs(&cfg, recorder.as_mut(), self.out.as_deref())
+            .map_err(|e| e.to_string())?;
         if let Some(r) = recorder {
             r.finish().map_err(|e| e.to_string())?;
         }
