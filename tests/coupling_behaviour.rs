@@ -396,3 +396,69 @@ fn replayed_trajectory_from_a_file_drives_the_session() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 12: the true force never exceeds the slave's limit at any approach speed the master
+/// can command. The operator of `wall-push.toml` throws the handle 10 mm down (7 mm past the
+/// wall) in 0.8 s down to 20 ms (the hand's own dynamics then set the speed), onto resin,
+/// aluminium and steel, at 0, 50 and 500 ms round trip: the true contact force stays below
+/// the slave controller's limit, and below 40 N (half of it) in every case measured
+/// (2026-12-02: 27 N at most, at 500 ms).
+#[test]
+fn first_touch_stays_below_the_limit_at_any_approach_speed() {
+    let mut worst = (0.0, String::new());
+    for move_s in [0.8, 0.2, 0.05, 0.02] {
+        for k in ["200", "1000", "2000"] {
+            for delay in ["0", "25", "250"] {
+                let stiffness = format!("environment.stiffness_n_per_mm={k}");
+                let d = format!("link.delay_ms={delay}");
+                let mut cfg = load("wall-push.toml", &[stiffness.as_str(), d.as_str()]);
+                let push = cfg.operator.intent[1];
+                assert_eq!(push.at_s, 0.5, "wall-push.toml's approach segment moved");
+                cfg.operator.intent[1] = IntentSegment {
+                    target_mm: [0.0, 0.0, -10.0],
+                    move_s,
+                    ..push
+                };
+                let limit = cfg.slave.controller.force_limit_n;
+                let s = session::run(&cfg, None).unwrap();
+                let label = format!("move_s {move_s} s, {k} N/mm, one-way {delay} ms");
+                assert!(
+                    s.max_force_n <= limit && s.max_force_n <= 0.5 * limit,
+                    "{label}: true force {:.1} N (limit {limit} N)",
+                    s.max_force_n
+                );
+                if s.max_force_n > worst.0 {
+                    worst = (s.max_force_n, label);
+                }
+            }
+        }
+    }
+    println!("worst first touch: {:.1} N ({})", worst.0, worst.1);
+    // Control: without the contact hand-over and the passivity layer the same throw onto
+    // steel passes the bound (measured 80-95 N): the bound can fail, and what keeps the
+    // force down is those layers, not the throw being gentle.
+    for delay in ["0", "25"] {
+        let d = format!("link.delay_ms={delay}");
+        let mut cfg = load(
+            "wall-push.toml",
+            &[
+                "environment.stiffness_n_per_mm=2000",
+                d.as_str(),
+                "slave.contact.enabled=false",
+                "passivity.enabled=false",
+            ],
+        );
+        cfg.operator.intent[1] = IntentSegment {
+            target_mm: [0.0, 0.0, -10.0],
+            move_s: 0.05,
+            ..cfg.operator.intent[1]
+        };
+        let limit = cfg.slave.controller.force_limit_n;
+        let s = session::run(&cfg, None).unwrap();
+        assert!(
+            s.max_force_n > 0.5 * limit,
+            "control (no hand-over, no passivity, one-way {delay} ms): only {:.1} N",
+            s.max_force_n
+        );
+    }
+}

@@ -8,10 +8,10 @@
 //! detector's holds (ripple around the trend from 0.2 Hz up, bounces reaching 2 N, the
 //! first-touch peak, the held force) and its limits.
 //!
-//! * `matrix_safety_up_to_100_ms_without_blackouts`: the floor met today: the guarantees
-//!   (true force ≤ the slave's limit, 80 N; rendered ≤ `coupling.force_limit_n`; both
-//!   observers ≥ −1 mJ) on all four walls at both scales, round trip ≤ 100 ms, no
-//!   blackouts.
+//! * `matrix_safety_up_to_1000_ms_blackouts_included`: the floor met today: the
+//!   guarantees (true force ≤ the slave's limit, 80 N; rendered ≤
+//!   `coupling.force_limit_n`; both observers ≥ −1 mJ) on all four walls at both scales,
+//!   round trip ≤ 1000 ms, blackouts included, without jitter beyond the slave's watchdog.
 //! * `matrix_safety_in_every_cell` (ignored: NOT met yet): the same in all 384 cells.
 //! * `matrix_meets_the_issue_targets` (ignored: NOT met yet, see docs/sessions.md): every
 //!   target of issue 12 in every cell; `--ignored --nocapture` prints the table, the
@@ -74,21 +74,23 @@ fn some(sums: &[Summary]) -> Vec<Option<Summary>> {
 }
 
 /// What holds today (a floor, not the issue's targets): the guarantees in every cell up to
-/// 100 ms round trip without blackouts, on all four walls at both force scales.
+/// 1000 ms round trip, blackouts included, on all four walls at both force scales, except
+/// where the jitter (20 % of a round trip of 250 ms or more: ≥ 25 ms one way) exceeds the
+/// slave's 20 ms watchdog, so the slave stops safely again and again.
 #[test]
-fn matrix_safety_up_to_100_ms_without_blackouts() {
+fn matrix_safety_up_to_1000_ms_blackouts_included() {
     let cases: Vec<Case> = shipped_cases(4, true)
         .into_iter()
-        .filter(|c| c.rtt_ms <= 100.0 && c.loss != Loss::Blackout)
+        .filter(|c| c.rtt_ms <= 1000.0 && !(c.jitter > 0.0 && c.rtt_ms >= 250.0))
         .collect();
     check_safety(&cases);
 }
 
-/// The guarantees in all 384 cells. NOT met yet (observers down to −36 mJ with jitter,
-/// blackouts and long round trips; true force up to 140 N at 2000 ms with jitter):
-/// `--ignored --nocapture`.
+/// The guarantees in all 384 cells. NOT met yet (measured 2026-12-02, seed 4: 4 cells;
+/// observers −1.07 to −1.60 mJ at 250 ms round trip with 20 % jitter, the true force
+/// 96.8 N on steel at 2000 ms with jitter and loss): `--ignored --nocapture`.
 #[test]
-#[ignore = "issue 12: the guarantees do not hold in every cell yet (docs/sessions.md)"]
+#[ignore = "issue 12: 4 of 384 cells break a guarantee (250 ms with jitter beyond the watchdog, steel at 2000 ms); docs/sessions.md"]
 fn matrix_safety_in_every_cell() {
     check_safety(&shipped_cases(4, true));
 }

@@ -98,7 +98,6 @@ fn check_cut(m: &MasterRunSummary, s: &SlaveRunSummary, cycles: &[record::SlaveC
 }
 
 #[test]
-#[ignore = "open (issues 12 and 14): since issue 12's ledger changes met the protocol-2 gate, the passivity observers of the real processes go below -1 mJ across link cuts and slow links (measured 2026-12-02: link cut -2 to -178 mJ, router restart -2.4 mJ, 300 ms slow link -691 mJ master / -12 mJ slave, real matrix 3 of 32 cells -1.5 to -17 mJ); run with --ignored"]
 fn a_2_s_cut_over_iceoryx2_with_impair_safe_stops_fades_and_repairs() {
     let scratch = Scratch::new("cut-iox").unwrap();
     let impair = vec![
@@ -127,7 +126,6 @@ fn a_2_s_cut_over_iceoryx2_with_impair_safe_stops_fades_and_repairs() {
 }
 
 #[test]
-#[ignore = "open (issues 12 and 14): since issue 12's ledger changes met the protocol-2 gate, the passivity observers of the real processes go below -1 mJ across link cuts and slow links (measured 2026-12-02: link cut -2 to -178 mJ, router restart -2.4 mJ, 300 ms slow link -691 mJ master / -12 mJ slave, real matrix 3 of 32 cells -1.5 to -17 mJ); run with --ignored"]
 fn a_2_s_cut_between_two_hosts_over_zenoh_safe_stops_fades_and_repairs() {
     let Some(hosts) = TwoHosts::new_or_skip("link_cut (two hosts over Zenoh)") else {
         return;

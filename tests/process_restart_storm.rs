@@ -99,7 +99,6 @@ fn no_leaks(prefix: &str, alive: usize, services: usize) {
 }
 
 #[test]
-#[ignore = "open (issues 12 and 14): after the merges the slave's measured force steps 3.9-4.5 N between two feedback messages across a slave restart (bound 3 N; 1.4 N before issue 12's contact hand-over and protocol 2 landed); re-pairing, positions and iceoryx2 resources still pass; run with --ignored"]
 fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
     let _g = serial();
     let (master, slave) = binaries();

@@ -317,7 +317,6 @@ fn row(o: &Outcome) -> String {
 }
 
 #[test]
-#[ignore = "open (issues 12 and 14): since issue 12's ledger changes met the protocol-2 gate, the passivity observers of the real processes go below -1 mJ across link cuts and slow links (measured 2026-12-02: link cut -2 to -178 mJ, router restart -2.4 mJ, 300 ms slow link -691 mJ master / -12 mJ slave, real matrix 3 of 32 cells -1.5 to -17 mJ); run with --ignored"]
 fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
     let scratch = Scratch::new("real-matrix").unwrap();
     let zenoh = match TwoHosts::new_or_skip("real_delay_matrix (the Zenoh-over-relay cells)") {

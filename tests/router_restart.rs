@@ -52,7 +52,6 @@ impl Drop for Kill {
 }
 
 #[test]
-#[ignore = "open (issues 12 and 14): since issue 12's ledger changes met the protocol-2 gate, the passivity observers of the real processes go below -1 mJ across link cuts and slow links (measured 2026-12-02: link cut -2 to -178 mJ, router restart -2.4 mJ, 300 ms slow link -691 mJ master / -12 mJ slave, real matrix 3 of 32 cells -1.5 to -17 mJ); run with --ignored"]
 fn a_router_restart_under_clients_safe_stops_fades_and_repairs() {
     let Some(hosts) = TwoHosts::new_or_skip("router_restart") else {
         return;

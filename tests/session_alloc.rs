@@ -41,3 +41,35 @@ fn master_and_slave_steps_allocate_nothing() {
     let counted = allocations_in(|| drop(Vec::<u64>::with_capacity(std::hint::black_box(8))));
     assert!(counted > 0);
 }
+
+/// The cutting plant (stock sweep, engagement, cutting force) and the fixtures allocate
+/// nothing either: cycles of the pocket session while the tool cuts along the floor.
+#[test]
+fn cutting_cycles_allocate_nothing() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
+    let o: Vec<String> = ["link.delay_ms=10", "link.jitter_ms=3", "link.loss=0.05"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let cfg = session::load(&path, &o).unwrap();
+    let mut s = Session::new(&cfg).unwrap();
+    for _ in 0..2500 {
+        s.cycle().unwrap();
+    }
+    let removed_before = s.slave.arm().cut().unwrap().report().removed_mm3;
+    let (n, ()) = count_allocations(|| {
+        for _ in 0..4000 {
+            s.cycle().unwrap();
+        }
+    });
+    let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
+    assert!(
+        removed > 10.0,
+        "nothing cut in the counted cycles: {removed} mm³"
+    );
+    assert!(
+        s.slave.controller().fixture_activity().1 > 0,
+        "the floor never acted"
+    );
+    assert_eq!(n, 0, "{n} allocations in 4000 cutting cycles");
+}

@@ -52,6 +52,8 @@ impl Rig {
             sensor: SensorConfig::default(),
             plant: PlantConfig::default(),
             controller: ControllerParams::default(),
+            cutting: None,
+            fixtures: Default::default(),
         };
         let (arm, ctrl) = world.build(Pose::from(HOME), 1).unwrap();
         let p = TeleopParams {

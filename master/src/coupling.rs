@@ -70,6 +70,12 @@ pub struct CouplingConfig {
     /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
     /// (0: unfiltered).
     pub force_filter_hz: f64,
+    /// Force-guided: share of the slave's measured force along the feed (the cutting
+    /// resistance: its component against the direction the tool is guided along the
+    /// surface) rendered at the handle, × `scale.force`, through the master port's
+    /// passivity controller (0 to 1; 0: nothing from the slave is rendered).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub feed_force_gain: f64,
     /// Model-mediated rendering (position–force): a local model of the slave's contact.
     pub model: bool,
     /// Largest stiffness the local model renders at the handle, N/mm.
@@ -99,6 +105,7 @@ impl Default for CouplingConfig {
             master_damping_n_s_per_mm: 0.3,
             contact_damping_n_s_per_mm: 0.0,
             force_filter_hz: 0.0,
+            feed_force_gain: 0.0,
             model: ModelParams::default().enabled,
             model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
             model_stiffness_initial_n_per_mm: ModelParams::default().stiffness_initial_n_per_mm,
@@ -129,12 +136,17 @@ impl Default for ScaleConfig {
     }
 }
 
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
 impl Section for CouplingConfig {
     /// The section's own ranges; `guide_setpoint_max_n` is also bounded by the slave's
     /// force limit, a check across sections (`SessionConfig`'s).
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let f = |name: &str| format!("{prefix}{name}");
         check_range(&f("force_limit_n"), self.force_limit_n, 0.0, 200.0, "N")?;
+        check_range(&f("feed_force_gain"), self.feed_force_gain, 0.0, 1.0, "")?;
         check_range(
             &f("feedback_timeout_ms"),
             self.feedback_timeout_ms,
@@ -269,6 +281,9 @@ pub struct CouplingParams {
     pub contact_damping_n_s_per_mm: f64,
     /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
     pub force_filter_hz: f64,
+    /// Force-guided: share of the cutting resistance along the feed rendered (× the force
+    /// scale).
+    pub feed_force_gain: f64,
     /// Model-mediated rendering (position–force): the master renders a local model of the
     /// slave's contact instead of the delayed measured force.
     pub model: ModelParams,
@@ -307,6 +322,7 @@ impl CouplingParams {
             master_damping_n_s_per_mm: c.master_damping_n_s_per_mm,
             contact_damping_n_s_per_mm: c.contact_damping_n_s_per_mm,
             force_filter_hz: c.force_filter_hz,
+            feed_force_gain: c.feed_force_gain,
             model: ModelParams {
                 enabled: c.model,
                 stiffness_max_n_per_mm: c.model_stiffness_max_n_per_mm,
@@ -371,6 +387,8 @@ pub struct MasterCoupling {
     /// The handle position at the start of the last cycle and the link force held over it
     /// (booked by the port once the cycle's displacement is known).
     disp_prev: Option<([f64; 3], [f64; 3])>,
+    /// The master port's output force this cycle (after its passivity controller), N.
+    port_force_n: [f64; 3],
     offset_mm: [f64; 3],
     filtered_n: [f64; 3],
     /// The local contact model (model-mediated rendering).
@@ -407,6 +425,7 @@ impl MasterCoupling {
             last: MasterStep::default(),
             velocity: [0.0; 3],
             disp_prev: None,
+            port_force_n: [0.0; 3],
             offset_mm: [0.0; 3],
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
@@ -709,6 +728,25 @@ impl MasterCoupling {
         };
     }
 
+    /// Force-guided: the cutting resistance the slave measures along the feed `vel` (slave
+    /// frame, along the surface), scaled for the handle: the component of its force against
+    /// the direction of motion only (a resistance never pulls the hand along), faded with
+    /// the feedback.
+    fn feed_resistance(&self, vel: &[f64; 3]) -> [f64; 3] {
+        let Some(fb) = &self.feedback else {
+            return [0.0; 3];
+        };
+        let speed = norm3(vel);
+        if speed < 1e-3 {
+            return [0.0; 3];
+        }
+        let e = [vel[0] / speed, vel[1] / speed, vel[2] / speed];
+        let w = fb.wrench_measured;
+        let along = (w[0] * e[0] + w[1] * e[1] + w[2] * e[2]).min(0.0);
+        let k = self.p.force_scale * self.p.feed_force_gain * self.fade * along;
+        [k * e[0], k * e[1], k * e[2]]
+    }
+
     /// One cycle at `now_ns`: returns the wrench to write. Call [`MasterCoupling::finish`]
     /// with the wrench the device actually applied to get the command to send.
     pub fn step(&mut self, dev: &DeviceState, now_ns: u64, dt_s: f64) -> MasterStep {
@@ -738,6 +776,8 @@ impl MasterCoupling {
                 for (lf, w) in link_force.iter_mut().zip(fb.wrench_measured.iter()) {
                     *lf = p.force_scale * w * self.fade;
                 }
+            } else if p.mode == CouplingMode::ForceGuided && p.feed_force_gain > 0.0 {
+                link_force = self.feed_resistance(&vel);
             }
         }
         self.filter_force(&mut link_force, dt_s);
@@ -749,6 +789,7 @@ impl MasterCoupling {
             .port
             .step(link_force, handle_velocity, dt_s, p.passivity);
         let mut force = pc.force_n;
+        self.port_force_n = pc.force_n;
         if p.mode == CouplingMode::PositionForce && !self.clutched {
             // Faded with the feedback: with no slave there is no loop to stabilise, and the
             // operator holds a free handle (the feedback-loss safe state renders nothing).
@@ -799,6 +840,10 @@ impl MasterCoupling {
         // renders nothing.
         let link = if self.p.mode == CouplingMode::PositionForce {
             [applied[0], applied[1], applied[2]]
+        } else if self.p.feed_force_gain > 0.0 {
+            // Force-guided: the port's force (the feed resistance after the passivity
+            // controller), not the local spring's.
+            self.port_force_n
         } else {
             [0.0; 3]
         };

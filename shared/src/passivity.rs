@@ -46,6 +46,12 @@ pub struct PassivityParams {
     pub drift_energy_share: f64,
     /// Contact force below which the slave's controller does not act (sensor noise), N.
     pub force_floor_n: f64,
+    /// How long the slave's controller remembers a contact force that has dropped, ms: its
+    /// energy bound uses the larger of the force measured now and the recent force, decayed
+    /// with this time constant. A contact that bounces (the force drops for a few cycles
+    /// and returns) would otherwise let the motion of the low-force cycles into the surface
+    /// unbounded, and book it against the force that returns. 0: the force measured now.
+    pub force_hold_ms: f64,
     /// Time constant with which the master controller's damping is released after the
     /// deficit that needed it is gone, ms (0: released at once, bang-bang).
     pub damping_release_ms: f64,
@@ -77,6 +83,7 @@ impl Default for PassivityParams {
             drift_gain_per_s: 10.0,
             drift_energy_share: 0.2,
             force_floor_n: 0.3,
+            force_hold_ms: 100.0,
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
             damping_step_fraction: 1.0,
@@ -123,6 +130,13 @@ impl PassivityParams {
             0.0,
             100.0,
             "N",
+        )?;
+        check_range(
+            &format!("{prefix}force_hold_ms"),
+            self.force_hold_ms,
+            0.0,
+            1e4,
+            "ms",
         )?;
         check_range(
             &format!("{prefix}damping_release_ms"),
@@ -398,6 +412,11 @@ pub struct AdmittancePort {
     pub max_correction_mm_per_s: f64,
     /// Contact force below which the controller does not act, N.
     pub force_floor_n: f64,
+    /// Time constant of the force memory the energy bound uses, ms (see
+    /// [`PassivityParams::force_hold_ms`]).
+    pub force_hold_ms: f64,
+    /// The remembered contact force, N (decays with `force_hold_ms`).
+    held_force_n: [f64; 3],
     /// Surplus above this is handed back to the master, J (negative: never).
     pub return_reserve_j: f64,
     /// Rate of the hand-back, 1/s.
@@ -442,6 +461,7 @@ impl AdmittancePort {
     pub fn from_params(p: &PassivityParams) -> Self {
         AdmittancePort {
             force_floor_n: p.force_floor_n,
+            force_hold_ms: p.force_hold_ms,
             return_reserve_j: p.return_reserve_j,
             return_rate_per_s: p.return_rate_per_s,
             ..AdmittancePort::new(
@@ -555,10 +575,15 @@ impl AdmittancePort {
                 observed_j: self.observed_j(),
             };
         }
-        let power = |v: &[f64; 3]| -dot3(&force_n, v);
+        // The energy bound uses the bounding force (the measured force, or the larger
+        // recent or expected one); the dissipation only the measured force, which is what
+        // the booking of the motion will count.
+        let bound_n = self.bounding_force(force_n, dt_s);
+        let power = |v: &[f64; 3]| -dot3(&bound_n, v);
+        let b2 = dot3(&bound_n, &bound_n);
         let f2 = dot3(&force_n, &force_n);
-        let floor = self.force_floor_n.max(1e-6);
-        let in_contact = f2 > floor * floor;
+        let floor2 = self.force_floor_n.max(1e-6).powi(2);
+        let bounded = b2 > floor2;
         let budget = self.observed_j().max(0.0) / (dt_s * J_PER_N_MM);
         // The link's motion plus the drift compensation.
         let mut v = desired_mm_per_s;
@@ -568,7 +593,7 @@ impl AdmittancePort {
             vc[i] = (self.drift_gain_per_s * gap).clamp(-gap.abs() / dt_s, gap.abs() / dt_s);
         }
         let pc = power(&vc);
-        let share = if in_contact && pc > 0.0 {
+        let share = if bounded && pc > 0.0 {
             let avail = self.drift_energy_share * (budget - power(&v).max(0.0)).max(0.0);
             (avail / pc).min(1.0)
         } else {
@@ -584,25 +609,33 @@ impl AdmittancePort {
             }
         }
         let mut beta = 0.0;
-        // Below the noise floor the measured force's direction is noise: correcting along it
-        // would steer free motion sideways.
-        if in_contact {
+        // Below the noise floor the force's direction is noise: correcting along it would
+        // steer free motion sideways.
+        if bounded {
             // Limit the energy output to what the observer holds (this removes only the
             // part of the motion that pushes into the force).
             let p0 = power(&v);
             if p0 > budget {
-                beta += (p0 - budget) / f2;
+                let b = (p0 - budget) / b2;
+                for (vi, f) in v.iter_mut().zip(bound_n.iter()) {
+                    *vi += b * f;
+                }
+                beta += b * b2.sqrt() / f2.sqrt().max(self.force_floor_n.max(1e-6));
+                self.energy.dissipated_j += b * b2 * dt_s * J_PER_N_MM;
             }
-            // Dissipate a deficit by backing away from the force.
+        }
+        if f2 > floor2 {
+            // Dissipate a deficit by backing away from the measured force.
             let w = self.observed_j();
             if w < 0.0 {
-                beta +=
+                let b =
                     (-w / (J_PER_N_MM * dt_s * f2)).min(self.max_correction_mm_per_s / f2.sqrt());
+                for (vi, f) in v.iter_mut().zip(force_n.iter()) {
+                    *vi += b * f;
+                }
+                beta += b;
+                self.energy.dissipated_j += b * f2 * dt_s * J_PER_N_MM;
             }
-            for (vi, f) in v.iter_mut().zip(force_n.iter()) {
-                *vi += beta * f;
-            }
-            self.energy.dissipated_j += beta * f2 * dt_s * J_PER_N_MM;
         }
         let mut target = [0.0; 3];
         for i in 0..3 {
@@ -629,6 +662,28 @@ impl AdmittancePort {
             self.energy
                 .add_power(-dot3(&force_n, &velocity_mm_per_s), dt_s);
         }
+    }
+
+    /// The force the energy bound uses: the force measured now or, when the remembered
+    /// force (decayed with `force_hold_ms`) is larger, the remembered one. A motion chosen
+    /// against the larger force puts out no more than the bound allows when the force
+    /// returns within the memory's time (a bounce).
+    fn bounding_force(&mut self, force_n: [f64; 3], dt_s: f64) -> [f64; 3] {
+        if !force_n.iter().all(|f| f.is_finite()) {
+            return self.held_force_n;
+        }
+        let decay = if self.force_hold_ms > 0.0 {
+            (-dt_s * 1e3 / self.force_hold_ms).exp()
+        } else {
+            0.0
+        };
+        for h in self.held_force_n.iter_mut() {
+            *h *= decay;
+        }
+        if dot3(&force_n, &force_n) >= dot3(&self.held_force_n, &self.held_force_n) {
+            self.held_force_n = force_n;
+        }
+        self.held_force_n
     }
 
     /// Sets the drift (a re-anchoring that turns a gap into drift to be closed passively).

@@ -116,6 +116,9 @@ pub struct SlaveRunSummary {
     pub final_state: String,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
+    /// With a `cutting` section: the volume the tool removed from the block, mm³.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub removed_volume_mm3: Option<f64>,
     /// The stop: the loop kept running with commands ignored until the arm was in its safe
     /// state with the force released (or the time limit); what it reached.
     pub shutdown: ShutdownReport,
@@ -337,6 +340,7 @@ pub fn run<L: Link<Feedback, Command>>(
     s.safe_stops = k.safe_stops;
     s.repairs = k.repairs;
     s.gate = *teleop.gate_counters();
+    s.removed_volume_mm3 = teleop.arm().cut().map(|c| c.report().removed_mm3);
     s.force_error_mean_n = if s.contact_cycles > 0 {
         error_sum / s.contact_cycles as f64
     } else {

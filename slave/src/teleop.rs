@@ -588,7 +588,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             self.update_held(force, held);
         }
         if let Some(mut h) = self.held {
-            return self.handover(&mut h, intent, force, max_v, control, dt_s);
+            return self.handover(&mut h, intent, max_v, control, dt_s);
         }
         let ps = if mode == Mode::Position {
             let ps = self
@@ -708,16 +708,37 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         &mut self,
         h: &mut HeldContact,
         intent: &Intent,
-        force: [f64; 3],
         max_v: f64,
         control: bool,
         dt_s: f64,
     ) -> PortCommand {
         let c = self.p.contact;
         let v_d = intent.desired_velocity;
-        let ps =
-            self.port
-                .step_position(h.virtual_mm, self.desired, v_d, force, max_v, dt_s, control);
+        // The port drives the virtual spring: its force (not the measured one, which is
+        // zero while the force loop approaches and whatever its transient is in contact) is
+        // what the port's bound, its dissipation and its booking use, so a virtual position
+        // moved into the surface has been paid for before the force loop reaches it.
+        let n = h.normal;
+        let spring = |depth: f64| {
+            let f = handover_setpoint_n(&c, depth);
+            [f * n[0], f * n[1], f * n[2]]
+        };
+        let depth = depth_mm(h, &h.virtual_mm);
+        let f_start = spring(depth);
+        // The bound must cover the spring's force wherever this step can end: its force at
+        // the deepest point one step at the speed limit reaches, and never less than the
+        // hold force (inside the release band the spring's force ramps up from zero: a
+        // bound of zero there would let each step in go unpaid).
+        let f_bound = spring(depth.max(0.0) + max_v * dt_s);
+        let ps = self.port.step_position(
+            h.virtual_mm,
+            self.desired,
+            v_d,
+            f_bound,
+            max_v,
+            dt_s,
+            control,
+        );
         let moved = [
             ps.target_mm[0] - h.virtual_mm[0],
             ps.target_mm[1] - h.virtual_mm[1],
@@ -725,13 +746,9 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         ];
         h.virtual_mm = ps.target_mm;
         self.held = Some(*h);
-        let depth = depth_mm(h, &h.virtual_mm);
+        let f_end = spring(depth_mm(h, &h.virtual_mm));
         let limit = self.ctrl.params().force_limit_n * c.force_share;
-        let sp = if depth >= 0.0 {
-            c.hold_min_n + c.stiffness_n_per_mm * depth
-        } else {
-            c.hold_min_n * (1.0 + depth / c.release_mm.max(1e-6)).max(0.0)
-        };
+        let sp = handover_setpoint_n(&c, depth_mm(h, &h.virtual_mm));
         // Along the surface: the command's velocity without its normal part.
         let n = h.normal;
         let vn = v_d[0] * n[0] + v_d[1] * n[1] + v_d[2] * n[2];
@@ -749,7 +766,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             step: ps,
             control,
             drift_mm: self.port.drift_mm,
-            virtual_move_mm: Some(moved),
+            virtual_move_mm: Some((moved, f_start, f_end)),
             command: SlaveCommand {
                 mode: Mode::ForceGuided,
                 pose: [
@@ -795,19 +812,22 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         if let Some((f_start, moved)) = self.pending_work.take() {
             self.port.commit_work(f_start, f_now, moved);
         }
-        // In the contact hand-over the link's port is the virtual commanded position (the
-        // virtual spring's), not the arm's.
-        let moved = port.virtual_move_mm.unwrap_or_else(|| {
-            self.last_out.map_or([0.0; 3], |o| {
-                [
-                    out.commanded_pose[0] - o.commanded_pose[0],
-                    out.commanded_pose[1] - o.commanded_pose[1],
-                    out.commanded_pose[2] - o.commanded_pose[2],
-                ]
-            })
-        });
         if intent.mode == Mode::Position {
-            self.pending_work = Some((f_now, moved));
+            match port.virtual_move_mm {
+                // In the contact hand-over the link's port is the virtual commanded position
+                // and its force the virtual spring's: both known now.
+                Some((moved, f_start, f_end)) => self.port.commit_work(f_start, f_end, moved),
+                None => {
+                    let moved = self.last_out.map_or([0.0; 3], |o| {
+                        [
+                            out.commanded_pose[0] - o.commanded_pose[0],
+                            out.commanded_pose[1] - o.commanded_pose[1],
+                            out.commanded_pose[2] - o.commanded_pose[2],
+                        ]
+                    });
+                    self.pending_work = Some((f_now, moved));
+                }
+            }
             if port.control {
                 self.port.hand_back(dt_s);
             }
@@ -875,14 +895,25 @@ struct PortCommand {
     control: bool,
     /// The port's drift (commanded − desired), mm.
     drift_mm: [f64; 3],
-    /// In the contact hand-over: the virtual commanded position's move this cycle, mm.
-    virtual_move_mm: Option<[f64; 3]>,
+    /// In the contact hand-over: the virtual commanded position's move this cycle, mm, and
+    /// the virtual spring's force before and after it, N.
+    virtual_move_mm: Option<([f64; 3], [f64; 3], [f64; 3])>,
     /// The controller's command.
     command: SlaveCommand,
 }
 
 /// How close to a surface held before position mode slows to the approach speed, mm.
 const SURFACE_MARGIN_MM: f64 = 1.0;
+
+/// The hand-over's virtual spring: the force set-point at `depth_mm` of the virtual
+/// position beyond the contact's start point (released over `release_mm` outside it), N.
+fn handover_setpoint_n(c: &ContactHandover, depth_mm: f64) -> f64 {
+    if depth_mm >= 0.0 {
+        c.hold_min_n + c.stiffness_n_per_mm * depth_mm
+    } else {
+        c.hold_min_n * (1.0 + depth_mm / c.release_mm.max(1e-6)).max(0.0)
+    }
+}
 
 /// How far `x` lies beyond the contact's start point, along its inward normal, mm.
 fn depth_mm(h: &HeldContact, x: &[f64; 3]) -> f64 {
@@ -923,6 +954,8 @@ mod tests {
             sensor: SensorConfig::default(),
             plant: PlantConfig::default(),
             controller: ControllerParams::default(),
+            cutting: None,
+            fixtures: Default::default(),
         };
         let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
         let mut p = TeleopParams::default();

@@ -5,11 +5,12 @@ use h4_shared::config::{ArmConfig, ConfigError, Section};
 use h4_shared::kinematics::Pose;
 use serde::{Deserialize, Serialize};
 
-use crate::controller::{ControllerParams, SlaveController};
+use crate::controller::{ControllerParams, FixturesConfig, SlaveController};
+use crate::plant::cutting::CuttingConfig;
 use crate::plant::{PlantConfig, SensorConfig, SimArm, SimError, SurfaceConfig};
 
 /// The slave-side sections of a simulation: arm, surface, sensor, plant, controller.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SlaveWorld {
     /// The arm: geometry, the actuator stiffness the controller assumes, workspace.
@@ -22,17 +23,29 @@ pub struct SlaveWorld {
     pub plant: PlantConfig,
     /// The controller.
     pub controller: ControllerParams,
+    /// The workpiece and the spindle's tool, when the arm cuts (`docs/cutting.md`); the
+    /// surface's material then gives the tool's rubbing contact with the stock.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<CuttingConfig>,
+    /// Virtual fixtures the controller holds the tool point in (`docs/cutting.md`).
+    #[serde(default, skip_serializing_if = "FixturesConfig::is_empty")]
+    pub fixtures: FixturesConfig,
 }
 
 impl Section for SlaveWorld {
     /// Checks every section, under `prefix` + `arm.`, `surface.`, `sensor.`, `plant.`,
-    /// `controller.`.
+    /// `controller.`, `cutting.`.
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         self.arm.validate_at(&format!("{prefix}arm."))?;
         self.surface.validate_at(&format!("{prefix}surface."))?;
         self.sensor.validate_at(&format!("{prefix}sensor."))?;
         self.plant.validate_at(&format!("{prefix}plant."))?;
-        self.controller.validate_at(&format!("{prefix}controller."))
+        self.controller
+            .validate_at(&format!("{prefix}controller."))?;
+        if let Some(c) = &self.cutting {
+            c.validate_at(&format!("{prefix}cutting."))?;
+        }
+        self.fixtures.validate_at(&format!("{prefix}fixtures."))
     }
 }
 
@@ -56,7 +69,13 @@ impl SlaveWorld {
             initial_pose,
             seed,
         )?;
-        let ctrl = SlaveController::new(ws, assumed, self.controller).with_tool(self.arm.tool);
+        let arm = match &self.cutting {
+            Some(c) => arm.with_cutting(c)?,
+            None => arm,
+        };
+        let ctrl = SlaveController::new(ws, assumed, self.controller)
+            .with_tool(self.arm.tool)
+            .with_fixtures(&self.fixtures);
         Ok((arm, ctrl))
     }
 }
@@ -77,6 +96,8 @@ mod tests {
             sensor: SensorConfig::default(),
             plant: PlantConfig::default(),
             controller: ControllerParams::default(),
+            cutting: None,
+            fixtures: FixturesConfig::default(),
         }
     }
 

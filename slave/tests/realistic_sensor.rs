@@ -329,6 +329,37 @@ fn gravity_compensation_off_shows_in_the_error() {
     }
 }
 
+/// Negative control of the read-to-command latency model: with 10 ms between the sensor
+/// sample and the command it causes (a slow fieldbus), the controller told the latency (and
+/// told it 30 % short: 7 cycles) meets the targets; the same controller assuming no latency
+/// misses them (its force loop acts on a force that is no longer there).
+#[test]
+fn latency_model_off_shows_in_the_error() {
+    for base in ["fig6b.toml", "fig7c.toml"] {
+        let common = ["plant.command_latency_s=0.010", "duration_s=8"];
+        let with = |cycles: u32| {
+            let mut o = strings(&common);
+            o.push(format!("controller.command_latency_cycles={cycles}"));
+            run(base, &o)
+        };
+        for told in [10, 7] {
+            let (cfg, on) = with(told);
+            let m = misses(&format!("{base} told {told} cycles"), &cfg, &on);
+            assert!(m.is_empty(), "{}", m.join("\n"));
+        }
+        let (_, on) = with(10);
+        let (_, off) = with(0);
+        assert!(
+            !off.verdict.passed
+                && off.force_error_p99_contact_n > 2.0 * on.force_error_p99_contact_n,
+            "{base}: latency unmodelled {:?} p99 {} vs modelled p99 {}",
+            off.verdict,
+            off.force_error_p99_contact_n,
+            on.force_error_p99_contact_n
+        );
+    }
+}
+
 /// No false contact in free space at 0.3 N σ: eight seeds hold the tool 1 mm above the
 /// surface (the approach's target) for 5 s; each run says it never touched and why. And no
 /// late detection on steel: the controller's touch comes within 5 ms of the first

@@ -592,6 +592,8 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
         controller: cfg.slave.controller,
         summary: SummaryConfig::default(),
         targets: Default::default(),
+        cutting: cfg.cutting,
+        fixtures: cfg.fixtures.clone(),
     }
 }
 

@@ -1,4 +1,5 @@
-//! `h4-master sim <session.toml> [--set key=value]... [--summary out.json] [--record out.mcap]`
+//! `h4-master sim <session.toml> [--set key=value]... [--summary out.json] [--record out.mcap]
+//! [--out DIR]`
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -24,6 +25,9 @@ pub struct SimArgs {
     /// Record every cycle of both sides and the link's events (MCAP).
     #[arg(long, value_name = "FILE")]
     record: Option<PathBuf>,
+    /// A cutting session writes the part here: `height.png`, `part.stl`, `deviation.png`.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
 }
 
 impl SimArgs {
@@ -52,7 +56,7 @@ impl SimArgs {
         );
         let handle = progress.handle();
         let result = session::Session::new(&cfg).and_then(|s| {
-            s.run_with(recorder.as_mut(), &mut |k| {
+            s.run_with(recorder.as_mut(), self.out.as_deref(), &mut |k| {
                 handle.set(k);
                 !h4_shared::process::stop_requested()
             })

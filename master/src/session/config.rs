@@ -4,7 +4,8 @@ use std::path::{Path, PathBuf};
 
 use h4_shared::config::{ArmConfig, ConfigError, Section, Validate, check_range};
 use h4_shared::passivity::PassivityParams;
-use h4_slave::controller::ControllerParams;
+use h4_slave::controller::{ControllerParams, FixturesConfig};
+use h4_slave::plant::cutting::CuttingConfig;
 use h4_slave::plant::{
     Axis, MaterialPreset, PlantConfig, SensorConfig, ShapeKind, Surface, SurfaceConfig,
 };
@@ -13,6 +14,7 @@ use h4_slave::world::SlaveWorld;
 use h4_transport::impair::ImpairmentConfig;
 use serde::{Deserialize, Serialize};
 
+use super::cutting::CutTarget;
 use super::{DetectorConfig, SessionError};
 use crate::coupling::{CouplingConfig, ScaleConfig};
 use crate::device::MasterArmConfig;
@@ -182,6 +184,15 @@ pub struct SessionConfig {
     /// The stability detector.
     #[serde(default)]
     pub detector: DetectorConfig,
+    /// The workpiece and the spindle's tool: the slave cuts (`docs/cutting.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<CuttingConfig>,
+    /// Virtual fixtures the slave holds the tool point in (`docs/cutting.md`).
+    #[serde(default, skip_serializing_if = "FixturesConfig::is_empty")]
+    pub fixtures: FixturesConfig,
+    /// The shape the session should cut, against which the part is judged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut_target: Option<CutTarget>,
 }
 
 impl SessionConfig {
@@ -194,6 +205,8 @@ impl SessionConfig {
             sensor: self.slave.sensor,
             plant: self.slave.plant,
             controller: self.slave.controller,
+            cutting: self.cutting,
+            fixtures: self.fixtures.clone(),
         }
     }
 
@@ -306,7 +319,14 @@ impl Validate for SessionConfig {
         self.master.validate_at("master.")?;
         self.operator.validate_at("operator.")?;
         self.slave.validate_at("slave.")?;
-        self.detector.validate_at("detector.")
+        self.detector.validate_at("detector.")?;
+        if let Some(c) = &self.cutting {
+            c.validate_at("cutting.")?;
+        }
+        if let Some(t) = &self.cut_target {
+            t.validate_at("cut_target.")?;
+        }
+        self.fixtures.validate_at("fixtures.")
     }
 }
 

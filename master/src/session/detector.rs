@@ -229,6 +229,9 @@ pub struct Summary {
     pub master_saw_safe_stops: u64,
     /// Re-engagements after a safe stop (each on the master's acknowledgement).
     pub repairs: u64,
+    /// The cut and the part, in a cutting session (`docs/cutting.md`).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<super::cutting::CutSummary>,
 }
 
 impl Summary {
@@ -765,6 +768,7 @@ impl Evaluator {
             slave_safe_stops: fin.slave_safe_stops,
             master_saw_safe_stops: fin.master_saw_safe_stops,
             repairs: fin.repairs,
+            cutting: None,
         }
     }
 }

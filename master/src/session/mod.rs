@@ -7,7 +7,8 @@
 //! * `config`: the session file ([`load`], [`SessionConfig`]), its sections and their checks;
 //! * `run`: [`Session`], both endpoints and the link in lockstep;
 //! * `record`: the recording's channels and messages;
-//! * `detector`: the stability detector and the [`Summary`].
+//! * `detector`: the stability detector and the [`Summary`];
+//! * [`cutting`]: a cutting session's target shape, its judgement and the part's files.
 //!
 //! Every field of a session file is documented in `docs/sessions.md`.
 
@@ -19,6 +20,7 @@ use h4_slave::teleop::TeleopError;
 use crate::operator::IntentError;
 
 mod config;
+pub mod cutting;
 mod detector;
 mod record;
 mod run;
@@ -29,7 +31,7 @@ pub use config::{
     EnvironmentConfig, OperatorConfig, PassivityConfig, SessionConfig, SlaveConfig, load,
 };
 pub use detector::{DetectorConfig, Summary};
-pub use run::{Session, run};
+pub use run::{Session, run, run_with_outputs};
 
 /// Period of the lockstep cycle, ns.
 const CYCLE_NS: u64 = 1_000_000;
@@ -60,4 +62,7 @@ pub enum SessionError {
     /// The link failed.
     #[error("link: {0}")]
     Link(#[from] h4_transport::LinkError),
+    /// The part's files could not be written.
+    #[error("--out: {0}")]
+    Export(#[from] h4_slave::plant::cutting::export::ExportError),
 }

@@ -78,6 +78,29 @@ struct SlaveMsg {
     dissipated_j: f64,
 }
 
+/// One cycle of the cut, in a cutting session (topic `/slave/cut`, schema `h4.CutCycle`).
+#[derive(Serialize, schemars::JsonSchema)]
+struct CutMsg {
+    /// The tool's tip in the workpiece frame, mm (simulation truth).
+    tool_tip_in_workpiece_mm: [f64; 3],
+    /// The contact force on the tool (cutting, or rubbing when the spindle is stopped) at
+    /// the cycle's end, N, workpiece frame (simulation truth, with the tooth-passing
+    /// ripple).
+    cutting_force_n: [f64; 3],
+    /// That force averaged over the cycle, N.
+    cutting_force_mean_n: [f64; 3],
+    /// Volume removed so far, mm³.
+    removed_mm3: f64,
+    /// Removal rate over the cycle, mm³/s.
+    removal_rate_mm3_per_s: f64,
+    /// The spindle's torque over the cycle, N·mm.
+    spindle_torque_n_mm: f64,
+    /// The spindle has stalled.
+    stalled: bool,
+    /// A virtual fixture limited the slave's command this cycle.
+    fixture_active: bool,
+}
+
 /// One impairment event (topic `/link/events`, schema `h4.LinkEvent`).
 #[derive(Serialize, schemars::JsonSchema)]
 struct LinkMsg {
@@ -92,16 +115,51 @@ pub(super) struct Channels {
     master: ChannelId,
     slave: ChannelId,
     link: ChannelId,
+    cut: Option<ChannelId>,
 }
 
 impl Channels {
-    /// Adds the channels to `r`.
-    pub(super) fn add(r: &mut Recorder) -> Result<Self, RecordingError> {
+    /// Adds the channels to `r` (`/slave/cut` when the slave `cutting`).
+    pub(super) fn add(r: &mut Recorder, cutting: bool) -> Result<Self, RecordingError> {
         Ok(Channels {
             master: r.add_channel_for::<MasterMsg>("/master/cycle", "h4.MasterCycle")?,
             slave: r.add_channel_for::<SlaveMsg>("/slave/cycle", "h4.SlaveCycle")?,
             link: r.add_channel_for::<LinkMsg>("/link/events", "h4.LinkEvent")?,
+            cut: if cutting {
+                Some(r.add_channel_for::<CutMsg>("/slave/cut", "h4.CutCycle")?)
+            } else {
+                None
+            },
         })
+    }
+
+    /// Writes one cycle of the cut at `t_ns`, if the slave cuts.
+    pub(super) fn write_cut(
+        &self,
+        r: &mut Recorder,
+        t_ns: u64,
+        slave: &SlaveTeleop<SimArm>,
+    ) -> Result<(), RecordingError> {
+        let (Some(ch), Some(cut)) = (self.cut, slave.arm().cut()) else {
+            return Ok(());
+        };
+        let tp = slave.arm().true_pose();
+        let f = slave.arm().true_contact_wrench();
+        let rep = cut.report();
+        r.write(
+            ch,
+            t_ns,
+            &CutMsg {
+                tool_tip_in_workpiece_mm: [tp[0], tp[1], tp[2]],
+                cutting_force_n: [f[0], f[1], f[2]],
+                cutting_force_mean_n: rep.mean_force_n,
+                removed_mm3: rep.removed_mm3,
+                removal_rate_mm3_per_s: rep.removal_rate_mm3_per_s,
+                spindle_torque_n_mm: rep.spindle_torque_n_mm,
+                stalled: rep.stalled,
+                fixture_active: slave.controller().fixture_activity().0,
+            },
+        )
     }
 
     /// Writes one cycle of both sides at `t_ns`: the master's cycle `m` with its port's

@@ -1,6 +1,7 @@
 //! [`Session`]: the master's and the slave's endpoints, an impaired in-process link in each
 //! direction and both simulated arms, stepped in lockstep on the simulated clock.
 
+use std::path::Path;
 use std::time::Instant;
 
 use h4_shared::clock::{Clock, SimClock};
@@ -16,6 +17,7 @@ use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopParams};
 use h4_transport::impair::Impaired;
 use h4_transport::inproc::{self, InprocEnd};
 
+use super::cutting::{CutEvaluator, CutSample, CutSummary, RevolutionMean, write_outputs};
 use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
 use super::{CYCLE_NS, DT_S, SessionConfig, SessionError, Summary};
@@ -150,6 +152,7 @@ impl Session {
     ) -> Result<(), RecordingError> {
         let me = self.master.coupling().port.energy;
         ch.write_cycle(r, t_ns, (m, me), (s, &self.slave), true_force_slave_n)?;
+        ch.write_cut(r, t_ns, &self.slave)?;
         ch.write_link_events(r, "command", |f| self.master_end.drain_events(f))?;
         ch.write_link_events(r, "feedback", |f| self.slave_end.drain_events(f))
     }
@@ -157,35 +160,100 @@ impl Session {
     /// Runs the whole session; with a recorder every cycle of both sides and every link
     /// event is recorded.
     pub fn run(self, recorder: Option<&mut Recorder>) -> Result<Summary, SessionError> {
-        self.run_with(recorder, &mut |_| true)
+        self.run_to(recorder, None)
     }
 
-    /// [`Session::run`], calling `on_cycle(cycles run)` after every cycle (progress); when it
-    /// returns false the session stops there (interrupted) and the summary covers the cycles
-    /// run.
+    /// The evidence of the cut this cycle, for [`CutEvaluator`].
+    fn cut_sample(&self, s: &TeleopCycle) -> Option<CutSample> {
+        let cut = self.slave.arm().cut()?;
+        let p = self.slave.arm().true_pose();
+        Some(CutSample {
+            report: cut.report(),
+            tip_mm: [p[0], p[1], p[2]],
+            in_contact: s.out.status == Status::Contact,
+            fixture_active: self.slave.controller().fixture_activity().0,
+            setpoint_n: s.out.setpoint_n,
+        })
+    }
+
+    /// The cutting fields of the summary, and the part's files into `out_dir`.
+    fn finish_cut(
+        &self,
+        ev: CutEvaluator,
+        out_dir: Option<&Path>,
+    ) -> Result<Option<CutSummary>, SessionError> {
+        let Some(cut) = self.slave.arm().cut() else {
+            return Ok(None);
+        };
+        let target = self.cfg.cut_target.as_ref();
+        if let Some(dir) = out_dir {
+            write_outputs(dir, cut.stock(), cut.tool(), target)?;
+        }
+        Ok(Some(ev.finish(
+            cut.stock(),
+            cut.tool(),
+            &cut.report(),
+            target,
+            self.cfg.fixtures.depth_floor.map(|f| f.z_mm),
+            self.slave.controller().fixture_activity().1,
+        )))
+    }
+
+    /// [`Session::run`], and in a cutting session the part's files into `out_dir`
+    /// (`height.png`, `part.stl`, `deviation.png`).
+    pub fn run_to(
+        self,
+        recorder: Option<&mut Recorder>,
+        out_dir: Option<&Path>,
+    ) -> Result<Summary, SessionError> {
+        self.run_with(recorder, out_dir, &mut |_| true)
+    }
+
+    /// [`Session::run_to`], calling `on_cycle(cycles run)` after every cycle (progress);
+    /// when it returns false the session stops there (interrupted) and the summary covers
+    /// the cycles run.
     pub fn run_with(
         mut self,
         mut recorder: Option<&mut Recorder>,
+        out_dir: Option<&Path>,
         on_cycle: &mut dyn FnMut(u64) -> bool,
     ) -> Result<Summary, SessionError> {
         let channels = match recorder.as_deref_mut() {
-            Some(r) => Some(Channels::add(r)?),
+            Some(r) => Some(Channels::add(r, self.slave.arm().cut().is_some())?),
             None => None,
         };
         let planned = (self.cfg.duration_s * 1000.0).round() as u64;
         let mut ev = Evaluator::new(self.cfg.detector, planned as usize);
+        let mut cut_ev = self
+            .slave
+            .arm()
+            .cut()
+            .map(|c| CutEvaluator::new(planned as usize, c.tool().spindle_rpm));
+        let mut rev_mean = self
+            .slave
+            .arm()
+            .cut()
+            .map(|c| RevolutionMean::new(c.tool().spindle_rpm));
         let wall = Instant::now();
         let mut cycles = 0;
         while cycles < planned {
             let t_ns = self.clock.now_ns();
             let (m, s) = self.cycle()?;
             let true_wrench_slave = self.slave.arm().true_contact_wrench();
-            let true_force_slave_n = [
-                true_wrench_slave[0],
-                true_wrench_slave[1],
-                true_wrench_slave[2],
-            ];
+            // Cutting: the true force averaged over a spindle revolution (the instant's sample
+            // aliases the tooth-passing pulses into the detector's 1 kHz record).
+            let true_force_slave_n = match (self.slave.arm().cut(), rev_mean.as_mut()) {
+                (Some(c), Some(r)) => r.push(c.report().mean_force_n),
+                _ => [
+                    true_wrench_slave[0],
+                    true_wrench_slave[1],
+                    true_wrench_slave[2],
+                ],
+            };
             ev.push(self.sample(&m, &s, &true_force_slave_n));
+            if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.cut_sample(&s)) {
+                ce.push(&cs);
+            }
             if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
                 self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_force_slave_n)?;
             }
@@ -219,8 +287,21 @@ impl Session {
         );
         summary.slave_gate = *self.slave.gate_counters();
         summary.master_gate = *self.master.gate_counters();
+        if let Some(ce) = cut_ev {
+            summary.cutting = self.finish_cut(ce, out_dir)?;
+        }
         Ok(summary)
     }
+}
+
+/// Runs a session from its configuration; a cutting session writes its part's files into
+/// `out_dir`.
+pub fn run_with_outputs(
+    cfg: &SessionConfig,
+    recorder: Option<&mut Recorder>,
+    out_dir: Option<&Path>,
+) -> Result<Summary, SessionError> {
+    Session::new(cfg)?.run_to(recorder, out_dir)
 }
 
 /// Runs a session from its configuration.

@@ -46,6 +46,7 @@ mod compensation;
 mod contact;
 mod deflection;
 mod estimator;
+pub mod fixtures;
 mod force_law;
 mod gain_schedule;
 mod guards;
@@ -59,6 +60,7 @@ mod tare;
 mod tracking;
 mod window;
 
+pub use fixtures::{Fixtures, FixturesConfig};
 pub use interface::{ControllerInput, ControllerOutput, Rejection, SlaveCommand, Status};
 pub use params::ControllerParams;
 
@@ -131,6 +133,7 @@ pub struct SlaveController {
     force_law: ForceLaw,
     oscillation: OscillationGuard,
     shaper: InputShaper,
+    fixtures: Fixtures,
     last: ControllerOutput,
 }
 
@@ -165,6 +168,7 @@ impl SlaveController {
             force_law: ForceLaw::new(),
             oscillation: OscillationGuard::new(),
             shaper: InputShaper::new(),
+            fixtures: Fixtures::default(),
             last: ControllerOutput {
                 actuators_cmd_mm: [0.0; 4],
                 commanded_pose: [0.0; 4],
@@ -188,6 +192,18 @@ impl SlaveController {
     pub fn with_tool(mut self, tool: ToolModel) -> Self {
         self.comp = ToolCompensation::new(tool);
         self
+    }
+
+    /// The controller with the virtual fixtures `fixtures`: every pose it commits is
+    /// limited by them ([`fixtures`]).
+    pub fn with_fixtures(mut self, fixtures: &FixturesConfig) -> Self {
+        self.fixtures = Fixtures::new(fixtures);
+        self
+    }
+
+    /// Whether a fixture moved the last committed pose, and in how many cycles one did.
+    pub fn fixture_activity(&self) -> (bool, u64) {
+        (self.fixtures.active, self.fixtures.active_cycles)
     }
 
     /// The arm's workspace the commands are checked against.
@@ -417,8 +433,17 @@ impl SlaveController {
     /// First touch (or touch again): bumpless start of the force loop along the force's
     /// direction, at the force measured.
     fn touch(&mut self, cx: &Cycle) {
-        self.normal.normal = cx.f3 / cx.f_mag;
-        self.setpoint.reset(cx.f_mag);
+        let f_along = match self.p.force_axis_unit() {
+            Some(a) => {
+                self.normal.normal = Vector3::from(a);
+                cx.f3.dot(&self.normal.normal).max(0.0)
+            }
+            None => {
+                self.normal.normal = cx.f3 / cx.f_mag;
+                cx.f_mag
+            }
+        };
+        self.setpoint.reset(f_along);
         self.deflection.touch();
         self.force_law.touch();
         self.oscillation.touch();
@@ -457,7 +482,10 @@ impl SlaveController {
             speed_mm_per_s: speed,
             contact_cycles: self.contact.contact_cycles,
         };
-        self.normal.update(&self.window, &inputs, &self.p, dt);
+        match self.p.force_axis_unit() {
+            Some(a) => self.normal.normal = Vector3::from(a),
+            None => self.normal.update(&self.window, &inputs, &self.p, dt),
+        }
         let n = self.normal.normal;
         let f_n = cx.f3.dot(&n);
         let vt_n = self.tracking.direct(&n, &cmd.velocity, speed);
@@ -504,6 +532,17 @@ impl SlaveController {
         self.force_law.sent(d_depth);
         let mut mv = -n * d_depth;
         mv += self.tracking.advance(target_speed, &self.p, dt);
+        let gain = self.p.track_position_gain_per_s;
+        if gain > 0.0 && !self.contact.lost {
+            // Towards the commanded point along the surface (its normal part is the force
+            // loop's).
+            let e = Vector3::new(
+                cmd.pose[0] - next[0],
+                cmd.pose[1] - next[1],
+                cmd.pose[2] - next[2],
+            );
+            mv += (e - n * e.dot(&n)) * (gain * dt).min(1.0);
+        }
         let dmax = self.p.max_speed_mm_per_s * dt;
         let mvn = mv.norm();
         if mvn > dmax {
@@ -521,7 +560,14 @@ impl SlaveController {
         if guards::magnitude_limit(next, cx, self.estimator.c_env, &self.p) {
             status = Status::ForceLimited;
         }
-        if self.contact.loses(f_n, cmd.force_setpoint_n, &self.p) {
+        // A fixture holding the tool point suspends the force loop by design: the force it
+        // cannot reach there is no sign of a lost contact.
+        let expected_n = if self.fixtures.active {
+            0.0
+        } else {
+            cmd.force_setpoint_n
+        };
+        if self.contact.loses(f_n, expected_n, &self.p) {
             self.force_law.e_prev_n = 0.0;
             self.tracking.tangent = Vector3::zeros();
             status = Status::ContactLost;
@@ -573,6 +619,7 @@ impl SlaveController {
 
     /// Checks `next` against the workspace; on success it becomes the command.
     fn commit(&mut self, next: Pose, cx: &Cycle, c: f64, status: Status) -> ControllerOutput {
+        let next = self.fixtures.limit(next);
         let target = next + self.deflection.comp;
         let mp = cx.measured_pose;
         let mut out = match self.arm.ws.ik(&target) {

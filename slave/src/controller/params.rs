@@ -79,6 +79,17 @@ pub struct ControllerParams {
     /// force of the commands still in flight (a Smith predictor) and the compensation
     /// takes the acceleration that old.
     pub command_latency_cycles: u32,
+    /// The axis the contact force is controlled along when it is known, base frame (any
+    /// length, normalised): the tool's axis when milling, where the cutter's feed and
+    /// cross-feed forces say nothing about the surface's normal. Unset: the normal is
+    /// estimated from the force and the motion.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub force_axis: Option<[f64; 3]>,
+    /// ForceGuided: gain pulling the tool point along the surface towards the commanded
+    /// point's tangential part, 1/s (0 to 100; 0: the motion along the surface follows the
+    /// commanded velocity only, and its ramps let the point drift from the master's).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub track_position_gain_per_s: f64,
     /// Contact detection: the force along the approach must exceed this many standard
     /// deviations of the sensor's noise (measured while taring) besides
     /// `contact_threshold_n` (3 to 20).
@@ -125,6 +136,8 @@ impl Default for ControllerParams {
             gravity_compensation: true,
             gravity_mm_per_s2: [0.0, 0.0, -9810.0],
             command_latency_cycles: 0,
+            force_axis: None,
+            track_position_gain_per_s: 0.0,
             contact_noise_sigmas: 8.0,
             safe_stop_ramp_s: 0.2,
             safe_stop_retract_mm: 3.0,
@@ -207,6 +220,30 @@ impl Section for ControllerParams {
                 "mm/s²",
             )?;
         }
+        check_range(
+            &field("track_position_gain_per_s"),
+            self.track_position_gain_per_s,
+            0.0,
+            100.0,
+            "1/s",
+        )?;
+        if let Some(a) = self.force_axis {
+            let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+            check_range(&field("force_axis"), n, 1e-3, 1e3, "(length of the vector)")?;
+        }
         Ok(())
+    }
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+impl ControllerParams {
+    /// [`ControllerParams::force_axis`] as a unit vector.
+    pub fn force_axis_unit(&self) -> Option<[f64; 3]> {
+        let a = self.force_axis?;
+        let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        (n > 1e-3 && n.is_finite()).then(|| [a[0] / n, a[1] / n, a[2] / n])
     }
 }

@@ -93,6 +93,17 @@ impl SafeStop {
     ) -> SafeStopStep {
         match self.phase {
             SafeStopPhase::Inactive => SafeStopStep::Inactive,
+            // Contact lost while ramping down: nothing is left to ramp, and force control
+            // without contact would approach the surface again. Hold where the tool is
+            // (already off the surface; a retract along a normal estimated before the loss
+            // could point into it).
+            SafeStopPhase::RampDown { .. } if f3.norm() < p.contact_threshold_n => {
+                self.phase = SafeStopPhase::Done;
+                SafeStopStep::Move {
+                    next: *x_cmd,
+                    status: Status::Holding,
+                }
+            }
             SafeStopPhase::RampDown {
                 remaining_s,
                 from_n,

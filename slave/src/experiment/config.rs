@@ -6,7 +6,8 @@ use h4_shared::config::{ArmConfig, ConfigError, Section, Validate, check_range};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::controller::ControllerParams;
+use crate::controller::{ControllerParams, FixturesConfig};
+use crate::plant::cutting::CuttingConfig;
 use crate::plant::{PlantConfig, SensorConfig, Surface, SurfaceConfig};
 use crate::world::SlaveWorld;
 
@@ -189,6 +190,12 @@ pub struct ExperimentConfig {
     /// The targets the run is judged against.
     #[serde(default)]
     pub targets: TargetsConfig,
+    /// The workpiece and the spindle's tool, when the arm cuts (`docs/cutting.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<CuttingConfig>,
+    /// Virtual fixtures (`docs/cutting.md`).
+    #[serde(default, skip_serializing_if = "FixturesConfig::is_empty")]
+    pub fixtures: FixturesConfig,
 }
 
 impl Validate for ExperimentConfig {
@@ -309,6 +316,8 @@ impl ExperimentConfig {
             sensor: self.sensor,
             plant: self.plant,
             controller: self.controller,
+            cutting: self.cutting,
+            fixtures: self.fixtures.clone(),
         }
     }
 

@@ -27,6 +27,10 @@ impl SimArm {
     /// `n` servo periods with the Jacobian held: the inner loop of the simulation,
     /// specialised per surface shape.
     pub(super) fn substeps(&mut self, n: u32) {
+        if self.cut.is_some() {
+            self.substeps_cutting(n);
+            return;
+        }
         match self.surface.shape {
             SurfaceShape::Plane { point_mm, normal } if !self.generic_kernel_forced() => {
                 self.substeps_plane(n, point_mm, normal)

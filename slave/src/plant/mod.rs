@@ -26,6 +26,7 @@
 //! [`SimArm::advance`].
 
 mod config;
+pub mod cutting;
 mod kernel;
 mod sensor;
 mod servo;
@@ -131,6 +132,8 @@ pub struct SimArm {
     /// Read-to-command latency, ns.
     latency_ns: u64,
     kinematics_faults: u64,
+    /// The cut, when the arm carries a spindle over a workpiece (boxed: built once).
+    cut: Option<Box<cutting::CutState>>,
     /// Tests only: run planes through the generic kernel (to compare the two).
     #[cfg(test)]
     generic_kernel: bool,
@@ -226,6 +229,7 @@ impl SimArm {
             pending_len: 0,
             latency_ns: (cfg.command_latency_s * 1e9).round() as u64,
             kinematics_faults: 0,
+            cut: None,
             #[cfg(test)]
             generic_kernel: false,
         };
@@ -261,6 +265,20 @@ impl SimArm {
         let mat = self.surface.material;
         self.contact_damping =
             2.0 * mat.damping_ratio * (mat.stiffness_n_per_mm.max(0.0) * m).sqrt();
+    }
+
+    /// The same arm carrying a spindle over the workpiece `cfg` (the stock in the base
+    /// frame; the surface's material gives the rubbing contact): from now on the tool cuts.
+    pub fn with_cutting(mut self, cfg: &cutting::CuttingConfig) -> Result<Self, SimError> {
+        let tip = [self.pose[0], self.pose[1], self.pose[2]];
+        let cut = cutting::CutState::new(cfg, tip).ok_or(SimError::BadParameter("cutting"))?;
+        self.cut = Some(Box::new(cut));
+        Ok(self)
+    }
+
+    /// The cut in progress, if the arm cuts.
+    pub fn cut(&self) -> Option<&cutting::CutState> {
+        self.cut.as_deref()
     }
 
     /// Replaces the surface (shape and material) at run time.
@@ -349,6 +367,9 @@ impl SimArm {
         while steps > 0 {
             if self.substep_counter == 0 {
                 self.relinearise();
+                if let Some(cut) = self.cut.as_deref_mut() {
+                    cut.update([self.pose[0], self.pose[1], self.pose[2]]);
+                }
             }
             // Run substeps up to the next re-linearisation or sensor sample, whichever
             // comes first, in a kernel that keeps the state in registers.

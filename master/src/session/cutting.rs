@@ -1,0 +1,376 @@
+//! A cutting session's part and its judgement: the target shape (`cut_target`), the
+//! per-cycle evidence of the cutting force at steady feed, the summary's cutting fields and
+//! the files `--out DIR` writes (height map, STL, deviation map).
+
+use std::path::Path;
+
+use h4_shared::config::{ConfigError, Section, check_range};
+use h4_slave::plant::cutting::export::{
+    ExportError, write_deviation_png, write_height_png, write_stl,
+};
+use h4_slave::plant::cutting::{CutReport, Stock, Tool, ToolKind};
+use serde::{Deserialize, Serialize};
+
+/// The kinds of target shape.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetKind {
+    /// A rectangular pocket: the tool's tip covers `size_mm` at `depth_mm`; its walls and
+    /// their fillets are the tool's own shape.
+    Pocket,
+}
+
+/// The shape a session should cut (`cut_target`), in the workpiece frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CutTarget {
+    /// The kind of shape.
+    pub kind: TargetKind,
+    /// Centre of the region the tool's tip covers, x and y, mm.
+    pub centre_mm: [f64; 2],
+    /// Size of that region along x and y, mm.
+    pub size_mm: [f64; 2],
+    /// Depth below the block's top, mm.
+    pub depth_mm: f64,
+    /// The part is judged over the pocket and this margin of the top around it, mm.
+    #[serde(default = "default_margin_mm")]
+    pub margin_mm: f64,
+}
+
+fn default_margin_mm() -> f64 {
+    3.0
+}
+
+impl Section for CutTarget {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |n: &str| format!("{prefix}{n}");
+        for i in 0..2 {
+            check_range(
+                &f(&format!("centre_mm[{i}]")),
+                self.centre_mm[i],
+                -1e4,
+                1e4,
+                "mm",
+            )?;
+            check_range(
+                &f(&format!("size_mm[{i}]")),
+                self.size_mm[i],
+                0.0,
+                1e3,
+                "mm",
+            )?;
+        }
+        check_range(&f("depth_mm"), self.depth_mm, 0.0, 100.0, "mm")?;
+        check_range(&f("margin_mm"), self.margin_mm, 0.0, 100.0, "mm")
+    }
+}
+
+impl CutTarget {
+    /// Horizontal distance of (`x`, `y`) from the region the tip covers (0 inside), mm.
+    fn distance_mm(&self, x: f64, y: f64) -> f64 {
+        let dx = ((x - self.centre_mm[0]).abs() - 0.5 * self.size_mm[0]).max(0.0);
+        let dy = ((y - self.centre_mm[1]).abs() - 0.5 * self.size_mm[1]).max(0.0);
+        (dx * dx + dy * dy).sqrt()
+    }
+
+    /// The target's height at (`x`, `y`) for a block whose top is `top_mm`, cut by `tool`:
+    /// the lower envelope of the tool with its tip anywhere in the region at the depth.
+    pub fn height_mm(&self, x: f64, y: f64, top_mm: f64, tool: &Tool) -> f64 {
+        let d = self.distance_mm(x, y);
+        let r = tool.radius_mm;
+        if d > r {
+            return top_mm;
+        }
+        let floor = top_mm - self.depth_mm;
+        let lift = match tool.kind {
+            ToolKind::Flat => 0.0,
+            ToolKind::Ball => tool.lift_mm(d * d),
+        };
+        (floor + lift).min(top_mm)
+    }
+
+    /// Whether the point is judged (within the pocket's edge and the margin).
+    fn judged(&self, x: f64, y: f64, tool: &Tool) -> bool {
+        self.distance_mm(x, y) <= tool.radius_mm + self.margin_mm
+    }
+}
+
+/// The summary's cutting fields.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CutSummary {
+    /// Volume removed from the block, mm³.
+    pub removed_volume_mm3: f64,
+    /// 99th percentile of |machined − target| over the judged cells, mm (NaN without a
+    /// target).
+    pub surface_error_p99_mm: f64,
+    /// Deepest cut below the fixture floor (`fixtures.depth_floor.z_mm`, else the target's
+    /// floor), mm (0: none).
+    pub gouge_max_mm: f64,
+    /// 99th percentile of |mean cutting force along z − set-point| / set-point at steady
+    /// feed, % (NaN: no steady feed).
+    pub cutting_force_dev_p99_pct: f64,
+    /// Mean removal rate while cutting, mm³/s.
+    pub removal_rate_mm3_per_s: f64,
+    /// Cycles judged as steady feed.
+    pub steady_feed_cycles: u64,
+    /// Spindle stalls.
+    pub spindle_stalls: u64,
+    /// Cycles in which a fixture limited the commanded tool point.
+    pub fixture_limited_cycles: u64,
+    /// Largest true contact force during the cut, N.
+    pub cutting_force_max_n: f64,
+}
+
+/// One cycle's evidence for the cutting fields.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CutSample {
+    /// The cut's report after this cycle.
+    pub report: CutReport,
+    /// The tool's true position, workpiece frame, mm.
+    pub tip_mm: [f64; 3],
+    /// The slave is controlling the contact force.
+    pub in_contact: bool,
+    /// A fixture limited this cycle's command.
+    pub fixture_active: bool,
+    /// The slave's (prefiltered) force set-point, N.
+    pub setpoint_n: f64,
+}
+
+/// The true cutting force averaged over the last spindle revolution (up to 64 cycles): the
+/// force the arm's contact carries, without the tooth-passing ripple (a milling cutter's
+/// force is pulses, zero between the teeth of an interrupted cut).
+pub struct RevolutionMean {
+    ring: [[f64; 3]; 64],
+    len: usize,
+    n: usize,
+}
+
+impl RevolutionMean {
+    /// The mean over one revolution at `spindle_rpm` (whole cycles, 1 to 64).
+    pub fn new(spindle_rpm: f64) -> Self {
+        let len = if spindle_rpm > 0.0 {
+            ((60_000.0 / spindle_rpm).round() as usize).clamp(1, 64)
+        } else {
+            1
+        };
+        RevolutionMean {
+            ring: [[0.0; 3]; 64],
+            len,
+            n: 0,
+        }
+    }
+
+    /// Adds this cycle's mean force (N) and returns the mean over the revolution.
+    pub fn push(&mut self, f_n: [f64; 3]) -> [f64; 3] {
+        self.ring[self.n % self.len] = f_n;
+        self.n += 1;
+        let k = self.n.min(self.len);
+        let mut m = [0.0; 3];
+        for f in &self.ring[..k] {
+            for (a, b) in m.iter_mut().zip(f) {
+                *a += b / k as f64;
+            }
+        }
+        m
+    }
+}
+
+/// Ring length for the steady-feed criteria, cycles (100 ms).
+const HISTORY: usize = 100;
+/// The feed speed counted as feeding, mm/s.
+const FEED_MIN_MM_PER_S: f64 = 2.0;
+
+/// Collects the cutting evidence cycle by cycle (allocates only at construction).
+pub struct CutEvaluator {
+    deviations_pct: Vec<f64>,
+    /// Mean z force of the last cycles (one spindle revolution is averaged), N.
+    force_ring: [f64; HISTORY],
+    tip_ring: [[f64; 2]; HISTORY],
+    speed_ring: [f64; HISTORY],
+    setpoint_ring: [f64; HISTORY],
+    n: usize,
+    rev_cycles: usize,
+    cutting_cycles: u64,
+    removed_while_cutting_mm3: f64,
+    last_removed_mm3: f64,
+    force_max_n: f64,
+}
+
+impl CutEvaluator {
+    /// An evaluator for a run of `cycles` cycles with the spindle at `spindle_rpm`.
+    pub fn new(cycles: usize, spindle_rpm: f64) -> Self {
+        let rev_cycles = if spindle_rpm > 0.0 {
+            ((60_000.0 / spindle_rpm).round() as usize).clamp(1, HISTORY)
+        } else {
+            1
+        };
+        CutEvaluator {
+            deviations_pct: Vec::with_capacity(cycles),
+            force_ring: [0.0; HISTORY],
+            tip_ring: [[0.0; 2]; HISTORY],
+            speed_ring: [0.0; HISTORY],
+            setpoint_ring: [0.0; HISTORY],
+            n: 0,
+            rev_cycles,
+            cutting_cycles: 0,
+            removed_while_cutting_mm3: 0.0,
+            last_removed_mm3: 0.0,
+            force_max_n: 0.0,
+        }
+    }
+
+    /// One cycle (1 ms).
+    pub fn push(&mut self, s: &CutSample) {
+        let i = self.n % HISTORY;
+        self.force_ring[i] = s.report.mean_force_n[2];
+        self.tip_ring[i] = [s.tip_mm[0], s.tip_mm[1]];
+        self.setpoint_ring[i] = s.setpoint_n;
+        let f = s.report.mean_force_n;
+        self.force_max_n = self
+            .force_max_n
+            .max((f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt());
+        // Feed speed over the last 20 ms.
+        let n = self.n;
+        let back = |k: usize| (n + HISTORY - k) % HISTORY;
+        let speed = if self.n >= 20 {
+            let a = self.tip_ring[back(20)];
+            let b = self.tip_ring[i];
+            ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt() / 0.020
+        } else {
+            0.0
+        };
+        self.speed_ring[i] = speed;
+        let removed = s.report.removed_mm3 - self.last_removed_mm3;
+        self.last_removed_mm3 = s.report.removed_mm3;
+        let cutting = removed > 0.0;
+        if cutting {
+            self.cutting_cycles += 1;
+            self.removed_while_cutting_mm3 += removed;
+        }
+        self.n += 1;
+        if self.n < HISTORY || !(cutting && s.in_contact && !s.fixture_active) {
+            return;
+        }
+        let old = self.speed_ring[back(HISTORY - 1)];
+        let sp_old = self.setpoint_ring[back(HISTORY - 1)];
+        let steady = speed >= FEED_MIN_MM_PER_S
+            && (speed - old).abs() <= 0.2 * speed
+            && s.setpoint_n > 0.0
+            && (s.setpoint_n - sp_old).abs() <= 0.02 * s.setpoint_n;
+        if steady && self.deviations_pct.len() < self.deviations_pct.capacity() {
+            let mut mean = 0.0;
+            for k in 0..self.rev_cycles {
+                mean += self.force_ring[back(k)];
+            }
+            mean /= self.rev_cycles as f64;
+            self.deviations_pct
+                .push(100.0 * (mean - s.setpoint_n).abs() / s.setpoint_n);
+        }
+    }
+
+    /// The cutting fields from the evidence, the stock, the tool, the target and the
+    /// fixture floor.
+    pub fn finish(
+        mut self,
+        stock: &Stock,
+        tool: &Tool,
+        report: &CutReport,
+        target: Option<&CutTarget>,
+        floor_z_mm: Option<f64>,
+        fixture_limited_cycles: u64,
+    ) -> CutSummary {
+        let top = stock.top_mm();
+        let (nx, ny) = stock.dims();
+        let mut errors = Vec::new();
+        let mut lowest = top;
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let h = stock.height_at(ix, iy);
+                lowest = lowest.min(h);
+                if let Some(t) = target {
+                    let c = stock.cell_centre_mm(ix, iy);
+                    if t.judged(c[0], c[1], tool) {
+                        errors.push((h - t.height_mm(c[0], c[1], top, tool)).abs());
+                    }
+                }
+            }
+        }
+        let floor = floor_z_mm.or(target.map(|t| top - t.depth_mm));
+        CutSummary {
+            removed_volume_mm3: stock.removed_mm3(),
+            surface_error_p99_mm: p99(&mut errors),
+            gouge_max_mm: floor.map_or(0.0, |f| (f - lowest).max(0.0)),
+            cutting_force_dev_p99_pct: p99(&mut self.deviations_pct),
+            removal_rate_mm3_per_s: if self.cutting_cycles > 0 {
+                self.removed_while_cutting_mm3 / (self.cutting_cycles as f64 * 1e-3)
+            } else {
+                0.0
+            },
+            steady_feed_cycles: self.deviations_pct.len() as u64,
+            spindle_stalls: report.stalls,
+            fixture_limited_cycles,
+            cutting_force_max_n: self.force_max_n,
+        }
+    }
+}
+
+/// The 99th percentile (nearest rank); NaN when empty.
+fn p99(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let k = ((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+    v[k]
+}
+
+/// Writes the part into `dir`: `height.png`, `part.stl` and, with a target,
+/// `deviation.png` (±0.5 mm full scale).
+pub fn write_outputs(
+    dir: &Path,
+    stock: &Stock,
+    tool: &Tool,
+    target: Option<&CutTarget>,
+) -> Result<(), ExportError> {
+    std::fs::create_dir_all(dir).map_err(|e| ExportError {
+        path: dir.display().to_string(),
+        message: e.to_string(),
+    })?;
+    write_height_png(&dir.join("height.png"), stock)?;
+    write_stl(&dir.join("part.stl"), stock)?;
+    if let Some(t) = target {
+        let top = stock.top_mm();
+        write_deviation_png(&dir.join("deviation.png"), stock, 0.5, |x, y| {
+            t.height_mm(x, y, top, tool)
+        })?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The target is the ball's envelope over the pocket: the floor inside, the fillet of
+    /// the tool's radius at the edge, the top beyond.
+    #[test]
+    fn pocket_target_is_the_tools_envelope() {
+        let t = CutTarget {
+            kind: TargetKind::Pocket,
+            centre_mm: [0.0, 0.0],
+            size_mm: [20.0, 10.0],
+            depth_mm: 2.0,
+            margin_mm: 3.0,
+        };
+        let tool = Tool::default(); // ball, 3 mm
+        assert_eq!(t.height_mm(0.0, 0.0, 0.0, &tool), -2.0);
+        assert_eq!(t.height_mm(9.9, 4.9, 0.0, &tool), -2.0);
+        let h = t.height_mm(11.0, 0.0, 0.0, &tool);
+        assert!((h - (-2.0 + 3.0 - 8f64.sqrt())).abs() < 1e-12, "{h}");
+        assert_eq!(t.height_mm(13.5, 0.0, 0.0, &tool), 0.0);
+        assert!(t.judged(15.9, 0.0, &tool) && !t.judged(16.1, 0.0, &tool));
+        let mut v = vec![3.0, 1.0, 2.0];
+        assert_eq!(p99(&mut v), 3.0);
+        assert!(p99(&mut []).is_nan());
+    }
+}

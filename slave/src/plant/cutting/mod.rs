@@ -1,0 +1,481 @@
+//! Cutting: a workpiece that is really cut.
+//!
+//! * [`stock`]: the block as a height field, lowered where the tool's swept volume goes below
+//!   it ([`Stock::sweep`], once per 1 ms update, along the tool tip's path since the last);
+//! * [`tool`]: ball-end and flat end mills;
+//! * [`mechanics`]: the mechanistic cutting force on the tool's envelope elements that touch
+//!   the stock, rippling as the teeth pass.
+//!
+//! [`CutState`] ties them to the simulated arm: every millisecond it sweeps the stock along
+//! the tip's path, measures the removal rate and the spindle's torque (a cut that needs
+//! more than the spindle has stalls it), and gathers the engagement the next millisecond's
+//! servo periods cut with. With the spindle turning, the stock resists the tool only through
+//! the cutting force (the tool goes where the chips let it); stopped or stalled, the tool
+//! rubs on the stock with the surface's contact stiffness, damping and friction.
+//! Every model and its sources: `docs/cutting.md`.
+
+pub mod export;
+mod kernel;
+mod mechanics;
+mod stock;
+mod tool;
+
+pub use mechanics::{CuttingCoefficients, Engagement};
+pub use stock::Stock;
+pub use tool::{Tool, ToolKind};
+
+use h4_shared::config::{ConfigError, Section, check_range};
+use serde::{Deserialize, Serialize};
+
+use super::MaterialPreset;
+
+/// A stalled spindle restarts once the tool's lower surface is this far clear of the stock,
+/// mm (a drive that has tripped is restarted with the tool retracted, not in the cut).
+const RESTART_CLEARANCE_MM: f64 = 0.5;
+
+/// The workpiece and the tool (`cutting.*` in a slave world or a session file).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CuttingConfig {
+    /// The centre of the block's top face, workpiece frame, mm.
+    pub stock_centre_top_mm: [f64; 3],
+    /// The block's size along x and y, mm (10 to 1000).
+    pub stock_size_mm: [f64; 2],
+    /// The block's thickness, mm.
+    pub stock_thickness_mm: f64,
+    /// Height-field cell edge, mm (0.05 to 2).
+    pub cell_mm: f64,
+    /// The work material's cutting coefficients (the contact stiffness, damping and friction
+    /// of rubbing are the surface's).
+    pub material: MaterialPreset,
+    /// Overrides the material's cutting coefficients.
+    pub coefficients: Option<CuttingCoefficients>,
+    /// The end mill.
+    pub tool: Tool,
+}
+
+impl Default for CuttingConfig {
+    fn default() -> Self {
+        CuttingConfig {
+            stock_centre_top_mm: [0.0, 0.0, -250.0],
+            stock_size_mm: [150.0, 150.0],
+            stock_thickness_mm: 30.0,
+            cell_mm: 0.25,
+            material: MaterialPreset::Resin,
+            coefficients: None,
+            tool: Tool::default(),
+        }
+    }
+}
+
+impl Section for CuttingConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |n: &str| format!("{prefix}{n}");
+        for (i, v) in self.stock_centre_top_mm.iter().enumerate() {
+            check_range(
+                &f(&format!("stock_centre_top_mm[{i}]")),
+                *v,
+                -1e4,
+                1e4,
+                "mm",
+            )?;
+        }
+        for (i, v) in self.stock_size_mm.iter().enumerate() {
+            check_range(&f(&format!("stock_size_mm[{i}]")), *v, 10.0, 1000.0, "mm")?;
+        }
+        check_range(
+            &f("stock_thickness_mm"),
+            self.stock_thickness_mm,
+            1.0,
+            500.0,
+            "mm",
+        )?;
+        check_range(&f("cell_mm"), self.cell_mm, 0.05, 2.0, "mm")?;
+        let cells = (self.stock_size_mm[0] / self.cell_mm) * (self.stock_size_mm[1] / self.cell_mm);
+        check_range(
+            &f("cell_mm"),
+            cells,
+            1.0,
+            16.0 * 1024.0 * 1024.0,
+            "cells in the grid",
+        )
+        .map_err(|_| ConfigError::OutOfRange {
+            field: f("cell_mm"),
+            value: self.cell_mm.to_string(),
+            allowed: "a grid of at most 16 M cells".to_string(),
+        })?;
+        if let Some(k) = self.coefficients {
+            for (n, v) in [
+                ("coefficients.k_tc_n_per_mm2", k.k_tc_n_per_mm2),
+                ("coefficients.k_rc_n_per_mm2", k.k_rc_n_per_mm2),
+                ("coefficients.k_ac_n_per_mm2", k.k_ac_n_per_mm2),
+            ] {
+                check_range(&f(n), v, 0.0, 1e5, "N/mm²")?;
+            }
+        }
+        self.tool.validate_at(&f("tool."))
+    }
+}
+
+/// What the cut did, for evaluation and recording.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct CutReport {
+    /// Total volume removed, mm³.
+    pub removed_mm3: f64,
+    /// Removal rate over the last update, mm³/s.
+    pub removal_rate_mm3_per_s: f64,
+    /// The spindle's torque over the last update, N·mm.
+    pub spindle_torque_n_mm: f64,
+    /// The spindle has stalled (the tool rubs until it is pulled clear).
+    pub stalled: bool,
+    /// Updates in which the spindle stalled.
+    pub stalls: u64,
+    /// The contact force on the tool (cutting or rubbing) averaged over the last update's
+    /// servo periods, workpiece frame, N (the tooth-passing ripple is in the instantaneous
+    /// force, not in this mean over 1 ms).
+    pub mean_force_n: [f64; 3],
+}
+
+/// The cut in progress: the stock, the tool, and the engagement the servo periods use.
+#[derive(Clone, Debug)]
+pub struct CutState {
+    stock: Stock,
+    tool: Tool,
+    coeff: CuttingCoefficients,
+    engagement: Engagement,
+    /// The tip at the last update, workpiece frame, mm.
+    last_tip_mm: [f64; 3],
+    /// The first tooth's azimuth at the last update, revolutions.
+    phase_rev: f64,
+    /// Time since the last update, s (advanced by the servo periods).
+    since_update_s: f64,
+    /// The tip at the last update (the reference of the rubbing penetrations), mm.
+    rub_tip0_mm: [f64; 3],
+    /// The contact force summed over the servo periods since the last update, N·s.
+    force_impulse_n_s: [f64; 3],
+    report: CutReport,
+}
+
+impl CutState {
+    /// The cut from its configuration, the tip starting at `tip_mm`; `None` if the grid
+    /// cannot be built.
+    pub fn new(cfg: &CuttingConfig, tip_mm: [f64; 3]) -> Option<Self> {
+        let stock = Stock::new(
+            cfg.stock_centre_top_mm,
+            cfg.stock_size_mm,
+            cfg.stock_thickness_mm,
+            cfg.cell_mm,
+        )?;
+        Some(CutState {
+            stock,
+            tool: cfg.tool,
+            coeff: cfg
+                .coefficients
+                .unwrap_or(CuttingCoefficients::of(cfg.material)),
+            engagement: Engagement::default(),
+            last_tip_mm: tip_mm,
+            phase_rev: 0.0,
+            since_update_s: 0.0,
+            rub_tip0_mm: tip_mm,
+            force_impulse_n_s: [0.0; 3],
+            report: CutReport::default(),
+        })
+    }
+
+    /// The stock.
+    pub fn stock(&self) -> &Stock {
+        &self.stock
+    }
+
+    /// The tool.
+    pub fn tool(&self) -> &Tool {
+        &self.tool
+    }
+
+    /// What the cut did so far.
+    pub fn report(&self) -> CutReport {
+        self.report
+    }
+
+    /// The spindle's speed now, rev/s (0 stopped or stalled).
+    fn rev_per_s(&self) -> f64 {
+        if self.report.stalled {
+            0.0
+        } else {
+            self.tool.spindle_rev_per_s()
+        }
+    }
+
+    /// The 1 ms update: sweeps the stock along the tip's path since the last update (the
+    /// spindle turning), measures the removal rate and the spindle's torque, stalls the
+    /// spindle if the cut needs more than it has (it restarts once the tool is
+    /// [`RESTART_CLEARANCE_MM`] clear of the stock), and gathers the engagement at `tip_mm`. Allocates nothing.
+    pub fn update(&mut self, tip_mm: [f64; 3]) {
+        let dt = self.since_update_s;
+        let n = self.rev_per_s();
+        let removed = if n > 0.0 {
+            self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm)
+        } else {
+            0.0
+        };
+        self.phase_rev = (self.phase_rev - n * dt).rem_euclid(1.0);
+        self.since_update_s = 0.0;
+        if dt > 0.0 {
+            for (m, i) in self
+                .report
+                .mean_force_n
+                .iter_mut()
+                .zip(self.force_impulse_n_s)
+            {
+                *m = i / dt;
+            }
+            self.force_impulse_n_s = [0.0; 3];
+            let rate = removed / dt;
+            self.report.removal_rate_mm3_per_s = rate;
+            self.report.spindle_torque_n_mm = if n > 0.0 {
+                self.coeff.k_tc_n_per_mm2 * rate / (2.0 * std::f64::consts::PI * n)
+            } else {
+                0.0
+            };
+        }
+        self.report.removed_mm3 = self.stock.removed_mm3();
+        if self.report.spindle_torque_n_mm > self.tool.max_torque_n_mm && !self.report.stalled {
+            self.report.stalled = true;
+            self.report.stalls += 1;
+        }
+        self.last_tip_mm = tip_mm;
+        self.rub_tip0_mm = tip_mm;
+        self.engagement.gather(
+            &self.stock,
+            &self.tool,
+            &self.coeff,
+            tip_mm,
+            self.rev_per_s(),
+        );
+        if self.report.stalled
+            && self.engagement.penetration_mm <= -RESTART_CLEARANCE_MM
+            && self.engagement.lateral_mm <= 0.0
+        {
+            self.report.stalled = false;
+            self.report.spindle_torque_n_mm = 0.0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::arm::ArmDriver;
+    use crate::plant::{Material, PlantConfig, SensorConfig, SimArm, Surface, SurfaceShape};
+
+    fn quiet_sensor() -> SensorConfig {
+        SensorConfig {
+            noise_std_n: 0.0,
+            noise_std_n_mm: 0.0,
+            quantization_n: 0.0,
+            quantization_n_mm: 0.0,
+            bias_n: [0.0; 3],
+            bias_n_mm: 0.0,
+            bias_drift_n_per_sqrt_s: 0.0,
+            bias_drift_n_mm_per_sqrt_s: 0.0,
+            ..SensorConfig::default()
+        }
+    }
+    use h4_shared::kinematics::{H4Params, Pose};
+
+    /// The prototype at (0, 0, −248) above a resin block whose top is at −250, a ball end
+    /// of 3 mm; the spindle at `rpm`, the material `material`.
+    fn cutting_arm(material: MaterialPreset, rpm: f64, max_torque_n_mm: f64) -> SimArm {
+        let mat: Material = material.material();
+        let surface = Surface {
+            shape: SurfaceShape::Plane {
+                point_mm: [0.0, 0.0, -250.0],
+                normal: [0.0, 0.0, 1.0],
+            },
+            material: mat,
+        };
+        let cfg = CuttingConfig {
+            material,
+            tool: Tool {
+                spindle_rpm: rpm,
+                max_torque_n_mm,
+                ..Tool::default()
+            },
+            ..CuttingConfig::default()
+        };
+        SimArm::new(
+            H4Params::PROTOTYPE,
+            [100.0; 4],
+            PlantConfig::default(),
+            quiet_sensor(),
+            surface,
+            Pose::new(0.0, 0.0, -248.0, 0.0),
+            1,
+        )
+        .unwrap()
+        .with_cutting(&cfg)
+        .unwrap()
+    }
+
+    fn go(arm: &mut SimArm, pose: [f64; 4], ms: u32) -> f64 {
+        let l = H4Params::PROTOTYPE.ik_checked(&Pose::from(pose)).unwrap();
+        let mut peak: f64 = 0.0;
+        for _ in 0..ms {
+            arm.command(&[l[0], l[1], l[2], l[3]]);
+            arm.advance(1_000_000);
+            peak = peak.max(arm.true_contact_wrench().norm());
+        }
+        peak
+    }
+
+    /// A turning ball end commanded 1 mm into the block goes there: it cuts its way down,
+    /// the force dies away once it stops (a cut holds no force at rest), and the volume
+    /// removed is the ball's cap at the depth it reached, within the grid's resolution.
+    #[test]
+    fn a_turning_tool_cuts_down_to_its_command() {
+        let mut arm = cutting_arm(MaterialPreset::Resin, 12_000.0, 1e4);
+        // Down at 5 mm/s, then hold.
+        let mut peak: f64 = 0.0;
+        let mut lowest = f64::INFINITY;
+        for k in 0..1600u32 {
+            let z = (-248.0 - 5e-3 * f64::from(k)).max(-251.0);
+            peak = peak.max(go(&mut arm, [0.0, 0.0, z, 0.0], 1));
+            lowest = lowest.min(arm.true_pose()[2]);
+        }
+        assert!(lowest > -251.02, "overshot to {lowest}");
+        let depth = -250.0 - arm.true_pose()[2];
+        assert!((depth - 1.0).abs() < 0.01, "reached {depth} mm deep");
+        assert!(peak > 1.0, "the cut never resisted: {peak} N");
+        assert!(arm.true_contact_wrench().norm() < 0.05);
+        let r = 3.0;
+        let cap = std::f64::consts::PI * depth * depth * (3.0 * r - depth) / 3.0;
+        let removed = arm.cut().unwrap().report().removed_mm3;
+        // The cap's rim, one cell wide, is the grid's uncertainty.
+        let rim = 2.0 * std::f64::consts::PI * (2.0 * r * depth).sqrt() * 0.25 * depth * 0.5;
+        assert!(
+            (removed - cap).abs() < rim,
+            "removed {removed} mm³, cap {cap}"
+        );
+    }
+
+    /// With the spindle stopped the tool only rubs: pressed 0.5 mm in, it holds the force
+    /// the surface's contact stiffness in series with the arm gives, and removes nothing.
+    #[test]
+    fn a_stopped_spindle_rubs_and_removes_nothing() {
+        let mut arm = cutting_arm(MaterialPreset::Resin, 0.0, 1e4);
+        go(&mut arm, [0.0, 0.0, -250.5, 0.0], 1500);
+        let k = h4_shared::ActuatorStiffness::uniform(100.0).unwrap();
+        let lam = H4Params::PROTOTYPE
+            .compliance(&arm.true_pose(), &k)
+            .unwrap();
+        let expected = 0.5 / (lam[(2, 2)] + 1.0 / 200.0);
+        let fz = arm.true_contact_wrench()[2];
+        assert!(
+            (fz - expected).abs() < 0.03 * expected,
+            "{fz} vs {expected}"
+        );
+        assert_eq!(arm.cut().unwrap().report().removed_mm3, 0.0);
+        assert!((arm.read().wrench[2] - fz).abs() < 0.1);
+    }
+
+    /// Feeding sideways through the block: the force opposes the feed (and rises with the
+    /// material's coefficients), the removal rate is the cut's cross-section × feed, and
+    /// the force ripples at the tooth-passing frequency in the true force.
+    #[test]
+    fn feeding_meets_the_cutting_resistance() {
+        let mut feed_force = [0.0; 2];
+        for (i, m) in [MaterialPreset::Resin, MaterialPreset::Aluminium]
+            .iter()
+            .enumerate()
+        {
+            let mut arm = cutting_arm(*m, 12_000.0, 1e5);
+            go(&mut arm, [0.0, 0.0, -251.0, 0.0], 800);
+            let params = H4Params::PROTOTYPE;
+            let speed = 10.0; // mm/s
+            let mut sum_fx = 0.0;
+            let mut samples = 0;
+            let removed0 = arm.cut().unwrap().report().removed_mm3;
+            let mut lo = f64::INFINITY;
+            let mut hi = f64::NEG_INFINITY;
+            for k in 0..2000u32 {
+                let x = speed * f64::from(k) * 1e-3;
+                let l = params.ik_checked(&Pose::new(x, 0.0, -251.0, 0.0)).unwrap();
+                arm.command(&[l[0], l[1], l[2], l[3]]);
+                for _ in 0..20 {
+                    arm.advance(50_000);
+                    if k >= 1000 {
+                        let fx = arm.true_contact_wrench()[0];
+                        sum_fx += fx;
+                        samples += 1;
+                        lo = lo.min(fx);
+                        hi = hi.max(fx);
+                    }
+                }
+            }
+            let mean_fx = sum_fx / f64::from(samples);
+            assert!(
+                mean_fx < 0.0,
+                "{m:?}: the feed force {mean_fx} N does not oppose the feed"
+            );
+            assert!(
+                hi - lo > 0.3 * mean_fx.abs(),
+                "{m:?}: no ripple ({lo}..{hi} N)"
+            );
+            feed_force[i] = mean_fx;
+            // Ball at depth a = 1: the cut's cross-section ≈ ∫ over the chord.
+            let removed = arm.cut().unwrap().report().removed_mm3 - removed0;
+            let (r, a) = (3.0_f64, 1.0_f64);
+            let half = ((r - a) / r).acos();
+            let section = r * r * (half - half.sin() * half.cos());
+            let expected = section * speed * 2.0;
+            assert!(
+                (removed - expected).abs() < 0.1 * expected,
+                "{m:?}: removed {removed} mm³ vs {expected}"
+            );
+        }
+        let ratio = feed_force[1] / feed_force[0];
+        let k = |m| CuttingCoefficients::of(m).k_rc_n_per_mm2;
+        let expected = k(MaterialPreset::Aluminium) / k(MaterialPreset::Resin);
+        assert!(
+            (ratio - expected).abs() < 0.25 * expected,
+            "aluminium/resin feed force {ratio}, coefficients {expected}"
+        );
+    }
+
+    /// Pushed into steel faster than the spindle's torque allows, the spindle stalls: the
+    /// cut stops (nothing more is removed), the tool rubs on the stock with its contact
+    /// stiffness; pulled clear, the spindle restarts.
+    #[test]
+    fn a_spindle_pushed_beyond_its_torque_stalls_and_restarts_clear() {
+        let mut arm = cutting_arm(MaterialPreset::Steel, 12_000.0, 5.0);
+        go(&mut arm, [0.0, 0.0, -253.0, 0.0], 300);
+        let rep = arm.cut().unwrap().report();
+        assert!(rep.stalled && rep.stalls >= 1, "{rep:?}");
+        let removed = rep.removed_mm3;
+        go(&mut arm, [0.0, 0.0, -253.0, 0.0], 300);
+        assert_eq!(arm.cut().unwrap().report().removed_mm3, removed);
+        let fz = arm.true_contact_wrench()[2];
+        assert!(
+            fz > 50.0,
+            "a stalled tool presses with the stiffness: {fz} N"
+        );
+        go(&mut arm, [0.0, 0.0, -245.0, 0.0], 300);
+        assert!(!arm.cut().unwrap().report().stalled);
+    }
+
+    #[test]
+    fn config_names_its_fields() {
+        assert!(CuttingConfig::default().validate_at("cutting.").is_ok());
+        let mut c = CuttingConfig::default();
+        c.tool.radius_mm = 0.0;
+        let e = c.validate_at("cutting.").unwrap_err().to_string();
+        assert!(e.contains("cutting.tool.radius_mm"), "{e}");
+        let c = CuttingConfig {
+            cell_mm: 0.05,
+            stock_size_mm: [1000.0, 1000.0],
+            ..CuttingConfig::default()
+        };
+        let e = c.validate_at("cutting.").unwrap_err().to_string();
+        assert!(e.contains("cutting.cell_mm") && e.contains("16 M"), "{e}");
+    }
+}

@@ -1,0 +1,69 @@
+//! The corridor fixture end to end: the operator strays from the planned path (a straight
+//! line along x) by 4 mm in y; with a 0.5 mm corridor the slave's tool point, and so the cut,
+//! stays within it, and without the corridor the cut follows the operator off the path.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::PathBuf;
+
+use h4_master::operator::IntentSegment;
+use h4_master::session::{self, Session};
+
+/// The largest |y| of the tool's true position while it cuts (x between −8 and 8 mm), and the
+/// largest |y| of a cell cut deeper than 0.5 mm.
+fn stray(corridor: bool) -> (f64, f64) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
+    let mut cfg = session::load(&path, &["duration_s=8".to_string()]).unwrap();
+    // The operator: down at (−10, 0), then along x drifting to y = 4 mm.
+    let seg = |at_s: f64, target_mm: [f64; 3], move_s: f64, push_z: f64| IntentSegment {
+        at_s,
+        target_mm,
+        move_s,
+        push_n: [0.0, 0.0, push_z],
+        push_ramp_s: 0.5,
+        clutch: false,
+        theta_rad: 0.0,
+    };
+    cfg.operator.intent = vec![
+        seg(0.0, [-10.0, 0.0, 0.0], 1.0, 0.0),
+        seg(1.2, [-10.0, 0.0, 0.0], 0.0, -5.0),
+        seg(2.5, [10.0, 4.0, 0.0], 4.0, -5.0),
+    ];
+    cfg.fixtures.corridor = corridor.then(|| h4_slave::controller::fixtures::CorridorConfig {
+        path_mm: vec![[-12.0, 0.0], [12.0, 0.0]],
+        half_width_mm: 0.5,
+    });
+    let mut s = Session::new(&cfg).unwrap();
+    let mut worst: f64 = 0.0;
+    for _ in 0..8000 {
+        s.cycle().unwrap();
+        let p = s.slave.arm().true_pose();
+        if p[2] < -250.5 && p[0].abs() < 8.0 {
+            worst = worst.max(p[1].abs());
+        }
+    }
+    let stock = s.slave.arm().cut().unwrap().stock();
+    let (nx, ny) = stock.dims();
+    let mut cut_y: f64 = 0.0;
+    for iy in 0..ny {
+        for ix in 0..nx {
+            if stock.height_at(ix, iy) < stock.top_mm() - 0.5 {
+                cut_y = cut_y.max(stock.cell_centre_mm(ix, iy)[1].abs());
+            }
+        }
+    }
+    (worst, cut_y)
+}
+
+#[test]
+fn the_corridor_keeps_the_cut_on_the_planned_path() {
+    let (with, cut_with) = stray(true);
+    let (without, cut_without) = stray(false);
+    assert!(without > 2.5, "the operator did not stray: {without} mm");
+    assert!(with <= 0.55, "with the corridor the tool strayed {with} mm");
+    // The cut is the tool's width (3 mm radius) around where the tool went.
+    assert!(
+        cut_with <= 3.0 + 0.55 + 0.25,
+        "cut {cut_with} mm off the path"
+    );
+    assert!(cut_without > cut_with + 2.0, "{cut_without} vs {cut_with}");
+}
