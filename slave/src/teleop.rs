@@ -714,11 +714,21 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     ) -> PortCommand {
         let c = self.p.contact;
         let v_d = intent.desired_velocity;
-        // The port drives the virtual spring: its force (not the measured one, which is
-        // zero while the force loop approaches and whatever its transient is in contact) is
-        // what the port's bound, its dissipation and its booking use, so a virtual position
-        // moved into the surface has been paid for before the force loop reaches it.
+        // The port drives the virtual spring. Out of contact (the force loop approaching, a
+        // bounce) the measured force is about zero: the port bounds and books the motion
+        // against the spring's force, so a virtual position moved into the surface is paid
+        // for before the force loop reaches it. In contact the measured force is what the
+        // master renders, and the motion is booked against it (at the same instants), as
+        // outside the hand-over; the bound takes the larger of the two.
         let n = h.normal;
+        let measured = self.last_out.map_or([0.0; 3], |o| {
+            [
+                o.wrench_measured[0],
+                o.wrench_measured[1],
+                o.wrench_measured[2],
+            ]
+        });
+        let touching = norm3(&measured) >= self.ctrl.params().contact_threshold_n;
         let spring = |depth: f64| {
             let f = handover_setpoint_n(&c, depth);
             [f * n[0], f * n[1], f * n[2]]
@@ -729,7 +739,12 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         // the deepest point one step at the speed limit reaches, and never less than the
         // hold force (inside the release band the spring's force ramps up from zero: a
         // bound of zero there would let each step in go unpaid).
-        let f_bound = spring(depth.max(0.0) + max_v * dt_s);
+        let f_spring = spring(depth.max(0.0) + max_v * dt_s);
+        let f_bound = if norm3(&measured) > norm3(&f_spring) {
+            measured
+        } else {
+            f_spring
+        };
         let ps = self.port.step_position(
             h.virtual_mm,
             self.desired,
@@ -766,7 +781,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             step: ps,
             control,
             drift_mm: self.port.drift_mm,
-            virtual_move_mm: Some((moved, f_start, f_end)),
+            virtual_move_mm: Some((moved, (!touching).then_some((f_start, f_end)))),
             command: SlaveCommand {
                 mode: Mode::ForceGuided,
                 pose: [
@@ -814,9 +829,13 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         }
         if intent.mode == Mode::Position {
             match port.virtual_move_mm {
-                // In the contact hand-over the link's port is the virtual commanded position
-                // and its force the virtual spring's: both known now.
-                Some((moved, f_start, f_end)) => self.port.commit_work(f_start, f_end, moved),
+                // In the contact hand-over the link's port is the virtual commanded position;
+                // out of contact its force is the virtual spring's, known now.
+                Some((moved, Some((f_start, f_end)))) => {
+                    self.port.commit_work(f_start, f_end, moved)
+                }
+                // In contact: the measured forces at both ends of the move.
+                Some((moved, None)) => self.pending_work = Some((f_now, moved)),
                 None => {
                     let moved = self.last_out.map_or([0.0; 3], |o| {
                         [
@@ -887,6 +906,9 @@ struct Intent {
     desired_velocity: [f64; 3],
 }
 
+/// The virtual spring's force before and after a move of the hand-over's virtual position, N.
+type SpringForces = ([f64; 3], [f64; 3]);
+
 /// The passivity port's step and the controller command it gives.
 struct PortCommand {
     /// The port's step.
@@ -895,9 +917,10 @@ struct PortCommand {
     control: bool,
     /// The port's drift (commanded − desired), mm.
     drift_mm: [f64; 3],
-    /// In the contact hand-over: the virtual commanded position's move this cycle, mm, and
-    /// the virtual spring's force before and after it, N.
-    virtual_move_mm: Option<([f64; 3], [f64; 3], [f64; 3])>,
+    /// In the contact hand-over: the virtual commanded position's move this cycle, mm, and,
+    /// out of contact, the virtual spring's force before and after it, N (booked against
+    /// the move; in contact the measured forces are).
+    virtual_move_mm: Option<([f64; 3], Option<SpringForces>)>,
     /// The controller's command.
     command: SlaveCommand,
 }
