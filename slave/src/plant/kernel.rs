@@ -274,39 +274,8 @@ impl SimArm {
         n: u32,
         penetration: F,
     ) {
-        let dt = self.substep_s;
+        let mut st = Substep::new(self);
         let cfg = self.cfg;
-        let mut j = [[0.0f64; 4]; 4];
-        for (r, row) in j.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v = self.jac[(r, c)];
-            }
-        }
-        let servo = CarriageServo::new(&cfg, dt);
-        let damp = cfg.platform_damping_n_s_per_mm;
-        let g = cfg.gravity_mm_per_s2;
-        let k = self.k;
-        let cs = self.c_struct;
-        let inv_mass = [
-            self.inv_mass[0],
-            self.inv_mass[1],
-            self.inv_mass[2],
-            self.inv_mass[3],
-        ];
-        let cmd = self.command;
-        let mut q = self.q;
-        let mut qd = self.qd;
-        let mut integ = self.integral;
-        let mut pose = [self.pose[0], self.pose[1], self.pose[2], self.pose[3]];
-        let mut vel = [self.vel[0], self.vel[1], self.vel[2], self.vel[3]];
-        let mut l = [0.0f64; 4];
-        for (r, lr) in l.iter_mut().enumerate() {
-            let mut acc = self.l0[r];
-            for c in 0..4 {
-                acc += j[r][c] * (pose[c] - self.pose0[c]);
-            }
-            *lr = acc;
-        }
         let surface = self.surface;
         let k_env = surface.material.stiffness_n_per_mm;
         let b_env = self.contact_damping;
@@ -314,42 +283,14 @@ impl SimArm {
         let reg = cfg.friction_velocity_mm_per_s;
         let mut fc = [0.0f64; 3];
         let mut pen = self.penetration_mm;
-        let inv_m_tool = inv_mass[0];
-        let m_tool_over_dt = 1.0 / (inv_m_tool * dt);
         // Products of constants taken out of the loop.
-        let dt_over_m_tool = inv_m_tool * dt;
-        let dt_over_inertia = inv_mass[3] * dt;
-        // Leg rates the platform imposes (J held over the block).
-        let mut ld = [0.0f64; 4];
-        for r in 0..4 {
-            ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
-        }
+        let dt_over_m_tool = st.dt_over_m_tool;
+        let m_tool_over_dt = 1.0 / dt_over_m_tool;
         for _ in 0..n {
-            let mut f_act = [0.0f64; 4];
-            for i in 0..4 {
-                // Structural spring, positive when the platform pulls the carriage forward.
-                let f = k[i] * (l[i] - q[i]) + cs[i] * (ld[i] - qd[i]);
-                f_act[i] = f;
-                servo.step(cmd[i], &mut q[i], &mut qd[i], &mut integ[i], f);
-            }
-            // Platform: the legs act through Jᵀ (explicit), plus joint/air damping.
-            let mut gen_f = [0.0f64; 4];
-            for (c, g) in gen_f.iter_mut().enumerate() {
-                *g = -(j[0][c] * f_act[0]
-                    + j[1][c] * f_act[1]
-                    + j[2][c] * f_act[2]
-                    + j[3][c] * f_act[3])
-                    - vel[c] * damp;
-            }
-            vel[3] += gen_f[3] * dt_over_inertia;
-            // Translational velocity before the contact forces.
-            let mut vs = [
-                vel[0] + gen_f[0] * dt_over_m_tool + g[0] * dt,
-                vel[1] + gen_f[1] * dt_over_m_tool + g[1] * dt,
-                vel[2] + gen_f[2] * dt_over_m_tool + g[2] * dt,
-            ];
+            let mut vs = st.structure();
+            let vel = st.vel;
             // Contact at the tool point.
-            let p = Vector3::new(pose[0], pose[1], pose[2]);
+            let p = Vector3::new(st.pose[0], st.pose[1], st.pose[2]);
             let (depth, nrm) = penetration(&p);
             pen = depth;
             fc = [0.0; 3];
@@ -387,22 +328,149 @@ impl SimArm {
                     fc[a] = nrm[a] * f_n - dv_t * m_tool_over_dt;
                 }
             }
-            vel[..3].copy_from_slice(&vs);
-            for c in 0..4 {
-                pose[c] += vel[c] * dt;
-            }
-            for r in 0..4 {
-                ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
-                l[r] += ld[r] * dt;
-            }
+            st.advance(vs);
         }
-        self.q = q;
-        self.qd = qd;
-        self.integral = integ;
-        self.pose = Pose::from(pose);
-        self.vel = Pose::from(vel);
+        st.store(self);
         self.penetration_mm = pen;
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
+    }
+}
+
+/// One block of servo periods with the Jacobian held, the part every contact model shares:
+/// the carriages' servos against the structure's springs, and the platform's motion. A
+/// kernel calls [`Substep::structure`], applies its contact to the velocity it returns, then
+/// [`Substep::advance`]; [`Substep::store`] writes the state back.
+pub(in crate::plant) struct Substep {
+    j: [[f64; 4]; 4],
+    servo: CarriageServo,
+    damp: f64,
+    g: [f64; 3],
+    k: [f64; 4],
+    cs: [f64; 4],
+    cmd: [f64; 4],
+    /// The servo period, s.
+    pub dt: f64,
+    /// The period over the tool's mass, s/kg.
+    pub dt_over_m_tool: f64,
+    dt_over_inertia: f64,
+    q: [f64; 4],
+    qd: [f64; 4],
+    integ: [f64; 4],
+    /// The platform's pose, mm and rad.
+    pub pose: [f64; 4],
+    /// The platform's velocity at the start of the period, mm/s and rad/s.
+    pub vel: [f64; 4],
+    l: [f64; 4],
+    ld: [f64; 4],
+}
+
+impl Substep {
+    /// The block's constants and the arm's state.
+    pub(in crate::plant) fn new(arm: &SimArm) -> Self {
+        let dt = arm.substep_s;
+        let cfg = arm.cfg;
+        let mut j = [[0.0f64; 4]; 4];
+        for (r, row) in j.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v = arm.jac[(r, c)];
+            }
+        }
+        let pose = [arm.pose[0], arm.pose[1], arm.pose[2], arm.pose[3]];
+        let vel = [arm.vel[0], arm.vel[1], arm.vel[2], arm.vel[3]];
+        let mut l = [0.0f64; 4];
+        for (r, lr) in l.iter_mut().enumerate() {
+            let mut acc = arm.l0[r];
+            for c in 0..4 {
+                acc += j[r][c] * (pose[c] - arm.pose0[c]);
+            }
+            *lr = acc;
+        }
+        // Leg rates the platform imposes (J held over the block).
+        let mut ld = [0.0f64; 4];
+        for r in 0..4 {
+            ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
+        }
+        Substep {
+            j,
+            servo: CarriageServo::new(&cfg, dt),
+            damp: cfg.platform_damping_n_s_per_mm,
+            g: cfg.gravity_mm_per_s2,
+            k: arm.k,
+            cs: arm.c_struct,
+            cmd: arm.command,
+            dt,
+            dt_over_m_tool: arm.inv_mass[0] * dt,
+            dt_over_inertia: arm.inv_mass[3] * dt,
+            q: arm.q,
+            qd: arm.qd,
+            integ: arm.integral,
+            pose,
+            vel,
+            l,
+            ld,
+        }
+    }
+
+    /// The carriages' servos against the structural springs, then the platform under the
+    /// legs' forces (through Jᵀ, explicit), its damping and gravity: advances the rotation
+    /// and returns the translational velocity before the contact forces, mm/s.
+    #[inline(always)]
+    pub(in crate::plant) fn structure(&mut self) -> [f64; 3] {
+        let (j, k, cs) = (&self.j, &self.k, &self.cs);
+        let mut f_act = [0.0f64; 4];
+        for i in 0..4 {
+            // Structural spring, positive when the platform pulls the carriage forward.
+            let f = k[i] * (self.l[i] - self.q[i]) + cs[i] * (self.ld[i] - self.qd[i]);
+            f_act[i] = f;
+            self.servo.step(
+                self.cmd[i],
+                &mut self.q[i],
+                &mut self.qd[i],
+                &mut self.integ[i],
+                f,
+            );
+        }
+        // Platform: the legs act through Jᵀ (explicit), plus joint/air damping.
+        let mut gen_f = [0.0f64; 4];
+        for (c, g) in gen_f.iter_mut().enumerate() {
+            *g = -(j[0][c] * f_act[0]
+                + j[1][c] * f_act[1]
+                + j[2][c] * f_act[2]
+                + j[3][c] * f_act[3])
+                - self.vel[c] * self.damp;
+        }
+        self.vel[3] += gen_f[3] * self.dt_over_inertia;
+        let (g, dt, dm) = (self.g, self.dt, self.dt_over_m_tool);
+        [
+            self.vel[0] + gen_f[0] * dm + g[0] * dt,
+            self.vel[1] + gen_f[1] * dm + g[1] * dt,
+            self.vel[2] + gen_f[2] * dm + g[2] * dt,
+        ]
+    }
+
+    /// Takes the translational velocity after the contact, moves the platform over the
+    /// period and updates the legs.
+    #[inline(always)]
+    pub(in crate::plant) fn advance(&mut self, vs: [f64; 3]) {
+        let (j, dt) = (&self.j, self.dt);
+        self.vel[..3].copy_from_slice(&vs);
+        let vel = self.vel;
+        for (p, v) in self.pose.iter_mut().zip(vel) {
+            *p += v * dt;
+        }
+        for ((ld, l), jr) in self.ld.iter_mut().zip(self.l.iter_mut()).zip(j) {
+            *ld = jr[0] * vel[0] + jr[1] * vel[1] + jr[2] * vel[2] + jr[3] * vel[3];
+            *l += *ld * dt;
+        }
+    }
+
+    /// Writes the carriages' and the platform's state back into the arm.
+    pub(in crate::plant) fn store(&self, arm: &mut SimArm) {
+        arm.q = self.q;
+        arm.qd = self.qd;
+        arm.integral = self.integ;
+        arm.pose = Pose::from(self.pose);
+        arm.vel = Pose::from(self.vel);
     }
 }
 

@@ -1,13 +1,12 @@
 //! The servo periods of an arm that cuts: the generic kernel's servos, structure and
 //! platform, with the contact replaced by the cut ([`CutState::contact`]).
 
-use h4_shared::kinematics::Pose;
 use nalgebra::Vector4;
 
 use super::CutState;
 use super::mechanics::solve_damped;
 use crate::plant::SimArm;
-use crate::plant::servo::CarriageServo;
+use crate::plant::kernel::Substep;
 
 /// The rubbing contact's constants (the surface's material).
 #[derive(Clone, Copy, Debug)]
@@ -104,81 +103,28 @@ impl SimArm {
         let Some(mut cut) = self.cut.take() else {
             return;
         };
-        let dt = self.substep_s;
+        let mut st = Substep::new(self);
+        let (dt, dt_over_m_tool) = (st.dt, st.dt_over_m_tool);
         let cfg = self.cfg;
-        let mut j = [[0.0f64; 4]; 4];
-        for (r, row) in j.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v = self.jac[(r, c)];
-            }
-        }
-        let servo = CarriageServo::new(&cfg, dt);
-        let damp = cfg.platform_damping_n_s_per_mm;
-        let g = cfg.gravity_mm_per_s2;
-        let (k, cs, cmd) = (self.k, self.c_struct, self.command);
-        let (mut q, mut qd, mut integ) = (self.q, self.qd, self.integral);
-        let mut pose = [self.pose[0], self.pose[1], self.pose[2], self.pose[3]];
-        let mut vel = [self.vel[0], self.vel[1], self.vel[2], self.vel[3]];
-        let mut l = [0.0f64; 4];
-        let mut ld = [0.0f64; 4];
-        for r in 0..4 {
-            l[r] = self.l0[r];
-            for c in 0..4 {
-                l[r] += j[r][c] * (pose[c] - self.pose0[c]);
-                ld[r] += j[r][c] * vel[c];
-            }
-        }
         let rub = Rubbing {
             k_n_per_mm: self.surface.material.stiffness_n_per_mm,
             b_n_s_per_mm: self.contact_damping,
             mu: self.surface.material.friction_coefficient,
             reg_mm_per_s: cfg.friction_velocity_mm_per_s,
         };
-        let dt_over_m_tool = self.inv_mass[0] * dt;
-        let dt_over_inertia = self.inv_mass[3] * dt;
         let mut fc = [0.0f64; 3];
         for _ in 0..n {
-            let mut f_act = [0.0f64; 4];
-            for i in 0..4 {
-                let f = k[i] * (l[i] - q[i]) + cs[i] * (ld[i] - qd[i]);
-                f_act[i] = f;
-                servo.step(cmd[i], &mut q[i], &mut qd[i], &mut integ[i], f);
-            }
-            let mut gen_f = [0.0f64; 4];
-            for (c, gf) in gen_f.iter_mut().enumerate() {
-                *gf = -(j[0][c] * f_act[0]
-                    + j[1][c] * f_act[1]
-                    + j[2][c] * f_act[2]
-                    + j[3][c] * f_act[3])
-                    - vel[c] * damp;
-            }
-            vel[3] += gen_f[3] * dt_over_inertia;
-            let mut vs = [
-                vel[0] + gen_f[0] * dt_over_m_tool + g[0] * dt,
-                vel[1] + gen_f[1] * dt_over_m_tool + g[1] * dt,
-                vel[2] + gen_f[2] * dt_over_m_tool + g[2] * dt,
-            ];
-            let before = [vel[0], vel[1], vel[2]];
-            let tip = [pose[0], pose[1], pose[2]];
+            let mut vs = st.structure();
+            let before = [st.vel[0], st.vel[1], st.vel[2]];
+            let tip = [st.pose[0], st.pose[1], st.pose[2]];
             fc = cut.contact(&mut vs, &before, &tip, dt, dt_over_m_tool, &rub);
             for (i, f) in cut.force_impulse_n_s.iter_mut().zip(fc) {
                 *i += f * dt;
             }
-            vel[..3].copy_from_slice(&vs);
-            for c in 0..4 {
-                pose[c] += vel[c] * dt;
-            }
-            for r in 0..4 {
-                ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
-                l[r] += ld[r] * dt;
-            }
+            st.advance(vs);
         }
-        self.q = q;
-        self.qd = qd;
-        self.integral = integ;
-        self.pose = Pose::from(pose);
-        self.vel = Pose::from(vel);
-        self.penetration_mm = cut.stock().top_mm() - pose[2];
+        st.store(self);
+        self.penetration_mm = cut.stock().top_mm() - st.pose[2];
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
         self.cut = Some(cut);
     }
