@@ -785,9 +785,14 @@ impl MasterCoupling {
         self.offset_mm = offset;
         self.velocity = vel;
         self.bound_damping(dev, dt_s);
-        let pc = self
-            .port
-            .step(link_force, handle_velocity, dt_s, p.passivity);
+        // Faded out there is nothing to render: the port only observes (its controller's
+        // damping, released over `damping_release_ms`, would otherwise push the handle).
+        let pc = self.port.step(
+            link_force,
+            handle_velocity,
+            dt_s,
+            p.passivity && self.fade > 0.0,
+        );
         let mut force = pc.force_n;
         self.port_force_n = pc.force_n;
         if p.mode == CouplingMode::PositionForce && !self.clutched {

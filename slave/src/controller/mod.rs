@@ -329,8 +329,10 @@ impl SlaveController {
     /// A cycle of the sensor's tare: the arm holds still.
     fn tare_step(&mut self, pose_fk: Pose, raw: Vector4<f64>) -> ControllerOutput {
         self.tare.add(raw);
-        let w = to_base(raw - self.tare.bias, pose_fk[3]);
-        let mut out = self.output(pose_fk, w, 0.0, Status::Taring);
+        // The bias is not known yet (the sensor's filter still settles onto the tool's
+        // weight): no contact force is reported while taring, rather than the settling
+        // transient (a restarted slave would otherwise show a few newtons to its master).
+        let mut out = self.output(pose_fk, Vector4::zeros(), 0.0, Status::Taring);
         self.comp
             .push_command([self.x_cmd[0], self.x_cmd[1], self.x_cmd[2]]);
         out.actuators_cmd_mm = self.l_cmd;
