@@ -189,6 +189,19 @@ pub struct Progress {
 }
 
 impl Progress {
+    /// The progress of a run on the simulated clock of `duration_s` seconds in 1 ms cycles
+    /// (`sim`, `experiment`), labelled `label`, configured from the environment.
+    pub fn simulated(label: &str, duration_s: f64) -> Self {
+        Progress::start(
+            &ProgressConfig::from_env(label),
+            Unit::Seconds {
+                per_step_s: 1e-3,
+                what: "simulated",
+            },
+            Some((duration_s * 1000.0).round() as u64),
+        )
+    }
+
     /// Starts showing the progress of work that counts `unit` up to `total` (None: no known
     /// end: a spinner, and lines without a share). With [`Mode::Off`] no thread is started.
     pub fn start(cfg: &ProgressConfig, unit: Unit, total: Option<u64>) -> Self {

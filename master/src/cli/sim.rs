@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use h4_master::session;
 use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, ProgressConfig, Unit, verdict_line};
+use h4_shared::progress::{Progress, verdict_line};
 use h4_shared::recording::Recorder;
 
 const LABEL: &str = "h4-master sim";
@@ -46,14 +46,7 @@ impl SimArgs {
             None => None,
         };
         let planned = (cfg.duration_s * 1000.0).round() as u64;
-        let progress = Progress::start(
-            &ProgressConfig::from_env(LABEL),
-            Unit::Seconds {
-                per_step_s: 1e-3,
-                what: "simulated",
-            },
-            Some(planned),
-        );
+        let progress = Progress::simulated(LABEL, cfg.duration_s);
         let handle = progress.handle();
         let result = session::Session::new(&cfg).and_then(|s| {
             s.run_with(recorder.as_mut(), self.out.as_deref(), &mut |k| {

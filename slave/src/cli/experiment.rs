@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, ProgressConfig, Unit, grouped, verdict_line};
+use h4_shared::progress::{Progress, grouped, verdict_line};
 use h4_shared::recording::Recorder;
 use h4_slave::experiment::Summary;
 
@@ -42,14 +42,7 @@ impl ExperimentArgs {
             None => None,
         };
         let planned = (cfg.duration_s * 1000.0).round() as u64;
-        let progress = Progress::start(
-            &ProgressConfig::from_env(LABEL),
-            Unit::Seconds {
-                per_step_s: 1e-3,
-                what: "simulated",
-            },
-            Some(planned),
-        );
+        let progress = Progress::simulated(LABEL, cfg.duration_s);
         let handle = progress.handle();
         let result = h4_slave::experiment::run_with(&cfg, recorder.as_mut(), &mut |k| {
             handle.set(k);

@@ -465,20 +465,6 @@ mod tests {
         }
     }
 
-    fn quiet_sensor() -> SensorConfig {
-        SensorConfig {
-            noise_std_n: 0.0,
-            noise_std_n_mm: 0.0,
-            quantization_n: 0.0,
-            quantization_n_mm: 0.0,
-            bias_n: [0.0; 3],
-            bias_n_mm: 0.0,
-            bias_drift_n_per_sqrt_s: 0.0,
-            bias_drift_n_mm_per_sqrt_s: 0.0,
-            ..SensorConfig::default()
-        }
-    }
-
     /// The prototype at rest at (0, 0, −250 mm), 100 N/mm actuators, default plant, a quiet
     /// sensor, touching `surface`.
     fn test_arm(surface: Surface) -> SimArm {
@@ -486,7 +472,7 @@ mod tests {
             H4Params::PROTOTYPE,
             [100.0; 4],
             PlantConfig::default(),
-            quiet_sensor(),
+            SensorConfig::quiet(),
             surface,
             Pose::new(0.0, 0.0, -250.0, 0.0),
             1,
@@ -616,7 +602,7 @@ mod tests {
             H4Params::PROTOTYPE,
             [100.0; 4],
             cfg,
-            quiet_sensor(),
+            SensorConfig::quiet(),
             plane(-400.0, 200.0),
             start,
             1,
@@ -656,7 +642,7 @@ mod tests {
             params,
             [100.0; 4],
             cfg,
-            quiet_sensor(),
+            SensorConfig::quiet(),
             plane(-400.0, 200.0),
             start,
             1,

@@ -181,3 +181,21 @@ pub(super) fn quantize(value: f64, step: f64) -> f64 {
         value
     }
 }
+
+#[cfg(test)]
+impl SensorConfig {
+    /// A sensor without noise, quantisation or bias (the plant's own unit tests).
+    pub(crate) fn quiet() -> Self {
+        SensorConfig {
+            noise_std_n: 0.0,
+            noise_std_n_mm: 0.0,
+            quantization_n: 0.0,
+            quantization_n_mm: 0.0,
+            bias_n: [0.0; 3],
+            bias_n_mm: 0.0,
+            bias_drift_n_per_sqrt_s: 0.0,
+            bias_drift_n_mm_per_sqrt_s: 0.0,
+            ..SensorConfig::default()
+        }
+    }
+}

@@ -268,19 +268,6 @@ mod tests {
     use crate::arm::ArmDriver;
     use crate::plant::{Material, PlantConfig, SensorConfig, SimArm, Surface, SurfaceShape};
 
-    fn quiet_sensor() -> SensorConfig {
-        SensorConfig {
-            noise_std_n: 0.0,
-            noise_std_n_mm: 0.0,
-            quantization_n: 0.0,
-            quantization_n_mm: 0.0,
-            bias_n: [0.0; 3],
-            bias_n_mm: 0.0,
-            bias_drift_n_per_sqrt_s: 0.0,
-            bias_drift_n_mm_per_sqrt_s: 0.0,
-            ..SensorConfig::default()
-        }
-    }
     use h4_shared::kinematics::{H4Params, Pose};
 
     /// The prototype at (0, 0, −248) above a resin block whose top is at −250, a ball end
@@ -307,7 +294,7 @@ mod tests {
             H4Params::PROTOTYPE,
             [100.0; 4],
             PlantConfig::default(),
-            quiet_sensor(),
+            SensorConfig::quiet(),
             surface,
             Pose::new(0.0, 0.0, -248.0, 0.0),
             1,
