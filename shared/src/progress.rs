@@ -383,6 +383,17 @@ pub fn verdict_line(label: &str, verdict: &str) {
     let _ = err.flush();
 }
 
+/// The verdict line of a run on the simulated clock stopped by SIGINT after `done_s` of
+/// `planned_s` simulated seconds: no verdict.
+pub fn interrupted_simulated_line(label: &str, done_s: f64, planned_s: f64) {
+    verdict_line(
+        label,
+        &format!(
+            "interrupted after {done_s:.1} of {planned_s:.1} s simulated: no verdict (the summary covers the cycles run)"
+        ),
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

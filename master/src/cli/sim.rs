@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use h4_master::session;
 use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, verdict_line};
+use h4_shared::progress::{Progress, interrupted_simulated_line, verdict_line};
 use h4_shared::recording::Recorder;
 
 const LABEL: &str = "h4-master sim";
@@ -61,13 +61,7 @@ impl SimArgs {
         }
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
         if summary.cycles < planned {
-            verdict_line(
-                LABEL,
-                &format!(
-                    "interrupted after {:.1} of {:.1} s simulated: no verdict (the summary covers the cycles run)",
-                    summary.sim_time_s, cfg.duration_s
-                ),
-            );
+            interrupted_simulated_line(LABEL, summary.sim_time_s, cfg.duration_s);
             return Ok(ExitStatus::Interrupted.into());
         }
         verdict_line(LABEL, &summary.in_words());

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, grouped, verdict_line};
+use h4_shared::progress::{Progress, grouped, interrupted_simulated_line, verdict_line};
 use h4_shared::recording::Recorder;
 use h4_slave::experiment::Summary;
 
@@ -55,13 +55,7 @@ impl ExperimentArgs {
         }
         h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
         if summary.cycles < planned {
-            verdict_line(
-                LABEL,
-                &format!(
-                    "interrupted after {:.1} of {:.1} s simulated: no verdict (the summary covers the cycles run)",
-                    summary.sim_time_s, cfg.duration_s
-                ),
-            );
+            interrupted_simulated_line(LABEL, summary.sim_time_s, cfg.duration_s);
             return Ok(ExitStatus::Interrupted.into());
         }
         verdict_line(LABEL, &in_words(&summary));
