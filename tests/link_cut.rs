@@ -133,21 +133,16 @@ fn a_2_s_cut_between_two_hosts_over_zenoh_safe_stops_fades_and_repairs() {
     let scratch = Scratch::new("cut-zenoh").unwrap();
     let target = SocketAddr::new(hosts.ip(Host::Slave).into(), 7447);
     let relay = Relay::start(&hosts, Proto::Tcp, target, ImpairmentConfig::default()).unwrap();
+    let (slave_args, master_args) = remote_procs::zenoh_across(target, &relay);
     let spec = PairSpec {
         tag: "cut-zenoh",
         session: SESSION,
         overrides: overrides(),
         duration_s: 5.6,
-        slave_args: remote_procs::zenoh_args("--zenoh-listen", &format!("tcp/{target}")),
-        master_args: remote_procs::zenoh_args(
-            "--zenoh-connect",
-            &format!("tcp/{}", relay.listen_addr()),
-        ),
+        slave_args,
+        master_args,
     };
-    let mut pair = Pair::start(&spec, &scratch, |slave, bin| {
-        hosts.command(if slave { Host::Slave } else { Host::Master }, bin)
-    })
-    .unwrap();
+    let mut pair = Pair::start_on(&hosts, &spec, &scratch).unwrap();
     // Into the hold phase (contact from ≈ 1.5 s of the session; the session starts when
     // the first feedback arrives). The recording shows whether it was in contact.
     std::thread::sleep(Duration::from_millis(3000));

@@ -79,10 +79,7 @@ fn a_router_restart_under_clients_safe_stops_fades_and_repairs() {
         slave_args: client(&[]),
         master_args: client(&[]),
     };
-    let mut pair = Pair::start(&spec, &scratch, |slave, bin| {
-        hosts.command(if slave { Host::Slave } else { Host::Master }, bin)
-    })
-    .unwrap();
+    let mut pair = Pair::start_on(&hosts, &spec, &scratch).unwrap();
     std::thread::sleep(Duration::from_millis(2500));
     if let Some(mut c) = r.0.take() {
         let _ = c.kill();

@@ -32,6 +32,7 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
     let scratch = Scratch::new("slow-link").unwrap();
     let target = SocketAddr::new(hosts.ip(Host::Slave).into(), 7447);
     let relay = Relay::start(&hosts, Proto::Tcp, target, ImpairmentConfig::default()).unwrap();
+    let (slave_args, master_args) = remote_procs::zenoh_across(target, &relay);
     let spec = PairSpec {
         tag: "slow",
         session: SESSION,
@@ -40,16 +41,10 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
             "duration_s=9.5".into(),
         ],
         duration_s: 9.5,
-        slave_args: remote_procs::zenoh_args("--zenoh-listen", &format!("tcp/{target}")),
-        master_args: remote_procs::zenoh_args(
-            "--zenoh-connect",
-            &format!("tcp/{}", relay.listen_addr()),
-        ),
+        slave_args,
+        master_args,
     };
-    let mut pair = Pair::start(&spec, &scratch, |slave, bin| {
-        hosts.command(if slave { Host::Slave } else { Host::Master }, bin)
-    })
-    .unwrap();
+    let mut pair = Pair::start_on(&hosts, &spec, &scratch).unwrap();
     std::thread::sleep(Duration::from_millis(2000));
     relay.set(ImpairmentConfig {
         delay_ms: 300.0,

@@ -2,11 +2,14 @@
 //! this build, a scratch directory, children killed on drop, optionally on one of the
 //! [`crate::netns::TwoHosts`], and the verdict on two run summaries.
 
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+use crate::netns::{Host, TwoHosts};
+use crate::relay::Relay;
 use h4_master::server::MasterRunSummary;
 use h4_slave::server::SlaveRunSummary;
 
@@ -336,6 +339,18 @@ pub struct PairSpec<'a> {
 }
 
 impl Pair {
+    /// Starts the pair across the two hosts: the slave in [`Host::Slave`]'s namespace, the
+    /// master in [`Host::Master`]'s.
+    pub fn start_on(
+        hosts: &TwoHosts,
+        spec: &PairSpec<'_>,
+        scratch: &Scratch,
+    ) -> Result<Self, String> {
+        Self::start(spec, scratch, |slave, bin| {
+            hosts.command(if slave { Host::Slave } else { Host::Master }, bin)
+        })
+    }
+
     /// Starts the slave (recording itself), then the master, both under `--fifo-priority 10`
     /// (refused without the permission: a warning, normal scheduling); `wrap` makes each command
     /// (e.g. to run it on one of two hosts).
@@ -434,4 +449,13 @@ pub fn zenoh_args(flag: &str, endpoint: &str) -> Vec<String> {
         .iter()
         .map(|s| s.to_string())
         .collect()
+}
+
+/// The Zenoh arguments of a pair across `relay`: the slave listens on `target` (its host's
+/// address), the master connects to the relay. `(slave_args, master_args)`.
+pub fn zenoh_across(target: SocketAddr, relay: &Relay) -> (Vec<String>, Vec<String>) {
+    (
+        zenoh_args("--zenoh-listen", &format!("tcp/{target}")),
+        zenoh_args("--zenoh-connect", &format!("tcp/{}", relay.listen_addr())),
+    )
 }
