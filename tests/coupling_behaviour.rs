@@ -462,3 +462,69 @@ fn first_touch_stays_below_the_limit_at_any_approach_speed() {
         );
     }
 }
+
+/// Wall-push on steel with one 200 ms link blackout at 4.0 s, in the middle of the first
+/// hold (`extra` overrides after the cell's).
+fn blackout_mid_hold(extra: &[&str]) -> Vec<Rec> {
+    let mut o = vec![
+        "environment.stiffness_n_per_mm=2000",
+        "link.blackout_ms=200",
+        "link.blackout_every_ms=4000",
+        "duration_s=6",
+    ];
+    o.extend_from_slice(extra);
+    run(&load("wall-push.toml", &o))
+}
+
+/// A 200 ms link blackout while the operator holds a push on steel: the slave's 20 ms
+/// watchdog trips into its safe stop, which holds the contact force through it
+/// (`slave.controller.safe_stop_hold_s`), and the master brakes the handle instead of
+/// letting the operator's push run it into where the wall was (`coupling.brake_on_loss`).
+/// After the re-pairing the true force is where it was, and it never left. Controls, each
+/// layer off on its own: without the hold the slave lets go of the wall (the true force
+/// falls to near zero during the blackout); without the brake the handle runs millimetres
+/// in, and the slave presses harder after the re-pairing.
+#[test]
+fn a_blackout_mid_hold_rides_through_on_steel() {
+    let stats = |r: &[Rec]| {
+        let before = mean(window(r, 3.5, 3.95), |x| x.true_force_n[2]);
+        let during_min = window(r, 4.0, 4.3)
+            .iter()
+            .map(|x| x.true_force_n[2])
+            .fold(f64::INFINITY, f64::min);
+        let after_max = window(r, 4.2, 5.5)
+            .iter()
+            .map(|x| x.true_force_n[2])
+            .fold(0.0, f64::max);
+        let handle_in_mm = at(r, 3.95).handle_mm[2] - at(r, 4.35).handle_mm[2];
+        (before, during_min, after_max, handle_in_mm)
+    };
+    let (before, during_min, after_max, handle_in_mm) = stats(&blackout_mid_hold(&[]));
+    println!(
+        "ride-through: held {before:.2} N, min during {during_min:.2} N, max after {after_max:.2} N, handle in {handle_in_mm:.3} mm"
+    );
+    assert!(before > 7.0, "no hold before the blackout: {before:.2} N");
+    assert!(
+        during_min > 0.8 * before,
+        "the contact force fell to {during_min:.2} N of {before:.2} N"
+    );
+    assert!(
+        after_max < 1.25 * before,
+        "force after the re-pairing {after_max:.2} N for {before:.2} N held"
+    );
+    assert!(handle_in_mm < 1.0, "handle moved {handle_in_mm:.3} mm in");
+    // Control: no hold, the slave ramps down and lets go.
+    let (b0, d0, _, _) = stats(&blackout_mid_hold(&["slave.controller.safe_stop_hold_s=0"]));
+    println!("no hold: held {b0:.2} N, min during {d0:.2} N");
+    assert!(
+        d0 < 0.3 * b0,
+        "without the hold the force stayed at {d0:.2} N"
+    );
+    // Control: no brake, the operator's push runs the handle in.
+    let (b1, _, a1, h1) = stats(&blackout_mid_hold(&["coupling.brake_on_loss=false"]));
+    println!("no brake: held {b1:.2} N, max after {a1:.2} N, handle in {h1:.3} mm");
+    assert!(
+        h1 > 2.0 * handle_in_mm.max(0.5),
+        "handle moved only {h1:.3} mm"
+    );
+}

@@ -67,6 +67,11 @@ pub struct CouplingConfig {
     /// desired wrench is not zero), N·s/mm: the delayed virtual wall of the slave's contact
     /// hand-over needs more damping at the handle than free motion should feel.
     pub contact_damping_n_s_per_mm: f64,
+    /// Position–force: while the feedback is lost or the slave is in its safe stop the
+    /// local damping stays on (a viscous brake: the operator's push does not run the
+    /// handle away while the slave holds; damping only dissipates). Off: it fades with the
+    /// feedback and the handle is free.
+    pub brake_on_loss: bool,
     /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
     /// (0: unfiltered).
     pub force_filter_hz: f64,
@@ -104,6 +109,7 @@ impl Default for CouplingConfig {
             guide_approach_depth_mm: 20.0,
             master_damping_n_s_per_mm: 0.3,
             contact_damping_n_s_per_mm: 0.0,
+            brake_on_loss: true,
             force_filter_hz: 0.0,
             feed_force_gain: 0.0,
             model: ModelParams::default().enabled,
@@ -279,6 +285,8 @@ pub struct CouplingParams {
     pub master_damping_n_s_per_mm: f64,
     /// Extra local damping while the slave reports a contact, N·s/mm.
     pub contact_damping_n_s_per_mm: f64,
+    /// The local damping stays on while the feedback is lost (`coupling.brake_on_loss`).
+    pub brake_on_loss: bool,
     /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
     pub force_filter_hz: f64,
     /// Force-guided: share of the cutting resistance along the feed rendered (× the force
@@ -321,6 +329,7 @@ impl CouplingParams {
             guide_approach_depth_mm: c.guide_approach_depth_mm,
             master_damping_n_s_per_mm: c.master_damping_n_s_per_mm,
             contact_damping_n_s_per_mm: c.contact_damping_n_s_per_mm,
+            brake_on_loss: c.brake_on_loss,
             force_filter_hz: c.force_filter_hz,
             feed_force_gain: c.feed_force_gain,
             model: ModelParams {
@@ -709,6 +718,14 @@ impl MasterCoupling {
             }
     }
 
+    /// The share of the local damping rendered: all of it while the feedback is fresh and
+    /// while it is lost (the handle brakes instead of running free under the operator's
+    /// push; damping only dissipates), faded with the feedback only when
+    /// `coupling.brake_on_loss` is off.
+    fn brake(&self) -> f64 {
+        if self.p.brake_on_loss { 1.0 } else { self.fade }
+    }
+
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
     /// the local damping, stays within what the handle's mass takes in one cycle
     /// (discrete-time bound).
@@ -718,7 +735,7 @@ impl MasterCoupling {
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
             let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
-                self.local_damping() * self.fade
+                self.local_damping() * self.brake()
             } else {
                 0.0
             };
@@ -799,7 +816,7 @@ impl MasterCoupling {
             // Faded with the feedback: with no slave there is no loop to stabilise, and the
             // operator holds a free handle (the feedback-loss safe state renders nothing).
             for (f, v) in force.iter_mut().zip(handle_velocity.iter()) {
-                *f -= self.local_damping() * self.fade * v;
+                *f -= self.local_damping() * self.brake() * v;
             }
         }
         // Force-guided: the local virtual spring sets the set-point.

@@ -109,8 +109,12 @@ pub struct MasterRunSummary {
     pub feedback_restored: u64,
     /// Times the rendered force reached zero fade after a loss.
     pub faded_out: u64,
-    /// Largest force rendered while faded out completely (should be 0), N.
+    /// Largest force of the slave's (the link force, scaled) rendered while faded out
+    /// completely (should be 0), N.
     pub max_force_while_faded_out_n: f64,
+    /// Largest force rendered while faded out completely, N: only the local brake's damping
+    /// (`coupling.brake_on_loss`), against the handle's motion.
+    pub max_brake_force_while_faded_out_n: f64,
     /// Fade factor of the rendered force in the last cycle (1 = full, 0 = faded out).
     pub final_fade: f64,
     /// Cycles in which the slave reported its safe state.
@@ -263,7 +267,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
         side.device_mut().advance(period_ns * (1 + cx.tick.missed));
         s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
         let fade = m.step.fade;
-        let force = stats.rendered(&mut s, &m.rendered_wrench, fade);
+        let force = stats.rendered(&mut s, &m.rendered_wrench, &m.step.link_force_n, fade);
         let (slave_force, slave_state) = stats.slave(&mut s, side.latest_feedback());
         link_stats.cycle(side.latest_feedback(), side.gate_counters().accepted, fade);
         stats.transparency(&m.rendered_wrench, &slave_force, fade, &mut s);
@@ -404,8 +408,15 @@ impl RenderStats {
         }
     }
 
-    /// Books the rendered wrench and the fade of one cycle; returns the rendered force, N.
-    fn rendered(&mut self, s: &mut MasterRunSummary, rendered: &[f64; 4], fade: f64) -> f64 {
+    /// Books the rendered wrench, the slave's part of it (`link_force_n`) and the fade of one
+    /// cycle; returns the rendered force, N.
+    fn rendered(
+        &mut self,
+        s: &mut MasterRunSummary,
+        rendered: &[f64; 4],
+        link_force_n: &[f64; 3],
+        fade: f64,
+    ) -> f64 {
         let force = norm3(rendered);
         s.max_rendered_force_n = s.max_rendered_force_n.max(force);
         s.max_rendered_force_step_n = s
@@ -425,7 +436,8 @@ impl RenderStats {
             if self.prev_fade > 0.0 {
                 s.faded_out += 1;
             }
-            s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(force);
+            s.max_force_while_faded_out_n = s.max_force_while_faded_out_n.max(norm3(link_force_n));
+            s.max_brake_force_while_faded_out_n = s.max_brake_force_while_faded_out_n.max(force);
         }
         self.prev_fade = fade;
         force

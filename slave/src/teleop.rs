@@ -582,12 +582,21 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             ]
         });
         let v_d = intent.desired_velocity;
-        if mode != Mode::Position || intent.clutch {
+        // The safe stop holds the contact's force: the hand-over is kept as it is (not
+        // stepped: nothing moves, nothing is booked), so a re-pairing within the hold
+        // continues from the same virtual spring (no force jump, the tool stays on the
+        // surface).
+        let riding_through =
+            self.state == SlaveState::SafeStop && self.ctrl.safe_stop_holds_contact();
+        if riding_through {
+        } else if mode != Mode::Position || intent.clutch {
             self.held = None;
         } else {
             self.update_held(force, held);
         }
-        if let Some(mut h) = self.held {
+        if let Some(mut h) = self.held
+            && !riding_through
+        {
             return self.handover(&mut h, intent, max_v, control, dt_s);
         }
         let ps = if mode == Mode::Position {

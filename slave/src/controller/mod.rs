@@ -216,18 +216,26 @@ impl SlaveController {
         &self.p
     }
 
-    /// Starts a safe stop (for a watchdog): the force set-point ramps to zero, the arm
-    /// retracts along the contact normal by `safe_stop_retract_mm`, then holds. Commands
+    /// Starts a safe stop (for a watchdog): motion stops; in contact the force set-point is
+    /// held for `safe_stop_hold_s`, then ramps to zero, the arm retracts along the contact
+    /// normal by `safe_stop_retract_mm`, then holds. Commands
     /// are ignored until [`SlaveController::clear_safe_stop`].
     pub fn safe_stop(&mut self) {
         if !self.safe.active() {
             self.safe.start(
                 self.contact.in_contact,
                 self.setpoint.value_n,
+                self.p.safe_stop_hold_s,
                 self.p.safe_stop_ramp_s,
             );
             self.position.stop();
         }
+    }
+
+    /// True while a safe stop holds the contact force it started with (`safe_stop_hold_s`
+    /// not yet over): a re-pairing now finds the contact as it was.
+    pub fn safe_stop_holds_contact(&self) -> bool {
+        self.safe.holding_contact()
     }
 
     /// True while a safe stop is in progress or holding.
@@ -236,10 +244,15 @@ impl SlaveController {
     }
 
     /// Leaves the safe stop; the next command is followed from the current pose.
+    /// Cleared within the hold of a safe stop in contact, the contact (and its force loop)
+    /// carries on as it was.
     pub fn clear_safe_stop(&mut self) {
+        let keep_contact = self.safe.holding_contact() && self.contact.in_contact;
         self.safe.clear();
         self.position.stop();
-        self.contact.leave();
+        if !keep_contact {
+            self.contact.leave();
+        }
     }
 
     /// One control cycle of `dt_s` seconds (normally 0.001).

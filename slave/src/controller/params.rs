@@ -94,6 +94,11 @@ pub struct ControllerParams {
     /// deviations of the sensor's noise (measured while taring) besides
     /// `contact_threshold_n` (3 to 20).
     pub contact_noise_sigmas: f64,
+    /// Safe stop in contact: time the force set-point is held (motion stopped) before it
+    /// ramps down, s: a link that returns within it re-pairs without the tool leaving the
+    /// surface (ride-through); 0 ramps down at once.
+    #[serde(default = "default_safe_stop_hold_s")]
+    pub safe_stop_hold_s: f64,
     /// Safe stop: time to ramp the force to zero, s.
     pub safe_stop_ramp_s: f64,
     /// Safe stop: retraction along the contact normal, mm.
@@ -139,6 +144,7 @@ impl Default for ControllerParams {
             force_axis: None,
             track_position_gain_per_s: 0.0,
             contact_noise_sigmas: 8.0,
+            safe_stop_hold_s: default_safe_stop_hold_s(),
             safe_stop_ramp_s: 0.2,
             safe_stop_retract_mm: 3.0,
             safe_stop_release_max_mm: 50.0,
@@ -152,7 +158,7 @@ impl Section for ControllerParams {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
-        let checks: [(&str, f64, f64, f64, &str); 30] = [
+        let checks: [(&str, f64, f64, f64, &str); 31] = [
             ("force_limit_n", self.force_limit_n, 1.0, 1000.0, "N"),
             ("max_speed_mm_per_s", self.max_speed_mm_per_s, 0.1, 1000.0, "mm/s"),
             ("force_accel_mm_per_s2", self.force_accel_mm_per_s2, 1.0, 1e7, "mm/s²"),
@@ -204,6 +210,7 @@ impl Section for ControllerParams {
             ("tare_cycles", f64::from(self.tare_cycles), 1.0, 100_000.0, "cycles"),
             ("command_latency_cycles", f64::from(self.command_latency_cycles), 0.0, 10.0, "cycles"),
             ("contact_noise_sigmas", self.contact_noise_sigmas, 3.0, 20.0, ""),
+            ("safe_stop_hold_s", self.safe_stop_hold_s, 0.0, 5.0, "s"),
             ("safe_stop_ramp_s", self.safe_stop_ramp_s, 0.0, 60.0, "s"),
             ("safe_stop_retract_mm", self.safe_stop_retract_mm, 0.0, 100.0, "mm"),
             ("safe_stop_release_max_mm", self.safe_stop_release_max_mm, 0.0, 500.0, "mm"),
@@ -233,6 +240,10 @@ impl Section for ControllerParams {
         }
         Ok(())
     }
+}
+
+fn default_safe_stop_hold_s() -> f64 {
+    0.5
 }
 
 fn is_zero(v: &f64) -> bool {

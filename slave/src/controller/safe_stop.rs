@@ -1,5 +1,7 @@
-//! The safe stop a watchdog asks for: out of force control the arm ramps the set-point to
-//! zero (still force-guided), retracts along the contact normal and holds; pressed into
+//! The safe stop a watchdog asks for: in contact the arm stops moving and holds its force
+//! set-point for `safe_stop_hold_s` (a link that comes back within it re-pairs with the
+//! tool still on the surface), then ramps the set-point to zero (still force-guided),
+//! retracts along the contact normal and holds; pressed into
 //! something in position mode, it first backs away along the measured force.
 
 use h4_shared::kinematics::Pose;
@@ -12,7 +14,10 @@ use super::params::ControllerParams;
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum SafeStopPhase {
     Inactive,
+    /// In contact: the set-point `from_n` held for `hold_s`, then ramped to zero over
+    /// `remaining_s`.
     RampDown {
+        hold_s: f64,
         remaining_s: f64,
         from_n: f64,
     },
@@ -64,15 +69,22 @@ impl SafeStop {
     /// Starts a safe stop (no effect while one is active): in contact, the set-point ramps
     /// down from `setpoint_n`; otherwise the arm is released in [`SafeStop::step`], where
     /// the measured force is known.
-    pub(super) fn start(&mut self, in_contact: bool, setpoint_n: f64, ramp_s: f64) {
+    pub(super) fn start(&mut self, in_contact: bool, setpoint_n: f64, hold_s: f64, ramp_s: f64) {
         self.phase = if in_contact {
             SafeStopPhase::RampDown {
+                hold_s,
                 remaining_s: ramp_s,
                 from_n: setpoint_n,
             }
         } else {
             SafeStopPhase::Release { moved_mm: 0.0 }
         };
+    }
+
+    /// True while the safe stop still holds the contact force it started with (its hold,
+    /// before the ramp down): the contact can be taken up again as it was.
+    pub(super) fn holding_contact(&self) -> bool {
+        matches!(self.phase, SafeStopPhase::RampDown { hold_s, .. } if hold_s > 0.0)
     }
 
     /// Leaves the safe stop.
@@ -105,10 +117,16 @@ impl SafeStop {
                 }
             }
             SafeStopPhase::RampDown {
+                hold_s,
                 remaining_s,
                 from_n,
             } => {
-                let rem = remaining_s - dt;
+                let holding = hold_s > 0.0;
+                let rem = if holding {
+                    remaining_s
+                } else {
+                    remaining_s - dt
+                };
                 let frac = (rem / p.safe_stop_ramp_s.max(1e-6)).clamp(0.0, 1.0);
                 let mut eff = *cmd;
                 eff.mode = Mode::ForceGuided;
@@ -116,12 +134,13 @@ impl SafeStop {
                 eff.velocity = [0.0; 4];
                 eff.pose = [x_cmd[0], x_cmd[1], x_cmd[2], x_cmd[3]];
                 eff.clutch = false;
-                self.phase = if rem <= 0.0 {
+                self.phase = if !holding && rem <= 0.0 {
                     SafeStopPhase::Retract {
                         remaining_mm: p.safe_stop_retract_mm,
                     }
                 } else {
                     SafeStopPhase::RampDown {
+                        hold_s: hold_s - dt,
                         remaining_s: rem,
                         from_n,
                     }
