@@ -11,8 +11,9 @@
 //!   set-point and a ±tolerance band (the paper's figs 6–7), the force along the tool's path,
 //!   and the force and position tracking errors;
 //! * `/master/cycle` + `/slave/cycle` (sessions and processes): the force rendered to the
-//!   operator against the slave's true and measured contact force, both passivity observers
-//!   (sessions), the round trip (processes) and the link's losses over time (`/link/events`).
+//!   operator against the slave's true and measured contact force, both passivity observers,
+//!   and the link: the round trip the master measured each cycle (`round_trip_us`) and, for
+//!   sessions, the messages lost per 100 ms in each direction (`/link/events`).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -225,13 +226,14 @@ const BAND_COLOR: RGBColor = RGBColor(120, 200, 120);
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
 /// One chart of a figure on `area`: `caption` on top, x range `xs` (the y range from the
-/// lines, the band and `extra_y`), axes, lines, band, legend.
+/// lines, the band and `extra_y`), axes, lines `stroke` px wide, band, legend.
 fn draw_panel(
     area: &Area<'_>,
     caption: Option<&str>,
     xs: (f64, f64),
     (x_desc, y_desc): (&str, &str),
     (lines, band, extra_y): (&[Line], &[(f64, f64, f64)], &[f64]),
+    stroke: u32,
 ) -> Result<(), String> {
     let mut band_y: Vec<f64> = band.iter().flat_map(|b| [b.1, b.2]).collect();
     band_y.extend_from_slice(extra_y);
@@ -274,7 +276,7 @@ fn draw_panel(
         chart
             .draw_series(LineSeries::new(
                 min_max_thin(&line.points, 3000),
-                color.stroke_width(1),
+                color.stroke_width(stroke),
             ))
             .map_err(|e| e.to_string())?
             .label(line.label)
@@ -314,6 +316,7 @@ fn draw(fig: &Figure<'_>, dir: &Path) -> Result<bool, ReportError> {
         (x0, x1),
         (fig.x_desc, fig.y_desc),
         (&fig.lines, &fig.band, &[]),
+        1,
     )
     .map_err(|e| err(&e))?;
     if let Some(p) = &fig.lower {
@@ -324,6 +327,7 @@ fn draw(fig: &Figure<'_>, dir: &Path) -> Result<bool, ReportError> {
             (x0, x1),
             (fig.x_desc, p.y_desc),
             (&p.lines, &[], &[0.0, 1.0]),
+            2,
         )
         .map_err(|e| err(&e))?;
     }
@@ -537,8 +541,10 @@ fn teleop_figures(
         band: Vec::new(),
         lower: None,
     });
-    let m_obs = master.map(|m| series(m, |v| num(v, "observed_j")));
-    let s_obs = slave.map(|s| series(s, |v| num(v, "observed_j")));
+    // Session: `observed_j`; process: `energy_observed_j`.
+    let observed = |v: &Value| num(v, "observed_j").or_else(|| num(v, "energy_observed_j"));
+    let m_obs = master.map(|m| series(m, observed));
+    let s_obs = slave.map(|s| series(s, observed));
     let has_obs = m_obs.as_ref().is_some_and(|o| !o.is_empty())
         || s_obs.as_ref().is_some_and(|o| !o.is_empty());
     if has_obs {
