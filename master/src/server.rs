@@ -198,6 +198,9 @@ struct CycleRecord {
     round_trip_us: Option<f64>,
     /// The master port's passivity observer, J.
     energy_observed_j: f64,
+    /// Feedback messages the slave sent that the master did not accept, so far (lost on the
+    /// link or rejected by the gate; from the slave's sequence numbers, `link_stats`).
+    feedback_lost: u64,
 }
 
 fn us(ns: u64) -> f64 {
@@ -281,6 +284,10 @@ pub fn run_then<L: Link<Command, Feedback>>(
             slave_state,
             round_trip_us: Some(m.round_trip_us).filter(|r| r.is_finite()),
             energy_observed_j: m.step.observed_j,
+            feedback_lost: {
+                let (sent, arrived) = link_stats.totals();
+                sent.saturating_sub(arrived)
+            },
         };
         recorder.push(cx.unix_ns, record);
         live.push(cx.unix_ns, record);

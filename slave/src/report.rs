@@ -606,9 +606,29 @@ fn losses(events: &Topic, direction: &str, duration_s: f64) -> (Vec<(f64, f64)>,
     (points, total)
 }
 
+/// Feedback lost per 100 ms bin (every bin) from the running count `feedback_lost` of a
+/// process's `/master/cycle`, and the count at the end; None when the recording has no count.
+fn feedback_losses(master: &Topic, duration_s: f64) -> Option<(Vec<(f64, f64)>, u64)> {
+    let counts = series(master, |v| num(v, "feedback_lost"));
+    let last = counts.last()?.1;
+    let mut lost: BTreeMap<i64, f64> = BTreeMap::new();
+    let bins = (duration_s / 0.1).ceil() as i64;
+    for b in 0..bins {
+        lost.entry(b).or_default();
+    }
+    let mut prev = 0.0;
+    for (t, n) in counts {
+        *lost.entry((t / 0.1).floor() as i64).or_default() += (n - prev).max(0.0);
+        prev = n;
+    }
+    let points = lost.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect();
+    Some((points, last as u64))
+}
+
 /// The link: the round trip the master measured each cycle (`round_trip_us` of
-/// `/master/cycle`: sessions and processes), and below it the messages lost per 100 ms in each
-/// direction (`/link/events`: sessions; the processes do not record them).
+/// `/master/cycle`: sessions and processes), and below it the messages lost per 100 ms: in
+/// each direction for sessions (`/link/events`), the feedback for processes (`feedback_lost`
+/// of `/master/cycle`; the commands the slave missed are not recorded).
 fn link_figure(
     topics: &BTreeMap<String, Topic>,
     master: Option<&Topic>,
@@ -638,43 +658,57 @@ fn link_figure(
             });
         }
     }
-    let lower = topics.get("/link/events").map(|events| {
+    let (lower, what_lost) = if let Some(events) = topics.get("/link/events") {
         let (cmd, cmd_total) = losses(events, "command", duration_s);
         let (fb, fb_total) = losses(events, "feedback", duration_s);
         metrics.insert("messages_lost".into(), Value::from(cmd_total + fb_total));
         metrics.insert("commands_lost".into(), Value::from(cmd_total));
         metrics.insert("feedback_lost".into(), Value::from(fb_total));
-        Panel {
-            y_desc: "messages lost per 100 ms",
-            lines: vec![
-                Line {
-                    label: "commands lost (master → slave)",
-                    color: C_TRUE,
-                    points: cmd,
-                },
-                Line {
-                    label: "feedback lost (slave → master)",
-                    color: C_MEAS,
-                    points: fb,
-                },
-            ],
-        }
+        let lines = vec![
+            Line {
+                label: "commands lost (master → slave)",
+                color: C_TRUE,
+                points: cmd,
+            },
+            Line {
+                label: "feedback lost (slave → master)",
+                color: C_MEAS,
+                points: fb,
+            },
+        ];
+        (
+            Some(lines),
+            format!("losses ({} messages)", cmd_total + fb_total),
+        )
+    } else if let Some((fb, fb_total)) = master.and_then(|m| feedback_losses(m, duration_s)) {
+        // The processes: the master counts the feedback it missed; the commands the slave
+        // missed are not recorded.
+        metrics.insert("feedback_lost".into(), Value::from(fb_total));
+        let lines = vec![Line {
+            label: "feedback lost or rejected (slave → master); commands: not recorded",
+            color: C_MEAS,
+            points: fb,
+        }];
+        (
+            Some(lines),
+            format!("feedback losses ({fb_total} messages)"),
+        )
+    } else {
+        (None, String::new())
+    };
+    let lower = lower.map(|lines| Panel {
+        y_desc: "messages lost per 100 ms",
+        lines,
     });
     // The figures at a glance, in the title.
     let rtt = match metrics.get("round_trip_p50_ms").and_then(Value::as_f64) {
         Some(p50) => format!("round trip (median {p50:.1} ms)"),
         None => String::new(),
     };
-    let lost = metrics.get("messages_lost").and_then(Value::as_u64);
     let (title, y_desc, lines, lower) = match (lines.is_empty(), lower) {
         (true, None) => return,
-        // An older session recording without the round trip: the losses alone.
-        (true, Some(p)) => (
-            format!("The link: {} messages lost", lost.unwrap_or(0)),
-            p.y_desc,
-            p.lines,
-            None,
-        ),
+        // A recording without the round trip: the losses alone.
+        (true, Some(p)) => (format!("The link: {what_lost}"), p.y_desc, p.lines, None),
         (false, None) => (
             format!("The link: {rtt} (losses not recorded)"),
             "round trip (ms)",
@@ -682,10 +716,7 @@ fn link_figure(
             None,
         ),
         (false, Some(p)) => (
-            format!(
-                "The link: {rtt} and losses ({} messages)",
-                lost.unwrap_or(0)
-            ),
+            format!("The link: {rtt} and {what_lost}"),
             "round trip (ms)",
             lines,
             Some(p),
@@ -891,6 +922,53 @@ mod tests {
         assert_eq!(max_of(&thin), 100.0);
         assert_eq!(min_of(&thin), 0.0);
         assert!(thin.windows(2).all(|w| w[0].0 <= w[1].0));
+    }
+
+    /// The processes' running count of missed feedback becomes losses per 100 ms bin, every
+    /// bin drawn; a session's link events are counted by direction and by kind.
+    #[test]
+    fn losses_per_bin_from_counts_and_events() {
+        let master: Topic = (0..1000)
+            .map(|i| {
+                let t = i as f64 * 1e-3;
+                // 3 lost at 0.25 s, 2 more at 0.72 s.
+                let n = if t >= 0.72 {
+                    5
+                } else if t >= 0.25 {
+                    3
+                } else {
+                    0
+                };
+                (t, serde_json::json!({ "feedback_lost": n }))
+            })
+            .collect();
+        let (points, total) = feedback_losses(&master, 1.0).unwrap();
+        assert_eq!(total, 5);
+        assert_eq!(points.len(), 10);
+        let per_bin: Vec<f64> = points.iter().map(|p| p.1).collect();
+        assert_eq!(per_bin, [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0]);
+        assert!(feedback_losses(&vec![(0.0, serde_json::json!({}))], 1.0).is_none());
+
+        let ev = |t: f64, dir: &str, kind: &str| {
+            (
+                t,
+                serde_json::json!({ "direction": dir, "event": { "kind": kind } }),
+            )
+        };
+        let events: Topic = vec![
+            ev(0.05, "command", "lost"),
+            ev(0.06, "command", "duplicated"),
+            ev(0.31, "command", "blacked_out"),
+            ev(0.32, "feedback", "overflowed"),
+        ];
+        let (cmd, n_cmd) = losses(&events, "command", 0.5);
+        let (fb, n_fb) = losses(&events, "feedback", 0.5);
+        assert_eq!((n_cmd, n_fb), (2, 1));
+        assert_eq!(
+            cmd.iter().map(|p| p.1).collect::<Vec<_>>(),
+            [1.0, 0.0, 0.0, 1.0, 0.0]
+        );
+        assert_eq!(fb.iter().map(|p| p.1).sum::<f64>(), 1.0);
     }
 
     #[test]
