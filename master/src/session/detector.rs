@@ -214,7 +214,12 @@ pub struct Summary {
     /// Mean true contact force of each hold (intent at rest, pushing), after
     /// `detector.hold_settle_s`, N.
     pub hold_force_n: Vec<f64>,
-    /// What each hold asks for: |push| / `scale.force`, N at the slave.
+    /// The force the operator's hand applied to the handle along its push in each hold
+    /// (mean over the settled hold), N at the master: the push the slave must follow. Less
+    /// than the scripted `push_n` where the hand's arm spring pulls back towards its
+    /// intended point.
+    pub hold_push_n: Vec<f64>,
+    /// What each hold asks for: `hold_push_n` / `scale.force`, N at the slave.
     pub hold_target_n: Vec<f64>,
     /// Largest, over the holds, RMS of the true contact force around its linear trend
     /// (least squares over the settled hold): every oscillation slower than the hold
@@ -261,6 +266,7 @@ impl Summary {
 pub(super) struct Holds {
     pub(super) first_touch_peak_n: f64,
     pub(super) force_n: Vec<f64>,
+    pub(super) push_n: Vec<f64>,
     pub(super) target_n: Vec<f64>,
     pub(super) ripple_rms_n: f64,
     pub(super) bounces: u64,
@@ -299,18 +305,25 @@ fn detrended_rms(y: &[f64]) -> f64 {
     (ss / n).sqrt()
 }
 
-/// The holds of a run from the true force, the operator's push (|push| per cycle, N) and
-/// whether the intent was at rest, per cycle.
+/// The holds of a run from the true force, the operator's intended push (|push| per cycle,
+/// N: where the holds are), the force the hand really applies to the handle along that push
+/// (per cycle, N: what each hold asks of the slave) and whether the intent was at rest, per
+/// cycle.
 pub(super) fn holds(
     force_n: &[f64],
     push_n: &[f64],
+    applied_n: &[f64],
     steady: &[bool],
     force_scale: f64,
     d: &DetectorConfig,
 ) -> Holds {
     let mut h = Holds::default();
     let settle = (d.hold_settle_s / DT_S).round() as usize;
-    let len = force_n.len().min(push_n.len()).min(steady.len());
+    let len = force_n
+        .len()
+        .min(push_n.len())
+        .min(applied_n.len())
+        .min(steady.len());
     // Holds: runs of steady cycles pushing with at least hold_push_min_n.
     let mut k = 0;
     let mut first_hold_settled: Option<usize> = None;
@@ -325,8 +338,11 @@ pub(super) fn holds(
         }
         if k - start > settle + 2 {
             let seg = &force_n[start + settle..k];
-            h.force_n.push(seg.iter().sum::<f64>() / seg.len() as f64);
-            h.target_n.push(push_n[start] / force_scale);
+            let mean = |x: &[f64]| x.iter().sum::<f64>() / x.len() as f64;
+            h.force_n.push(mean(seg));
+            let applied = mean(&applied_n[start + settle..k]);
+            h.push_n.push(applied);
+            h.target_n.push(applied / force_scale);
             h.ripple_rms_n = h.ripple_rms_n.max(detrended_rms(seg));
             first_hold_settled.get_or_insert(start + settle);
         }
@@ -405,8 +421,10 @@ pub(super) struct Sample {
     pub(super) free_motion: bool,
     pub(super) rejected: bool,
     pub(super) finite: bool,
-    /// |The operator's push|, N at the handle.
+    /// |The operator's intended push|, N at the handle.
     pub(super) push_n: f64,
+    /// The force the hand applies to the handle along the intended push, N (0 without one).
+    pub(super) applied_push_n: f64,
     /// The intent at rest (holds): like `steady` but the clutch does not matter.
     pub(super) intent_steady: bool,
 }
@@ -517,6 +535,8 @@ pub(super) struct Evaluator {
     drift_mm: Vec<f64>,
     /// |Push| of every cycle, N.
     push_n: Vec<f64>,
+    /// The hand's force on the handle along the push, every cycle, N.
+    applied_push_n: Vec<f64>,
     /// The intent at rest, every cycle.
     intent_steady: Vec<bool>,
     steady_s: f64,
@@ -544,6 +564,7 @@ impl Evaluator {
             force_n: Vec::with_capacity(cycles),
             drift_mm: Vec::with_capacity(cycles),
             push_n: Vec::with_capacity(cycles),
+            applied_push_n: Vec::with_capacity(cycles),
             intent_steady: Vec::with_capacity(cycles),
             steady_s: 0.0,
             energy_min: 0.0,
@@ -600,6 +621,7 @@ impl Evaluator {
         self.force_n.push(s.true_force_n);
         self.drift_mm.push(s.drift_mm);
         self.push_n.push(s.push_n);
+        self.applied_push_n.push(s.applied_push_n);
         self.intent_steady.push(s.intent_steady);
         if !in_contact && s.free_motion && s.steady {
             self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
@@ -707,6 +729,7 @@ impl Evaluator {
         let holds = holds(
             &self.force_n,
             &self.push_n,
+            &self.applied_push_n,
             &self.intent_steady,
             fin.force_scale,
             &d,
@@ -762,6 +785,7 @@ impl Evaluator {
             wall_time_s,
             first_touch_peak_n: holds.first_touch_peak_n,
             hold_force_n: holds.force_n,
+            hold_push_n: holds.push_n,
             hold_target_n: holds.target_n,
             hold_ripple_rms_n: holds.ripple_rms_n,
             bounces: holds.bounces,
@@ -902,6 +926,9 @@ mod tests {
         let d = DetectorConfig::default();
         let n = 8000;
         let push = vec![6.0; n];
+        // The hand applies 5 N of its intended 6 (its arm spring takes the rest): the hold
+        // asks for what it applies.
+        let applied = vec![5.0; n];
         let steady: Vec<bool> = (0..n).map(|k| k >= 1000).collect();
         let touch = |k: usize| {
             if k < 500 {
@@ -922,10 +949,11 @@ mod tests {
                     }
             })
             .collect();
-        let h = holds(&slow, &push, &steady, 0.5, &d);
+        let h = holds(&slow, &push, &applied, &steady, 0.5, &d);
         assert!(h.ripple_rms_n > 1.2, "{h:?}");
         assert_eq!(h.hold_count(), 1);
-        assert!((h.target_n[0] - 12.0).abs() < 1e-9);
+        assert!((h.target_n[0] - 10.0).abs() < 1e-9, "{h:?}");
+        assert!((h.push_n[0] - 5.0).abs() < 1e-9, "{h:?}");
         assert!((h.first_touch_peak_n - 30.0).abs() < 1e-9, "{h:?}");
         let ramp: Vec<f64> = (0..n)
             .map(|k| {
@@ -937,7 +965,7 @@ mod tests {
                     }
             })
             .collect();
-        let h = holds(&ramp, &push, &steady, 0.5, &d);
+        let h = holds(&ramp, &push, &applied, &steady, 0.5, &d);
         assert!(h.ripple_rms_n < 0.01, "{h:?}");
         assert!(
             (h.force_n[0] - 12.0 - 4.0 * 5000.0 / 8000.0).abs() < 0.3,
@@ -954,7 +982,7 @@ mod tests {
                 }
             })
             .collect();
-        let h = holds(&bouncy, &push, &steady, 0.5, &d);
+        let h = holds(&bouncy, &push, &applied, &steady, 0.5, &d);
         assert_eq!(h.bounces, 2, "{h:?}");
         // A release (no push) and a new touch is not a bounce.
         let mut push2 = push.clone();
@@ -970,6 +998,6 @@ mod tests {
                 }
             })
             .collect();
-        assert_eq!(holds(&rel, &push2, &steady, 0.5, &d).bounces, 0);
+        assert_eq!(holds(&rel, &push2, &applied, &steady, 0.5, &d).bounces, 0);
     }
 }

@@ -137,6 +137,17 @@ impl Session {
             finite: m.handle.pose.iter().all(|v| v.is_finite())
                 && meas.iter().all(|v| v.is_finite()),
             push_n: norm3(&intent.push_n),
+            applied_push_n: {
+                let p = norm3(&intent.push_n);
+                if p > 0.0 {
+                    (0..3)
+                        .map(|i| m.hand.wrench[i] * intent.push_n[i])
+                        .sum::<f64>()
+                        / p
+                } else {
+                    0.0
+                }
+            },
             intent_steady: intent.steady,
         }
     }
