@@ -225,6 +225,9 @@ const BAND_COLOR: RGBColor = RGBColor(120, 200, 120);
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
+/// A point of a band: `(x, low, high)`.
+type BandPoint = (f64, f64, f64);
+
 /// One chart of a figure on `area`: `caption` on top, x range `xs` (the y range from the
 /// lines, the band and `extra_y`), axes, lines `stroke` px wide, band, legend.
 fn draw_panel(
@@ -232,7 +235,7 @@ fn draw_panel(
     caption: Option<&str>,
     xs: (f64, f64),
     (x_desc, y_desc): (&str, &str),
-    (lines, band, extra_y): (&[Line], &[(f64, f64, f64)], &[f64]),
+    (lines, band, extra_y): (&[Line], &[BandPoint], &[f64]),
     stroke: u32,
 ) -> Result<(), String> {
     let mut band_y: Vec<f64> = band.iter().flat_map(|b| [b.1, b.2]).collect();
