@@ -284,7 +284,6 @@ fn loopback_serves_both_processes_live() {
         "pose",
         "rendered_wrench",
         "slave_force_n",
-        "round_trip_us",
         "energy_observed_j",
     ] {
         assert!(
@@ -293,6 +292,14 @@ fn loopback_serves_both_processes_live() {
             m[0].2
         );
     }
+    // The round trip is null until the first echo (the loop's first cycles), then a number.
+    assert!(m[0].2.get("round_trip_us").is_some(), "{}", m[0].2);
+    let rtt_us = m[29].2["round_trip_us"].as_f64();
+    assert!(
+        rtt_us.is_some_and(|r| r > 0.0 && r < 100_000.0),
+        "no round trip 30 messages in: {}",
+        m[29].2
+    );
     let s = slave.messages(30);
     for key in [
         "measured_pose",

@@ -196,10 +196,15 @@ struct CycleRecord {
     slave_force_n: [f64; 3],
     /// The slave's state in the newest valid feedback (`SlaveState` code).
     slave_state: u8,
-    /// The newest round trip, µs.
-    round_trip_us: f64,
+    /// The newest round trip (`teleop::RoundTrip`: now − the send time of the command the
+    /// newest echoing feedback echoed), µs; null (so not a required field) until a feedback
+    /// message has echoed a command.
+    round_trip_us: Option<f64>,
     /// The master port's passivity observer, J.
     energy_observed_j: f64,
+    /// Feedback messages the slave sent that the master did not accept, so far (lost on the
+    /// link or rejected by the gate; from the slave's sequence numbers, `link_stats`).
+    feedback_lost: u64,
 }
 
 fn us(ns: u64) -> f64 {
@@ -281,8 +286,12 @@ pub fn run_then<L: Link<Command, Feedback>>(
             slave_target: m.step.slave_target,
             slave_force_n: slave_force,
             slave_state,
-            round_trip_us: us(side.round_trip().last_ns()),
+            round_trip_us: Some(m.round_trip_us).filter(|r| r.is_finite()),
             energy_observed_j: m.step.observed_j,
+            feedback_lost: {
+                let (sent, arrived) = link_stats.totals();
+                sent.saturating_sub(arrived)
+            },
         };
         recorder.push(cx.unix_ns, record);
         live.push(cx.unix_ns, record);

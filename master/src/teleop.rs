@@ -148,6 +148,16 @@ impl RoundTrip {
         self.last_ns
     }
 
+    /// The newest round trip, µs (NaN before the first): the per-cycle figure both the
+    /// simulation's and the process's `/master/cycle` record as `round_trip_us`.
+    pub fn last_us(&self) -> f64 {
+        if self.samples > 0 {
+            self.last_ns as f64 * 1e-3
+        } else {
+            f64::NAN
+        }
+    }
+
     /// All round trips, ns.
     pub fn histogram(&self) -> &Histogram {
         &self.histogram
@@ -182,6 +192,9 @@ pub struct MasterCycle {
     pub hand: HandOutput,
     /// A feedback message was accepted this cycle.
     pub fresh: bool,
+    /// The newest round trip after this cycle's reception ([`RoundTrip::last_us`]), µs;
+    /// NaN until a feedback message has echoed a command.
+    pub round_trip_us: f64,
 }
 
 /// The master's teleoperation endpoint: the simulated master arm with the operator's hand
@@ -333,6 +346,7 @@ impl MasterTeleop {
             handle: dev,
             hand,
             fresh,
+            round_trip_us: self.round_trip.last_us(),
         }
     }
 }
@@ -399,6 +413,12 @@ mod tests {
             t_ns += 1_000_000;
             let c = ep.step(&mut master_end, t_ns, 1e-3);
             assert_eq!(c.fresh, arm_id == 3);
+            // The cycle carries the newest round trip: none before the first echo.
+            if arm_id == 3 {
+                assert_eq!(c.round_trip_us, (t_ns - cmd.send_time_ns) as f64 * 1e-3);
+            } else {
+                assert!(c.round_trip_us.is_nan(), "{}", c.round_trip_us);
+            }
         }
         let counters = ep.gate_counters();
         assert_eq!(counters.wrong_arm, 1, "{counters:?}");

@@ -11,8 +11,9 @@
 //!   set-point and a ±tolerance band (the paper's figs 6–7), the force along the tool's path,
 //!   and the force and position tracking errors;
 //! * `/master/cycle` + `/slave/cycle` (sessions and processes): the force rendered to the
-//!   operator against the slave's true and measured contact force, both passivity observers
-//!   (sessions), the round trip (processes) and the link's losses over time (`/link/events`).
+//!   operator against the slave's true and measured contact force, both passivity observers,
+//!   and the link: the round trip the master measured each cycle (`round_trip_us`) and, for
+//!   sessions, the messages lost per 100 ms in each direction (`/link/events`).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -102,6 +103,14 @@ fn read_topics(path: &Path) -> Result<(BTreeMap<String, Topic>, bool), ReportErr
             .or_default()
             .push((t_s, value));
     }
+    // A channel the recording declares but never wrote to (a session's `/link/events` on a
+    // link that lost nothing) is an empty topic, not a missing one. A file cut short has no
+    // summary: its topics are the ones with messages.
+    if let Ok(Some(summary)) = mcap::Summary::read(&bytes) {
+        for channel in summary.channels.values() {
+            topics.entry(channel.topic.clone()).or_default();
+        }
+    }
     Ok((topics, truncated))
 }
 
@@ -162,6 +171,10 @@ fn min_max_thin(points: &[(f64, f64)], buckets: usize) -> Vec<(f64, f64)> {
 }
 
 fn bounds(lines: &[Line], extra_y: &[f64]) -> Option<((f64, f64), (f64, f64))> {
+    bounds_of(&lines.iter().collect::<Vec<_>>(), extra_y)
+}
+
+fn bounds_of(lines: &[&Line], extra_y: &[f64]) -> Option<((f64, f64), (f64, f64))> {
     let mut x = (f64::INFINITY, f64::NEG_INFINITY);
     let mut y = (f64::INFINITY, f64::NEG_INFINITY);
     for (px, py) in lines.iter().flat_map(|l| l.points.iter()) {
@@ -177,11 +190,17 @@ fn bounds(lines: &[Line], extra_y: &[f64]) -> Option<((f64, f64), (f64, f64))> {
     if x.1 - x.0 < 1e-9 {
         x.1 = x.0 + 1.0;
     }
-    let pad = ((y.1 - y.0) * 0.05).max(1e-6);
+    // A flat line (a constant round trip) gets a readable axis around it.
+    let pad = if y.1 - y.0 < 1e-9 {
+        (y.0.abs() * 0.1).max(1.0)
+    } else {
+        (y.1 - y.0) * 0.05
+    };
     Some((x, (y.0 - pad, y.1 + pad)))
 }
 
-/// A figure: title, axis names with units, lines, and an optional band `(x, low, high)`.
+/// A figure: title, axis names with units, lines, and an optional band `(x, low, high)`;
+/// optionally a second panel below on the same time axis (its own y axis and lines).
 struct Figure<'a> {
     file: &'a str,
     title: String,
@@ -189,60 +208,80 @@ struct Figure<'a> {
     y_desc: &'a str,
     lines: Vec<Line>,
     band: Vec<(f64, f64, f64)>,
+    lower: Option<Panel<'a>>,
+}
+
+/// The lower panel of a [`Figure`]: y axis name with its unit, lines.
+struct Panel<'a> {
+    y_desc: &'a str,
+    lines: Vec<Line>,
 }
 
 const WIDTH: u32 = 1200;
 const HEIGHT: u32 = 560;
+/// Height of the lower panel of a two-panel figure (added to [`HEIGHT`]).
+const LOWER_HEIGHT: u32 = 300;
 const BAND_COLOR: RGBColor = RGBColor(120, 200, 120);
 
-fn draw(fig: &Figure<'_>, dir: &Path) -> Result<bool, ReportError> {
-    let path = dir.join(fig.file);
-    let err = |e: &dyn std::fmt::Display| ReportError::Write {
-        path: path.display().to_string(),
-        message: e.to_string(),
+type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// A point of a band: `(x, low, high)`.
+type BandPoint = (f64, f64, f64);
+
+/// One chart of a figure on `area`: `caption` on top, x range `xs` (the y range from the
+/// lines, the band and `extra_y`), axes, lines `stroke` px wide, band, legend.
+fn draw_panel(
+    area: &Area<'_>,
+    caption: Option<&str>,
+    xs: (f64, f64),
+    (x_desc, y_desc): (&str, &str),
+    (lines, band, extra_y): (&[Line], &[BandPoint], &[f64]),
+    stroke: u32,
+) -> Result<(), String> {
+    let mut band_y: Vec<f64> = band.iter().flat_map(|b| [b.1, b.2]).collect();
+    band_y.extend_from_slice(extra_y);
+    let Some((_, (y0, y1))) = bounds(lines, &band_y) else {
+        return Ok(());
     };
-    let band_y: Vec<f64> = fig.band.iter().flat_map(|b| [b.1, b.2]).collect();
-    let Some(((x0, x1), (y0, y1))) = bounds(&fig.lines, &band_y) else {
-        return Ok(false);
-    };
-    let root = BitMapBackend::new(&path, (WIDTH, HEIGHT)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(&fig.title, ("sans-serif", 26))
+    let mut builder = ChartBuilder::on(area);
+    if let Some(c) = caption {
+        builder.caption(c, ("sans-serif", 26));
+    }
+    let mut chart = builder
         .margin(16)
         .x_label_area_size(48)
         .y_label_area_size(72)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| err(&e))?;
+        .build_cartesian_2d(xs.0..xs.1, y0..y1)
+        .map_err(|e| e.to_string())?;
     chart
         .configure_mesh()
-        .x_desc(fig.x_desc)
-        .y_desc(fig.y_desc)
+        .x_desc(x_desc)
+        .y_desc(y_desc)
         .label_style(("sans-serif", 16))
         .axis_desc_style(("sans-serif", 18))
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
-        .map_err(|e| err(&e))?;
-    if !fig.band.is_empty() {
-        let mut outline: Vec<(f64, f64)> = fig.band.iter().map(|b| (b.0, b.2)).collect();
-        outline.extend(fig.band.iter().rev().map(|b| (b.0, b.1)));
+        .map_err(|e| e.to_string())?;
+    if !band.is_empty() {
+        let mut outline: Vec<(f64, f64)> = band.iter().map(|b| (b.0, b.2)).collect();
+        outline.extend(band.iter().rev().map(|b| (b.0, b.1)));
         chart
             .draw_series(std::iter::once(Polygon::new(
                 outline,
                 BAND_COLOR.mix(0.35).filled(),
             )))
-            .map_err(|e| err(&e))?
+            .map_err(|e| e.to_string())?
             .label("set-point ± tolerance")
             .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 20, y + 6)], BAND_COLOR.filled()));
     }
-    for line in &fig.lines {
+    for line in lines {
         let color = line.color;
         chart
             .draw_series(LineSeries::new(
                 min_max_thin(&line.points, 3000),
-                color.stroke_width(1),
+                color.stroke_width(stroke),
             ))
-            .map_err(|e| err(&e))?
+            .map_err(|e| e.to_string())?
             .label(line.label)
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(3)));
     }
@@ -253,7 +292,48 @@ fn draw(fig: &Figure<'_>, dir: &Path) -> Result<bool, ReportError> {
         .border_style(BLACK)
         .position(SeriesLabelPosition::UpperRight)
         .draw()
+        .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+fn draw(fig: &Figure<'_>, dir: &Path) -> Result<bool, ReportError> {
+    let path = dir.join(fig.file);
+    let err = |e: &dyn std::fmt::Display| ReportError::Write {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    };
+    // One time axis for both panels.
+    let lower_lines = fig.lower.as_ref().map_or(&[][..], |p| &p.lines[..]);
+    let band_y: Vec<f64> = fig.band.iter().flat_map(|b| [b.1, b.2]).collect();
+    let all: Vec<&Line> = fig.lines.iter().chain(lower_lines).collect();
+    let Some(((x0, x1), _)) = bounds_of(&all, &band_y) else {
+        return Ok(false);
+    };
+    let height = HEIGHT + fig.lower.as_ref().map_or(0, |_| LOWER_HEIGHT);
+    let root = BitMapBackend::new(&path, (WIDTH, height)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let (upper, lower) = root.split_vertically(HEIGHT);
+    draw_panel(
+        &upper,
+        Some(&fig.title),
+        (x0, x1),
+        (fig.x_desc, fig.y_desc),
+        (&fig.lines, &fig.band, &[]),
+        1,
+    )
+    .map_err(|e| err(&e))?;
+    if let Some(p) = &fig.lower {
+        // Counts from 0, at least 0–1 (a link that lost nothing is a line at 0).
+        draw_panel(
+            &lower,
+            None,
+            (x0, x1),
+            (fig.x_desc, p.y_desc),
+            (&p.lines, &[], &[0.0, 1.0]),
+            2,
+        )
         .map_err(|e| err(&e))?;
+    }
     root.present().map_err(|e| err(&e))?;
     Ok(true)
 }
@@ -321,6 +401,7 @@ fn experiment_figures(
             },
         ],
         band,
+        lower: None,
     });
     // Errors over the whole contact, from the first time the true force reaches half the
     // set-point: the first touch's transient is kept.
@@ -388,6 +469,7 @@ fn experiment_figures(
                 points: path,
             }],
             band: Vec::new(),
+            lower: None,
         });
         figures.push(Figure {
             file: "tracking_error.png",
@@ -407,6 +489,7 @@ fn experiment_figures(
                 },
             ],
             band: Vec::new(),
+            lower: None,
         });
     }
 }
@@ -459,9 +542,12 @@ fn teleop_figures(
         y_desc: "force magnitude (N)",
         lines,
         band: Vec::new(),
+        lower: None,
     });
-    let m_obs = master.map(|m| series(m, |v| num(v, "observed_j")));
-    let s_obs = slave.map(|s| series(s, |v| num(v, "observed_j")));
+    // Session: `observed_j`; process: `energy_observed_j`.
+    let observed = |v: &Value| num(v, "observed_j").or_else(|| num(v, "energy_observed_j"));
+    let m_obs = master.map(|m| series(m, observed));
+    let s_obs = slave.map(|s| series(s, observed));
     let has_obs = m_obs.as_ref().is_some_and(|o| !o.is_empty())
         || s_obs.as_ref().is_some_and(|o| !o.is_empty());
     if has_obs {
@@ -492,12 +578,60 @@ fn teleop_figures(
                 },
             ],
             band: Vec::new(),
+            lower: None,
         });
     }
     link_figure(topics, master, duration_s(topics), figures, metrics);
 }
 
-/// Round trip (when recorded) and messages lost per 100 ms (from `/link/events`).
+/// Messages lost per 100 ms bin of the recording (every bin, the empty ones too), of the
+/// link events of `direction` (`command` or `feedback`), and their total.
+fn losses(events: &Topic, direction: &str, duration_s: f64) -> (Vec<(f64, f64)>, u64) {
+    let mut lost: BTreeMap<i64, f64> = BTreeMap::new();
+    let mut total = 0u64;
+    for (t, v) in events {
+        let kind = v
+            .get("event")
+            .and_then(|e| e.get("kind"))
+            .and_then(Value::as_str)
+            .unwrap_or("");
+        let dir = v.get("direction").and_then(Value::as_str).unwrap_or("");
+        if dir == direction && matches!(kind, "lost" | "blacked_out" | "overflowed") {
+            *lost.entry((t / 0.1).floor() as i64).or_default() += 1.0;
+            total += 1;
+        }
+    }
+    let bins = (duration_s / 0.1).ceil() as i64;
+    for b in 0..bins {
+        lost.entry(b).or_default();
+    }
+    let points = lost.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect();
+    (points, total)
+}
+
+/// Feedback lost per 100 ms bin (every bin) from the running count `feedback_lost` of a
+/// process's `/master/cycle`, and the count at the end; None when the recording has no count.
+fn feedback_losses(master: &Topic, duration_s: f64) -> Option<(Vec<(f64, f64)>, u64)> {
+    let counts = series(master, |v| num(v, "feedback_lost"));
+    let last = counts.last()?.1;
+    let mut lost: BTreeMap<i64, f64> = BTreeMap::new();
+    let bins = (duration_s / 0.1).ceil() as i64;
+    for b in 0..bins {
+        lost.entry(b).or_default();
+    }
+    let mut prev = 0.0;
+    for (t, n) in counts {
+        *lost.entry((t / 0.1).floor() as i64).or_default() += (n - prev).max(0.0);
+        prev = n;
+    }
+    let points = lost.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect();
+    Some((points, last as u64))
+}
+
+/// The link: the round trip the master measured each cycle (`round_trip_us` of
+/// `/master/cycle`: sessions and processes), and below it the messages lost per 100 ms: in
+/// each direction for sessions (`/link/events`), the feedback for processes (`feedback_lost`
+/// of `/master/cycle`; the commands the slave missed are not recorded).
 fn link_figure(
     topics: &BTreeMap<String, Topic>,
     master: Option<&Topic>,
@@ -516,49 +650,90 @@ fn link_figure(
         if !rtt.is_empty() {
             metrics.insert("round_trip_p50_ms".into(), json_f(percentile(&rtt, 50.0)));
             metrics.insert("round_trip_p99_ms".into(), json_f(percentile(&rtt, 99.0)));
+            metrics.insert(
+                "round_trip_max_ms".into(),
+                json_f(rtt.iter().copied().fold(f64::NAN, f64::max)),
+            );
             lines.push(Line {
-                label: "round trip (ms)",
+                label: "round trip measured by the master",
                 color: C_OTHER,
                 points: rtt_ms,
             });
         }
     }
-    if let Some(events) = topics.get("/link/events") {
-        let mut lost: BTreeMap<i64, f64> = BTreeMap::new();
-        let mut total = 0u64;
-        for (t, v) in events {
-            let kind = v
-                .get("event")
-                .and_then(|e| e.get("kind"))
-                .and_then(Value::as_str)
-                .unwrap_or("");
-            if matches!(kind, "lost" | "blacked_out" | "overflowed") {
-                *lost.entry((t / 0.1).floor() as i64).or_default() += 1.0;
-                total += 1;
-            }
-        }
-        // Every 100 ms bin of the recording, the empty ones too.
-        let bins = (duration_s / 0.1).ceil() as i64;
-        for b in 0..bins {
-            lost.entry(b).or_default();
-        }
-        metrics.insert("messages_lost".into(), Value::from(total));
-        lines.push(Line {
-            label: "messages lost per 100 ms",
-            color: C_TRUE,
-            points: lost.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect(),
-        });
-    }
-    if !lines.is_empty() {
-        figures.push(Figure {
-            file: "link.png",
-            title: "The link: round trip and losses".into(),
-            x_desc: "time (s)",
-            y_desc: "ms / messages",
+    let (lower, what_lost) = if let Some(events) = topics.get("/link/events") {
+        let (cmd, cmd_total) = losses(events, "command", duration_s);
+        let (fb, fb_total) = losses(events, "feedback", duration_s);
+        metrics.insert("messages_lost".into(), Value::from(cmd_total + fb_total));
+        metrics.insert("commands_lost".into(), Value::from(cmd_total));
+        metrics.insert("feedback_lost".into(), Value::from(fb_total));
+        let lines = vec![
+            Line {
+                label: "commands lost (master → slave)",
+                color: C_TRUE,
+                points: cmd,
+            },
+            Line {
+                label: "feedback lost (slave → master)",
+                color: C_MEAS,
+                points: fb,
+            },
+        ];
+        (
+            Some(lines),
+            format!("losses ({} messages)", cmd_total + fb_total),
+        )
+    } else if let Some((fb, fb_total)) = master.and_then(|m| feedback_losses(m, duration_s)) {
+        // The processes: the master counts the feedback it missed; the commands the slave
+        // missed are not recorded.
+        metrics.insert("feedback_lost".into(), Value::from(fb_total));
+        let lines = vec![Line {
+            label: "feedback lost or rejected (slave → master); commands: not recorded",
+            color: C_MEAS,
+            points: fb,
+        }];
+        (
+            Some(lines),
+            format!("feedback losses ({fb_total} messages)"),
+        )
+    } else {
+        (None, String::new())
+    };
+    let lower = lower.map(|lines| Panel {
+        y_desc: "messages lost per 100 ms",
+        lines,
+    });
+    // The figures at a glance, in the title.
+    let rtt = match metrics.get("round_trip_p50_ms").and_then(Value::as_f64) {
+        Some(p50) => format!("round trip (median {p50:.1} ms)"),
+        None => String::new(),
+    };
+    let (title, y_desc, lines, lower) = match (lines.is_empty(), lower) {
+        (true, None) => return,
+        // A recording without the round trip: the losses alone.
+        (true, Some(p)) => (format!("The link: {what_lost}"), p.y_desc, p.lines, None),
+        (false, None) => (
+            format!("The link: {rtt} (losses not recorded)"),
+            "round trip (ms)",
             lines,
-            band: Vec::new(),
-        });
-    }
+            None,
+        ),
+        (false, Some(p)) => (
+            format!("The link: {rtt} and {what_lost}"),
+            "round trip (ms)",
+            lines,
+            Some(p),
+        ),
+    };
+    figures.push(Figure {
+        file: "link.png",
+        title,
+        x_desc: "time (s)",
+        y_desc,
+        lines,
+        band: Vec::new(),
+        lower,
+    });
 }
 
 /// Time of the recording's last message, s.
@@ -750,6 +925,53 @@ mod tests {
         assert_eq!(max_of(&thin), 100.0);
         assert_eq!(min_of(&thin), 0.0);
         assert!(thin.windows(2).all(|w| w[0].0 <= w[1].0));
+    }
+
+    /// The processes' running count of missed feedback becomes losses per 100 ms bin, every
+    /// bin drawn; a session's link events are counted by direction and by kind.
+    #[test]
+    fn losses_per_bin_from_counts_and_events() {
+        let master: Topic = (0..1000)
+            .map(|i| {
+                let t = i as f64 * 1e-3;
+                // 3 lost at 0.25 s, 2 more at 0.72 s.
+                let n = if t >= 0.72 {
+                    5
+                } else if t >= 0.25 {
+                    3
+                } else {
+                    0
+                };
+                (t, serde_json::json!({ "feedback_lost": n }))
+            })
+            .collect();
+        let (points, total) = feedback_losses(&master, 1.0).unwrap();
+        assert_eq!(total, 5);
+        assert_eq!(points.len(), 10);
+        let per_bin: Vec<f64> = points.iter().map(|p| p.1).collect();
+        assert_eq!(per_bin, [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0]);
+        assert!(feedback_losses(&vec![(0.0, serde_json::json!({}))], 1.0).is_none());
+
+        let ev = |t: f64, dir: &str, kind: &str| {
+            (
+                t,
+                serde_json::json!({ "direction": dir, "event": { "kind": kind } }),
+            )
+        };
+        let events: Topic = vec![
+            ev(0.05, "command", "lost"),
+            ev(0.06, "command", "duplicated"),
+            ev(0.31, "command", "blacked_out"),
+            ev(0.32, "feedback", "overflowed"),
+        ];
+        let (cmd, n_cmd) = losses(&events, "command", 0.5);
+        let (fb, n_fb) = losses(&events, "feedback", 0.5);
+        assert_eq!((n_cmd, n_fb), (2, 1));
+        assert_eq!(
+            cmd.iter().map(|p| p.1).collect::<Vec<_>>(),
+            [1.0, 0.0, 0.0, 1.0, 0.0]
+        );
+        assert_eq!(fb.iter().map(|p| p.1).sum::<f64>(), 1.0);
     }
 
     #[test]

@@ -44,6 +44,11 @@ struct MasterMsg {
     energy_out_j: f64,
     /// Energy the master's passivity controller dissipated so far, J.
     dissipated_j: f64,
+    /// The newest round trip the master measured (`teleop::RoundTrip`, the same figure as the
+    /// process's `h4.MasterProcessCycle`): now − the send time of the command the newest
+    /// echoing feedback echoed, µs; null (so not a required field) until a feedback message
+    /// has echoed a command.
+    round_trip_us: Option<f64>,
 }
 
 /// One slave cycle of the simulation (topic `/slave/cycle`, schema `h4.SlaveCycle`; the slave
@@ -193,6 +198,7 @@ impl Channels {
                 energy_in_j: me.in_j,
                 energy_out_j: me.out_j,
                 dissipated_j: me.dissipated_j,
+                round_trip_us: Some(m.round_trip_us).filter(|r| r.is_finite()),
             },
         )?;
         let se = slave.port().energy;
