@@ -269,7 +269,8 @@ impl Recorder {
 
     fn to_sink(sink: Sink, path: String) -> Result<Self, RecordingError> {
         // zstd chunks of at most CHUNK_BYTES of messages, compressed in the writer's own thread
-        // (no compression workers beside the 1 kHz loops); docs/processes.md, "Recordings".
+        // (no compression workers beside the 1 kHz loops); docs/processes.md, "Faults and
+        // safe states", "Recordings: size and write cost".
         // A crash-safe file builds each chunk in memory (no seeking back into the file).
         let crash_safe = matches!(sink, Sink::CrashSafe(_));
         let options = mcap::WriteOptions::new()

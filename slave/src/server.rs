@@ -263,6 +263,16 @@ pub fn run<L: Link<Feedback, Command>>(
         "h4.SlaveProcessCycle",
         1e9 / period_ns as f64,
     );
+    // The cut, when the arm cuts a workpiece (the arm file's `[cutting]`).
+    let mut live_cut = match teleop.cut_cycle() {
+        Some(_) => h4_shared::live::topic_or_off::<crate::teleop::CutCycle>(
+            live_server.as_ref(),
+            "/slave/cut",
+            "h4.CutCycle",
+            1e9 / period_ns as f64,
+        ),
+        None => h4_shared::live::LiveTopic::off(),
+    };
 
     let mut realtime = opts.realtime.prepare()?;
     let per_step_s = period_ns as f64 * 1e-9;
@@ -315,6 +325,9 @@ pub fn run<L: Link<Feedback, Command>>(
         let record = CycleRecord::of(&c, cx, true_force_n);
         recorder.push(cx.unix_ns, record);
         live.push(cx.unix_ns, record);
+        if let Some(cut) = teleop.cut_cycle() {
+            live_cut.push(cx.unix_ns, cut);
+        }
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(

@@ -934,6 +934,51 @@ struct PortCommand {
     command: SlaveCommand,
 }
 
+/// One cycle of the cut, in a cutting session or a cutting `h4-slave run` (topic
+/// `/slave/cut`, schema `h4.CutCycle`: the simulation's recording and the processes' live
+/// view).
+#[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
+pub struct CutCycle {
+    /// The tool's tip in the workpiece frame, mm (simulation truth).
+    pub tool_tip_in_workpiece_mm: [f64; 3],
+    /// The contact force on the tool (cutting, or rubbing when the spindle is stopped) at
+    /// the cycle's end, N, workpiece frame (simulation truth, with the tooth-passing
+    /// ripple).
+    pub cutting_force_n: [f64; 3],
+    /// That force averaged over the cycle, N.
+    pub cutting_force_mean_n: [f64; 3],
+    /// Volume removed so far, mm³.
+    pub removed_mm3: f64,
+    /// Removal rate over the cycle, mm³/s.
+    pub removal_rate_mm3_per_s: f64,
+    /// The spindle's torque over the cycle, N·mm.
+    pub spindle_torque_n_mm: f64,
+    /// The spindle has stalled.
+    pub stalled: bool,
+    /// A virtual fixture limited the slave's command this cycle.
+    pub fixture_active: bool,
+}
+
+impl SlaveTeleop<crate::plant::SimArm> {
+    /// This cycle's cut, when the simulated arm cuts a workpiece (None otherwise).
+    pub fn cut_cycle(&self) -> Option<CutCycle> {
+        let cut = self.arm.cut()?;
+        let tp = self.arm.true_pose();
+        let f = self.arm.true_contact_wrench();
+        let rep = cut.report();
+        Some(CutCycle {
+            tool_tip_in_workpiece_mm: [tp[0], tp[1], tp[2]],
+            cutting_force_n: [f[0], f[1], f[2]],
+            cutting_force_mean_n: rep.mean_force_n,
+            removed_mm3: rep.removed_mm3,
+            removal_rate_mm3_per_s: rep.removal_rate_mm3_per_s,
+            spindle_torque_n_mm: rep.spindle_torque_n_mm,
+            stalled: rep.stalled,
+            fixture_active: self.ctrl.fixture_activity().0,
+        })
+    }
+}
+
 /// How close to a surface held before position mode slows to the approach speed, mm.
 const SURFACE_MARGIN_MM: f64 = 1.0;
 

@@ -83,29 +83,6 @@ struct SlaveMsg {
     dissipated_j: f64,
 }
 
-/// One cycle of the cut, in a cutting session (topic `/slave/cut`, schema `h4.CutCycle`).
-#[derive(Serialize, schemars::JsonSchema)]
-struct CutMsg {
-    /// The tool's tip in the workpiece frame, mm (simulation truth).
-    tool_tip_in_workpiece_mm: [f64; 3],
-    /// The contact force on the tool (cutting, or rubbing when the spindle is stopped) at
-    /// the cycle's end, N, workpiece frame (simulation truth, with the tooth-passing
-    /// ripple).
-    cutting_force_n: [f64; 3],
-    /// That force averaged over the cycle, N.
-    cutting_force_mean_n: [f64; 3],
-    /// Volume removed so far, mm³.
-    removed_mm3: f64,
-    /// Removal rate over the cycle, mm³/s.
-    removal_rate_mm3_per_s: f64,
-    /// The spindle's torque over the cycle, N·mm.
-    spindle_torque_n_mm: f64,
-    /// The spindle has stalled.
-    stalled: bool,
-    /// A virtual fixture limited the slave's command this cycle.
-    fixture_active: bool,
-}
-
 /// One impairment event (topic `/link/events`, schema `h4.LinkEvent`).
 #[derive(Serialize, schemars::JsonSchema)]
 struct LinkMsg {
@@ -131,7 +108,7 @@ impl Channels {
             slave: r.add_channel_for::<SlaveMsg>("/slave/cycle", "h4.SlaveCycle")?,
             link: r.add_channel_for::<LinkMsg>("/link/events", "h4.LinkEvent")?,
             cut: if cutting {
-                Some(r.add_channel_for::<CutMsg>("/slave/cut", "h4.CutCycle")?)
+                Some(r.add_channel_for::<h4_slave::teleop::CutCycle>("/slave/cut", "h4.CutCycle")?)
             } else {
                 None
             },
@@ -145,26 +122,10 @@ impl Channels {
         t_ns: u64,
         slave: &SlaveTeleop<SimArm>,
     ) -> Result<(), RecordingError> {
-        let (Some(ch), Some(cut)) = (self.cut, slave.arm().cut()) else {
+        let (Some(ch), Some(cut)) = (self.cut, slave.cut_cycle()) else {
             return Ok(());
         };
-        let tp = slave.arm().true_pose();
-        let f = slave.arm().true_contact_wrench();
-        let rep = cut.report();
-        r.write(
-            ch,
-            t_ns,
-            &CutMsg {
-                tool_tip_in_workpiece_mm: [tp[0], tp[1], tp[2]],
-                cutting_force_n: [f[0], f[1], f[2]],
-                cutting_force_mean_n: rep.mean_force_n,
-                removed_mm3: rep.removed_mm3,
-                removal_rate_mm3_per_s: rep.removal_rate_mm3_per_s,
-                spindle_torque_n_mm: rep.spindle_torque_n_mm,
-                stalled: rep.stalled,
-                fixture_active: slave.controller().fixture_activity().0,
-            },
-        )
+        r.write(ch, t_ns, &cut)
     }
 
     /// Writes one cycle of both sides at `t_ns`: the master's cycle `m` with its port's
