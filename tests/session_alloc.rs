@@ -73,3 +73,37 @@ fn cutting_cycles_allocate_nothing() {
     );
     assert_eq!(n, 0, "{n} allocations in 4000 cutting cycles");
 }
+
+/// The turntable (its servo, the workpiece-frame cut, the synchronous fixture and its
+/// program) allocates nothing: cycles of the profile session while the part turns under the
+/// tool.
+#[test]
+fn turntable_cycles_allocate_nothing() {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-profile.toml");
+    let o: Vec<String> = ["link.delay_ms=10", "link.jitter_ms=3", "link.loss=0.05"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let cfg = session::load(&path, &o).unwrap();
+    let mut s = Session::new(&cfg).unwrap();
+    for _ in 0..2500 {
+        s.cycle().unwrap();
+    }
+    let angle = |s: &Session| {
+        s.slave.arm().cut().unwrap().turntable().unwrap().angle_rad()
+    };
+    let (removed_before, angle_before) = (
+        s.slave.arm().cut().unwrap().report().removed_mm3,
+        angle(&s),
+    );
+    let (n, ()) = count_allocations(|| {
+        for _ in 0..4000 {
+            s.cycle().unwrap();
+        }
+    });
+    let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
+    assert!(removed > 10.0, "nothing cut in the counted cycles: {removed} mm³");
+    assert!(angle(&s) - angle_before > 1.5, "the table did not turn");
+    assert_eq!(n, 0, "{n} allocations in 4000 turntable cycles");
+}

@@ -25,4 +25,12 @@ pub trait ArmDriver {
     /// New position set-points for the four actuator servos, mm. The driver may refuse
     /// non-finite values (the simulation keeps the previous set-point).
     fn command(&mut self, actuators_mm: &[f64; 4]);
+    /// The turntable's angle from its encoder, rad; `None` when the arm has no turntable
+    /// (the default).
+    fn turntable_rad(&self) -> Option<f64> {
+        None
+    }
+    /// A new angle set-point for the turntable's servo, rad (ignored without a turntable;
+    /// the driver may refuse non-finite values).
+    fn command_turntable(&mut self, _angle_rad: f64) {}
 }

@@ -407,9 +407,13 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             wrench: reading.wrench,
             command: port.command,
         };
+        self.ctrl.observe_turntable(self.arm.turntable_rad());
         let out = self.ctrl.step(&input, dt_s);
         self.flag_faults(&out);
         self.arm.command(&out.actuators_cmd_mm);
+        if let Some(a) = self.ctrl.turntable_command_rad(dt_s) {
+            self.arm.command_turntable(a);
+        }
         self.book(&out, &intent, &port, dt_s);
         self.last_out = Some(out);
         let command_seq = self.publish(link, &out, now_ns);
@@ -957,6 +961,12 @@ pub struct CutCycle {
     pub stalled: bool,
     /// A virtual fixture limited the slave's command this cycle.
     pub fixture_active: bool,
+    /// The turntable's true angle, rad (0 without a turntable: the workpiece frame is then
+    /// the base frame).
+    pub turntable_rad: f64,
+    /// The turntable's commanded angle (its servo's last set-point as commanded), rad (0
+    /// without a turntable).
+    pub turntable_cmd_rad: f64,
 }
 
 impl SlaveTeleop<crate::plant::SimArm> {
@@ -966,8 +976,9 @@ impl SlaveTeleop<crate::plant::SimArm> {
         let tp = self.arm.true_pose();
         let f = self.arm.true_contact_wrench();
         let rep = cut.report();
+        let table = cut.turntable();
         Some(CutCycle {
-            tool_tip_in_workpiece_mm: [tp[0], tp[1], tp[2]],
+            tool_tip_in_workpiece_mm: cut.to_workpiece([tp[0], tp[1], tp[2]]),
             cutting_force_n: [f[0], f[1], f[2]],
             cutting_force_mean_n: rep.mean_force_n,
             removed_mm3: rep.removed_mm3,
@@ -975,6 +986,8 @@ impl SlaveTeleop<crate::plant::SimArm> {
             spindle_torque_n_mm: rep.spindle_torque_n_mm,
             stalled: rep.stalled,
             fixture_active: self.ctrl.fixture_activity().0,
+            turntable_rad: table.map_or(0.0, |t| t.angle_rad()),
+            turntable_cmd_rad: table.map_or(0.0, |t| t.commanded_rad()),
         })
     }
 }

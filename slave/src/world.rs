@@ -45,7 +45,10 @@ impl Section for SlaveWorld {
         if let Some(c) = &self.cutting {
             c.validate_at(&format!("{prefix}cutting."))?;
         }
-        self.fixtures.validate_at(&format!("{prefix}fixtures."))
+        self.fixtures.validate_at(&format!("{prefix}fixtures."))?;
+        let table = self.cutting.is_some_and(|c| c.turntable.is_some());
+        self.fixtures
+            .check_turntable(&format!("{prefix}fixtures."), table)
     }
 }
 
@@ -73,9 +76,12 @@ impl SlaveWorld {
             Some(c) => arm.with_cutting(c)?,
             None => arm,
         };
-        let ctrl = SlaveController::new(ws, assumed, self.controller)
+        let mut ctrl = SlaveController::new(ws, assumed, self.controller)
             .with_tool(self.arm.tool)
             .with_fixtures(&self.fixtures);
+        if let Some(t) = self.cutting.and_then(|c| c.turntable) {
+            ctrl = ctrl.with_turntable_axis(t.axis_mm);
+        }
         Ok((arm, ctrl))
     }
 }

@@ -326,7 +326,9 @@ impl Validate for SessionConfig {
         if let Some(t) = &self.cut_target {
             t.validate_at("cut_target.")?;
         }
-        self.fixtures.validate_at("fixtures.")
+        self.fixtures.validate_at("fixtures.")?;
+        let table = self.cutting.is_some_and(|c| c.turntable.is_some());
+        self.fixtures.check_turntable("fixtures.", table)
     }
 }
 

@@ -18,6 +18,9 @@ pub enum TargetKind {
     /// A rectangular pocket: the tool's tip covers `size_mm` at `depth_mm`; its walls and
     /// their fillets are the tool's own shape.
     Pocket,
+    /// A ring groove (a contour round a turning part): the tool's tip covers the circle of
+    /// `radius_mm` about `centre_mm` (a band `size_mm[0]` wide across it) at `depth_mm`.
+    Ring,
 }
 
 /// The shape a session should cut (`cut_target`), in the workpiece frame.
@@ -28,8 +31,12 @@ pub struct CutTarget {
     pub kind: TargetKind,
     /// Centre of the region the tool's tip covers, x and y, mm.
     pub centre_mm: [f64; 2],
-    /// Size of that region along x and y, mm.
+    /// Size of that region along x and y, mm (a ring: `[band width, unused]`, default 0).
+    #[serde(default)]
     pub size_mm: [f64; 2],
+    /// A ring's radius (the tip's circle), mm (0 to 1e4; unused by a pocket).
+    #[serde(default)]
+    pub radius_mm: f64,
     /// Depth below the block's top, mm.
     pub depth_mm: f64,
     /// The part is judged over the pocket and this margin of the top around it, mm.
@@ -60,6 +67,7 @@ impl Section for CutTarget {
                 "mm",
             )?;
         }
+        check_range(&f("radius_mm"), self.radius_mm, 0.0, 1e4, "mm")?;
         check_range(&f("depth_mm"), self.depth_mm, 0.0, 100.0, "mm")?;
         check_range(&f("margin_mm"), self.margin_mm, 0.0, 100.0, "mm")
     }
@@ -68,6 +76,10 @@ impl Section for CutTarget {
 impl CutTarget {
     /// Horizontal distance of (`x`, `y`) from the region the tip covers (0 inside), mm.
     fn distance_mm(&self, x: f64, y: f64) -> f64 {
+        if self.kind == TargetKind::Ring {
+            let rho = (x - self.centre_mm[0]).hypot(y - self.centre_mm[1]);
+            return ((rho - self.radius_mm).abs() - 0.5 * self.size_mm[0]).max(0.0);
+        }
         let dx = ((x - self.centre_mm[0]).abs() - 0.5 * self.size_mm[0]).max(0.0);
         let dy = ((y - self.centre_mm[1]).abs() - 0.5 * self.size_mm[1]).max(0.0);
         (dx * dx + dy * dy).sqrt()
@@ -359,6 +371,7 @@ mod tests {
             kind: TargetKind::Pocket,
             centre_mm: [0.0, 0.0],
             size_mm: [20.0, 10.0],
+            radius_mm: 0.0,
             depth_mm: 2.0,
             margin_mm: 3.0,
         };
@@ -372,5 +385,17 @@ mod tests {
         let mut v = vec![3.0, 1.0, 2.0];
         assert_eq!(p99(&mut v), 3.0);
         assert!(p99(&mut []).is_nan());
+        // A ring of 20 mm about (5, 0): its floor on the circle, the fillet beside it.
+        let ring = CutTarget {
+            kind: TargetKind::Ring,
+            radius_mm: 20.0,
+            size_mm: [0.0, 0.0],
+            centre_mm: [5.0, 0.0],
+            ..t
+        };
+        assert_eq!(ring.height_mm(5.0, 20.0, 0.0, &tool), -2.0);
+        let h = ring.height_mm(27.0, 0.0, 0.0, &tool);
+        assert!((h - (-2.0 + 3.0 - 8f64.sqrt())).abs() < 1e-12, "{h}");
+        assert_eq!(ring.height_mm(5.0, 0.0, 0.0, &tool), 0.0);
     }
 }

@@ -180,7 +180,7 @@ impl Session {
         let p = self.slave.arm().true_pose();
         Some(CutSample {
             report: cut.report(),
-            tip_mm: [p[0], p[1], p[2]],
+            tip_mm: cut.to_workpiece([p[0], p[1], p[2]]),
             in_contact: s.out.status == Status::Contact,
             fixture_active: self.slave.controller().fixture_activity().0,
             setpoint_n: s.out.setpoint_n,

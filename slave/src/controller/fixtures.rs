@@ -5,7 +5,12 @@
 //!
 //! * a **depth floor**: the tool point is never commanded below `z_mm`;
 //! * a **corridor** around a planned path (a polyline in x, y): the tool point is never
-//!   commanded further than `half_width_mm` from it (the nearest point of the path).
+//!   commanded further than `half_width_mm` from it (the nearest point of the path). With a
+//!   turntable the path is in the workpiece frame: the controller turns it with the table's
+//!   measured angle;
+//! * the **turntable-synchronous** mode: the slave turns the table at a configured speed
+//!   while the tool point is held on a radial line through the table's axis; the operator
+//!   guides only its radius and depth, the turning part brings the stock round.
 //!
 //! Each is a section of `fixtures` in a slave world or a session file; `docs/cutting.md`.
 
@@ -34,6 +39,34 @@ pub struct CorridorConfig {
     pub half_width_mm: f64,
 }
 
+/// The turntable-synchronous mode (`fixtures.turntable_sync`; needs `cutting.turntable`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TurntableSync {
+    /// The table's commanded speed, rad/s (−50 to 50; positive: counter-clockwise seen from
+    /// above).
+    pub speed_rad_per_s: f64,
+    /// The commanded speed's ramp at the start and at a stop, rad/s² (0.01 to 1e4; 2).
+    #[serde(default = "default_ramp")]
+    pub ramp_rad_per_s2: f64,
+    /// The azimuth of the radial line the tool point is held on, base frame, rad (−2π to 2π;
+    /// 0: the +x side of the axis).
+    #[serde(default)]
+    pub azimuth_rad: f64,
+    /// The radii (from the table's axis) the tool point is held between, mm (0 to 1e4;
+    /// `[0, 1e4]`).
+    #[serde(default = "default_radius_range")]
+    pub radius_range_mm: [f64; 2],
+}
+
+fn default_ramp() -> f64 {
+    2.0
+}
+
+fn default_radius_range() -> [f64; 2] {
+    [0.0, 1e4]
+}
+
 /// The fixtures (`fixtures.*`); none by default.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -44,12 +77,28 @@ pub struct FixturesConfig {
     /// The corridor.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub corridor: Option<CorridorConfig>,
+    /// The turntable-synchronous mode.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub turntable_sync: Option<TurntableSync>,
 }
 
 impl FixturesConfig {
     /// No fixture configured.
     pub fn is_empty(&self) -> bool {
-        self.depth_floor.is_none() && self.corridor.is_none()
+        self.depth_floor.is_none() && self.corridor.is_none() && self.turntable_sync.is_none()
+    }
+
+    /// The turntable-synchronous mode needs a turntable (`has_turntable`): the error names
+    /// `{prefix}turntable_sync`.
+    pub fn check_turntable(&self, prefix: &str, has_turntable: bool) -> Result<(), ConfigError> {
+        if self.turntable_sync.is_some() && !has_turntable {
+            return Err(ConfigError::OutOfRange {
+                field: format!("{prefix}turntable_sync"),
+                value: "set without a turntable".to_string(),
+                allowed: "only with a [cutting.turntable] section".to_string(),
+            });
+        }
+        Ok(())
     }
 }
 
@@ -87,6 +136,28 @@ impl Section for FixturesConfig {
                 "mm",
             )?;
         }
+        if let Some(t) = &self.turntable_sync {
+            let f = |n: &str| format!("{prefix}turntable_sync.{n}");
+            check_range(
+                &f("speed_rad_per_s"),
+                t.speed_rad_per_s,
+                -50.0,
+                50.0,
+                "rad/s",
+            )?;
+            check_range(
+                &f("ramp_rad_per_s2"),
+                t.ramp_rad_per_s2,
+                0.01,
+                1e4,
+                "rad/s²",
+            )?;
+            let tau = 2.0 * std::f64::consts::PI;
+            check_range(&f("azimuth_rad"), t.azimuth_rad, -tau, tau, "rad")?;
+            let [r0, r1] = t.radius_range_mm;
+            check_range(&f("radius_range_mm[0]"), r0, 0.0, 1e4, "mm")?;
+            check_range(&f("radius_range_mm[1]"), r1, r0, 1e4, "mm (≥ the minimum)")?;
+        }
         Ok(())
     }
 }
@@ -98,6 +169,17 @@ pub struct Fixtures {
     path: [[f64; 2]; CORRIDOR_POINTS_MAX],
     path_len: usize,
     half_width_mm: f64,
+    /// The turntable-synchronous mode.
+    sync: Option<TurntableSync>,
+    /// The turntable's axis (x, y), base frame, mm, when the machine has one (told).
+    table_axis_mm: Option<[f64; 2]>,
+    /// The table's measured angle this cycle, rad.
+    table_measured_rad: Option<f64>,
+    /// The table's commanded angle, rad, and speed, rad/s (the synchronous program).
+    table_cmd_rad: f64,
+    table_cmd_speed_rad_per_s: f64,
+    /// The program has started (from the measured angle).
+    table_started: bool,
     /// The last committed pose was moved by a fixture.
     pub(crate) active: bool,
     /// Cycles a fixture moved the committed pose.
@@ -111,6 +193,12 @@ impl Default for Fixtures {
             path: [[0.0; 2]; CORRIDOR_POINTS_MAX],
             path_len: 0,
             half_width_mm: 0.0,
+            sync: None,
+            table_axis_mm: None,
+            table_measured_rad: None,
+            table_cmd_rad: 0.0,
+            table_cmd_speed_rad_per_s: 0.0,
+            table_started: false,
             active: false,
             active_cycles: 0,
         }
@@ -123,6 +211,7 @@ impl Fixtures {
     pub fn new(cfg: &FixturesConfig) -> Self {
         let mut f = Fixtures {
             floor_z_mm: cfg.depth_floor.map(|d| d.z_mm),
+            sync: cfg.turntable_sync,
             ..Fixtures::default()
         };
         if let Some(c) = &cfg.corridor {
@@ -135,24 +224,85 @@ impl Fixtures {
         f
     }
 
-    /// `pose` moved into the fixtures: onto the floor if below it, into the corridor if
-    /// outside it (towards the path's nearest point). Records whether it moved.
+    /// Tells the fixtures the turntable's axis (x, y), base frame, mm: the corridor's path
+    /// is then in the workpiece frame and the synchronous mode turns about it.
+    pub fn set_turntable_axis(&mut self, axis_mm: [f64; 2]) {
+        self.table_axis_mm = Some(axis_mm);
+    }
+
+    /// This cycle's measured turntable angle, rad (`None`: no turntable, or no reading; a
+    /// non-finite reading counts as none).
+    pub fn observe_turntable(&mut self, measured_rad: Option<f64>) {
+        self.table_measured_rad = measured_rad.filter(|a| a.is_finite());
+    }
+
+    /// The turntable's set-point for a cycle of `dt_s` in the synchronous mode: its speed
+    /// ramps (at `ramp_rad_per_s2`) to `speed_rad_per_s`, or to a stop while `stop`; the
+    /// program starts from the measured angle. `None` without the synchronous mode.
+    pub fn turntable_command(&mut self, dt_s: f64, stop: bool) -> Option<f64> {
+        let s = self.sync?;
+        if !self.table_started {
+            self.table_cmd_rad = self.table_measured_rad.unwrap_or(0.0);
+            self.table_started = true;
+        }
+        if dt_s.is_finite() && dt_s > 0.0 {
+            let target = if stop { 0.0 } else { s.speed_rad_per_s };
+            let step = s.ramp_rad_per_s2 * dt_s;
+            let v0 = self.table_cmd_speed_rad_per_s;
+            self.table_cmd_speed_rad_per_s += (target - v0).clamp(-step, step);
+            self.table_cmd_rad += 0.5 * (v0 + self.table_cmd_speed_rad_per_s) * dt_s;
+        }
+        Some(self.table_cmd_rad)
+    }
+
+    /// The table's angle to turn base-frame x, y into the workpiece frame: the measured
+    /// angle and the axis, when both are known.
+    fn table_frame(&self) -> Option<(f64, [f64; 2])> {
+        Some((self.table_measured_rad?, self.table_axis_mm?))
+    }
+
+    /// `pose` moved into the fixtures: onto the floor if below it, onto the synchronous
+    /// mode's radial line (its radius kept within the range), into the corridor if outside
+    /// it (towards the path's nearest point, in the workpiece frame with a turntable).
+    /// Records whether it moved (a radial projection of less than 1 µm does not count).
     pub fn limit(&mut self, pose: Pose) -> Pose {
         let mut p = pose;
+        let mut moved = false;
         if let Some(z) = self.floor_z_mm
             && p[2] < z
         {
             p[2] = z;
+            moved = true;
+        }
+        if let (Some(s), Some(c)) = (self.sync, self.table_axis_mm) {
+            let (uy, ux) = s.azimuth_rad.sin_cos();
+            let [r0, r1] = s.radius_range_mm;
+            let r = ((p[0] - c[0]) * ux + (p[1] - c[1]) * uy).clamp(r0, r1);
+            let q = [c[0] + r * ux, c[1] + r * uy];
+            moved |= (q[0] - p[0]).hypot(q[1] - p[1]) > 1e-3;
+            p[0] = q[0];
+            p[1] = q[1];
         }
         if self.path_len >= 2 {
-            let (near, d) = self.nearest_on_path([p[0], p[1]]);
+            let frame = self.table_frame();
+            let q = match frame {
+                Some((th, c)) => turn_about(c, -th, [p[0], p[1]]),
+                None => [p[0], p[1]],
+            };
+            let (near, d) = self.nearest_on_path(q);
             if d > self.half_width_mm && d > 0.0 {
                 let s = self.half_width_mm / d;
-                p[0] = near[0] + (p[0] - near[0]) * s;
-                p[1] = near[1] + (p[1] - near[1]) * s;
+                let q = [near[0] + (q[0] - near[0]) * s, near[1] + (q[1] - near[1]) * s];
+                let b = match frame {
+                    Some((th, c)) => turn_about(c, th, q),
+                    None => q,
+                };
+                p[0] = b[0];
+                p[1] = b[1];
+                moved = true;
             }
         }
-        self.active = p != pose;
+        self.active = moved;
         if self.active {
             self.active_cycles += 1;
         }
@@ -181,6 +331,14 @@ impl Fixtures {
     }
 }
 
+/// `q` turned by `angle_rad` about `c` (x, y), mm.
+#[inline]
+fn turn_about(c: [f64; 2], angle_rad: f64, q: [f64; 2]) -> [f64; 2] {
+    let (s, co) = angle_rad.sin_cos();
+    let (x, y) = (q[0] - c[0], q[1] - c[1]);
+    [c[0] + co * x - s * y, c[1] + s * x + co * y]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -192,6 +350,7 @@ mod tests {
                 path_mm: vec![[0.0, 0.0], [20.0, 0.0], [20.0, 10.0]],
                 half_width_mm: 1.0,
             }),
+            turntable_sync: None,
         }
     }
 
@@ -199,7 +358,7 @@ mod tests {
     fn the_floor_holds_the_tool_point_above_it() {
         let mut f = Fixtures::new(&FixturesConfig {
             depth_floor: Some(DepthFloor { z_mm: -252.0 }),
-            corridor: None,
+            ..FixturesConfig::default()
         });
         let p = f.limit(Pose::new(3.0, 4.0, -253.5, 0.1));
         assert_eq!(p, Pose::new(3.0, 4.0, -252.0, 0.1));
@@ -228,6 +387,83 @@ mod tests {
         assert!(!f.active);
     }
 
+    fn sync(speed: f64) -> FixturesConfig {
+        FixturesConfig {
+            turntable_sync: Some(TurntableSync {
+                speed_rad_per_s: speed,
+                ramp_rad_per_s2: 2.0,
+                azimuth_rad: std::f64::consts::FRAC_PI_2,
+                radius_range_mm: [5.0, 40.0],
+            }),
+            ..FixturesConfig::default()
+        }
+    }
+
+    /// The synchronous mode holds the tool point on its radial line (here +y of the axis
+    /// at (10, 0)), the radius within its range, z untouched; a tiny projection does not
+    /// count as the fixture acting.
+    #[test]
+    fn the_synchronous_mode_holds_the_tool_on_its_radial_line() {
+        let mut f = Fixtures::new(&sync(1.0));
+        f.set_turntable_axis([10.0, 0.0]);
+        let p = f.limit(Pose::new(13.0, 20.0, -251.0, 0.2));
+        assert!((p[0] - 10.0).abs() < 1e-12 && (p[1] - 20.0).abs() < 1e-12, "{p:?}");
+        assert_eq!((p[2], p[3]), (-251.0, 0.2));
+        assert!(f.active);
+        let p = f.limit(Pose::new(10.0, 60.0, -251.0, 0.0));
+        assert!((p[1] - 40.0).abs() < 1e-12, "{p:?}");
+        let p = f.limit(Pose::new(10.0, -3.0, -251.0, 0.0));
+        assert!((p[1] - 5.0).abs() < 1e-12, "{p:?}");
+        f.limit(Pose::new(10.0 + 1e-4, 20.0, -251.0, 0.0));
+        assert!(!f.active);
+    }
+
+    /// The program ramps the commanded speed to the configured one from the measured
+    /// angle, and ramps it down to a stop while stopping; without the mode there is none.
+    #[test]
+    fn the_synchronous_program_ramps_the_table() {
+        let mut f = Fixtures::new(&sync(1.5));
+        f.observe_turntable(Some(0.25));
+        let mut last = 0.25;
+        let mut speed = 0.0;
+        for _ in 0..2000 {
+            let a = f.turntable_command(1e-3, false).unwrap();
+            speed = (a - last) / 1e-3;
+            last = a;
+        }
+        assert!((speed - 1.5).abs() < 1e-9, "{speed}");
+        // 0.75 s of ramp (1.5 / 2), then 1.25 s at speed: 0.5625 + 1.875 rad.
+        assert!((last - 0.25 - 0.5625 - 1.875).abs() < 1e-3, "{last}");
+        for _ in 0..1000 {
+            let a = f.turntable_command(1e-3, true).unwrap();
+            speed = (a - last) / 1e-3;
+            last = a;
+        }
+        assert!(speed.abs() < 1e-9, "still turning at {speed}");
+        assert!(Fixtures::new(&corridor()).turntable_command(1e-3, false).is_none());
+    }
+
+    /// With a turntable the corridor's path is in the workpiece frame: a quarter turn of
+    /// the table turns it with the part.
+    #[test]
+    fn the_corridor_turns_with_the_table() {
+        let mut f = Fixtures::new(&FixturesConfig {
+            corridor: Some(CorridorConfig {
+                path_mm: vec![[10.0, 0.0], [30.0, 0.0]],
+                half_width_mm: 0.5,
+            }),
+            ..FixturesConfig::default()
+        });
+        f.set_turntable_axis([0.0, 0.0]);
+        f.observe_turntable(Some(std::f64::consts::FRAC_PI_2));
+        // The path now runs along +y in the base frame: (3, 20) comes back to (0.5, 20).
+        let p = f.limit(Pose::new(3.0, 20.0, -251.0, 0.0));
+        assert!((p[0] - 0.5).abs() < 1e-9 && (p[1] - 20.0).abs() < 1e-9, "{p:?}");
+        f.observe_turntable(Some(0.0));
+        let p = f.limit(Pose::new(20.0, 3.0, -251.0, 0.0));
+        assert!((p[1] - 0.5).abs() < 1e-9, "{p:?}");
+    }
+
     #[test]
     fn fixtures_name_their_fields() {
         let mut c = corridor();
@@ -239,5 +475,12 @@ mod tests {
         c.corridor.as_mut().unwrap().half_width_mm = -1.0;
         let e = c.validate_at("fixtures.").unwrap_err().to_string();
         assert!(e.contains("fixtures.corridor.half_width_mm"), "{e}");
+        let mut c = sync(1.0);
+        c.turntable_sync.as_mut().unwrap().radius_range_mm = [10.0, 5.0];
+        let e = c.validate_at("fixtures.").unwrap_err().to_string();
+        assert!(e.contains("fixtures.turntable_sync.radius_range_mm[1]"), "{e}");
+        let e = sync(1.0).check_turntable("fixtures.", false).unwrap_err();
+        assert!(e.to_string().contains("fixtures.turntable_sync"), "{e}");
+        assert!(sync(1.0).check_turntable("fixtures.", true).is_ok());
     }
 }

@@ -201,6 +201,28 @@ impl SlaveController {
         self
     }
 
+    /// The controller told the turntable's axis (x, y), base frame, mm (the machine's
+    /// geometry): the fixtures then work in the workpiece frame through the table's
+    /// measured angle ([`SlaveController::observe_turntable`]).
+    pub fn with_turntable_axis(mut self, axis_mm: [f64; 2]) -> Self {
+        self.fixtures.set_turntable_axis(axis_mm);
+        self
+    }
+
+    /// The turntable's measured angle (its encoder) for the next [`SlaveController::step`],
+    /// rad (`None`: no turntable).
+    pub fn observe_turntable(&mut self, measured_rad: Option<f64>) {
+        self.fixtures.observe_turntable(measured_rad);
+    }
+
+    /// The turntable's set-point for this cycle of `dt_s` seconds: the synchronous
+    /// fixture's program (its speed ramped in; ramped to a stop during a safe stop); `None`
+    /// without that fixture.
+    pub fn turntable_command_rad(&mut self, dt_s: f64) -> Option<f64> {
+        let stop = self.safe.active();
+        self.fixtures.turntable_command(dt_s, stop)
+    }
+
     /// Whether a fixture moved the last committed pose, and in how many cycles one did.
     pub fn fixture_activity(&self) -> (bool, u64) {
         (self.fixtures.active, self.fixtures.active_cycles)

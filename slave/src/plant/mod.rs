@@ -444,6 +444,16 @@ impl ArmDriver for SimArm {
         self.pending[self.pending_len] = (due, *actuators_mm);
         self.pending_len += 1;
     }
+
+    fn turntable_rad(&self) -> Option<f64> {
+        Some(self.cut.as_deref()?.turntable()?.measured_rad())
+    }
+
+    fn command_turntable(&mut self, angle_rad: f64) {
+        if let Some(cut) = self.cut.as_deref_mut() {
+            cut.command_turntable(angle_rad);
+        }
+    }
 }
 
 #[cfg(test)]

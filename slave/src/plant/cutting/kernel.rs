@@ -43,7 +43,7 @@ impl CutState {
             if self.engagement.elements == 0 {
                 return [0.0; 3];
             }
-            let phase = self.phase_rev - n * self.since_update_s;
+            let phase = self.phase_rev - n * self.since_update_s - self.table_rev;
             let m = self.engagement.matrix(phase, self.tool.flutes, vs);
             let v = solve_damped(&m, dt_over_m, vs);
             let f = [
@@ -96,6 +96,46 @@ impl CutState {
     }
 }
 
+impl CutState {
+    /// [`CutState::contact`] on a turning workpiece, in the base frame: the turntable
+    /// advances one servo period, then the tool's tip and its velocity relative to the
+    /// turning stock (`v − ω ẑ × (p − c)`) are taken into the workpiece frame at the
+    /// table's true angle, the contact is solved there, and the force and the velocity are
+    /// turned back. Without a turntable, [`CutState::contact`] itself.
+    #[inline]
+    pub(crate) fn contact_base(
+        &mut self,
+        vs: &mut [f64; 3],
+        vel_before: &[f64; 3],
+        tip_mm: &[f64; 3],
+        dt_s: f64,
+        dt_over_m: f64,
+        rub: &Rubbing,
+    ) -> [f64; 3] {
+        let Some(table) = self.table.as_mut() else {
+            return self.contact(vs, vel_before, tip_mm, dt_s, dt_over_m, rub);
+        };
+        table.step(dt_s);
+        let th = table.angle_rad();
+        let om = table.speed_rad_per_s();
+        let [ax, ay] = table.config().axis_mm;
+        let tip_wp = table.to_workpiece(*tip_mm);
+        self.table_rev = th / (2.0 * std::f64::consts::PI);
+        let (s, c) = th.sin_cos();
+        // The stock's velocity under the tip, base frame.
+        let u = [-om * (tip_mm[1] - ay), om * (tip_mm[0] - ax), 0.0];
+        let into_wp = |v: &[f64; 3]| {
+            let (x, y) = (v[0] - u[0], v[1] - u[1]);
+            [c * x + s * y, -s * x + c * y, v[2]]
+        };
+        let mut w = into_wp(&*vs);
+        let before = into_wp(vel_before);
+        let f = self.contact(&mut w, &before, &tip_wp, dt_s, dt_over_m, rub);
+        *vs = [c * w[0] - s * w[1] + u[0], s * w[0] + c * w[1] + u[1], w[2]];
+        [c * f[0] - s * f[1], s * f[0] + c * f[1], f[2]]
+    }
+}
+
 impl SimArm {
     /// `n` servo periods with the Jacobian held, cutting: [`SimArm::substeps_with`]'s
     /// servos, structure and platform, the contact the cut's.
@@ -117,7 +157,7 @@ impl SimArm {
             let mut vs = st.structure();
             let before = [st.vel[0], st.vel[1], st.vel[2]];
             let tip = [st.pose[0], st.pose[1], st.pose[2]];
-            fc = cut.contact(&mut vs, &before, &tip, dt, dt_over_m_tool, &rub);
+            fc = cut.contact_base(&mut vs, &before, &tip, dt, dt_over_m_tool, &rub);
             for (i, f) in cut.force_impulse_n_s.iter_mut().zip(fc) {
                 *i += f * dt;
             }

@@ -4,7 +4,9 @@
 //!   it ([`Stock::sweep`], once per 1 ms update, along the tool tip's path since the last);
 //! * [`tool`]: ball-end and flat end mills;
 //! * [`mechanics`]: the mechanistic cutting force on the tool's envelope elements that touch
-//!   the stock, rippling as the teeth pass.
+//!   the stock, rippling as the teeth pass;
+//! * [`turntable`]: the rotary table the workpiece turns on, with its own servo; the stock
+//!   lives in the workpiece frame, which turns with the table's true angle.
 //!
 //! [`CutState`] ties them to the simulated arm: every millisecond it sweeps the stock along
 //! the tip's path, measures the removal rate and the spindle's torque (a cut that needs
@@ -19,10 +21,12 @@ mod kernel;
 mod mechanics;
 mod stock;
 mod tool;
+mod turntable;
 
 pub use mechanics::{CuttingCoefficients, Engagement};
 pub use stock::Stock;
 pub use tool::{Tool, ToolKind};
+pub use turntable::{Turntable, TurntableConfig};
 
 use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
@@ -52,6 +56,9 @@ pub struct CuttingConfig {
     pub coefficients: Option<CuttingCoefficients>,
     /// The end mill.
     pub tool: Tool,
+    /// The turntable the workpiece turns on (none: the workpiece frame is the base frame).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub turntable: Option<TurntableConfig>,
 }
 
 impl Default for CuttingConfig {
@@ -64,6 +71,7 @@ impl Default for CuttingConfig {
             material: MaterialPreset::Resin,
             coefficients: None,
             tool: Tool::default(),
+            turntable: None,
         }
     }
 }
@@ -113,6 +121,9 @@ impl Section for CuttingConfig {
                 check_range(&f(n), v, 0.0, 1e5, "N/mm²")?;
             }
         }
+        if let Some(t) = &self.turntable {
+            t.validate_at(&f("turntable."))?;
+        }
         self.tool.validate_at(&f("tool."))
     }
 }
@@ -131,8 +142,8 @@ pub struct CutReport {
     /// Updates in which the spindle stalled.
     pub stalls: u64,
     /// The contact force on the tool (cutting or rubbing) averaged over the last update's
-    /// servo periods, workpiece frame, N (the tooth-passing ripple is in the instantaneous
-    /// force, not in this mean over 1 ms).
+    /// servo periods, base (machine) frame, N (the tooth-passing ripple is in the
+    /// instantaneous force, not in this mean over 1 ms).
     pub mean_force_n: [f64; 3],
 }
 
@@ -151,13 +162,20 @@ pub struct CutState {
     since_update_s: f64,
     /// The tip at the last update (the reference of the rubbing penetrations), mm.
     rub_tip0_mm: [f64; 3],
-    /// The contact force summed over the servo periods since the last update, N·s.
+    /// The contact force summed over the servo periods since the last update, base frame,
+    /// N·s.
     force_impulse_n_s: [f64; 3],
     report: CutReport,
+    /// The turntable, when the workpiece turns.
+    table: Option<Turntable>,
+    /// The table's angle in the servo period being computed, revolutions (the teeth's
+    /// azimuth in the workpiece frame lags theirs in the base frame by it).
+    table_rev: f64,
 }
 
 impl CutState {
-    /// The cut from its configuration, the tip starting at `tip_mm`; `None` if the grid
+    /// The cut from its configuration, the tip starting at `tip_mm` (base frame; the
+    /// turntable, if any, starts at angle 0 where the frames coincide); `None` if the grid
     /// cannot be built.
     pub fn new(cfg: &CuttingConfig, tip_mm: [f64; 3]) -> Option<Self> {
         let stock = Stock::new(
@@ -179,7 +197,32 @@ impl CutState {
             rub_tip0_mm: tip_mm,
             force_impulse_n_s: [0.0; 3],
             report: CutReport::default(),
+            table: cfg.turntable.map(Turntable::new),
+            table_rev: 0.0,
         })
+    }
+
+    /// The turntable, when the workpiece turns on one.
+    pub fn turntable(&self) -> Option<&Turntable> {
+        self.table.as_ref()
+    }
+
+    /// A new set-point for the turntable's servo, rad (nothing without a turntable; a
+    /// non-finite one is refused).
+    pub fn command_turntable(&mut self, angle_rad: f64) {
+        if let Some(t) = self.table.as_mut() {
+            t.command(angle_rad);
+        }
+    }
+
+    /// The base-frame point `p_mm` in the workpiece frame at the table's true angle, mm
+    /// (the same point without a turntable).
+    #[inline]
+    pub fn to_workpiece(&self, p_mm: [f64; 3]) -> [f64; 3] {
+        match &self.table {
+            Some(t) => t.to_workpiece(p_mm),
+            None => p_mm,
+        }
     }
 
     /// The stock.
@@ -209,8 +252,10 @@ impl CutState {
     /// The 1 ms update: sweeps the stock along the tip's path since the last update (the
     /// spindle turning), measures the removal rate and the spindle's torque, stalls the
     /// spindle if the cut needs more than it has (it restarts once the tool is
-    /// [`RESTART_CLEARANCE_MM`] clear of the stock), and gathers the engagement at `tip_mm`. Allocates nothing.
-    pub fn update(&mut self, tip_mm: [f64; 3]) {
+    /// [`RESTART_CLEARANCE_MM`] clear of the stock), and gathers the engagement at `tip_mm`
+    /// (base frame; the cut works with it in the workpiece frame). Allocates nothing.
+    pub fn update(&mut self, tip_base_mm: [f64; 3]) {
+        let tip_mm = self.to_workpiece(tip_base_mm);
         let dt = self.since_update_s;
         let n = self.rev_per_s();
         let removed = if n > 0.0 {
@@ -448,6 +493,139 @@ mod tests {
         );
         go(&mut arm, [0.0, 0.0, -245.0, 0.0], 300);
         assert!(!arm.cut().unwrap().report().stalled);
+    }
+
+    /// The area of the groove's cross-section on the radial line at azimuth `phi` (workpiece
+    /// frame, about the origin), mm², sampled every 0.005 mm from `rho0` to `rho1`; and the
+    /// deepest point's radius and depth below `top`.
+    fn groove_section(stock: &Stock, phi: f64, rho0: f64, rho1: f64) -> (f64, f64, f64) {
+        let (mut area, mut deepest, mut at) = (0.0, 0.0, 0.0);
+        let step = 0.005;
+        let mut rho = rho0;
+        while rho < rho1 {
+            let h = stock
+                .height_under(rho * phi.cos(), rho * phi.sin())
+                .unwrap();
+            let d = stock.top_mm() - h;
+            area += d * step;
+            if d > deepest {
+                deepest = d;
+                at = rho;
+            }
+            rho += step;
+        }
+        (area, at, deepest)
+    }
+
+    /// A constant-speed turn of the table under a stationary tool at a fixed depth cuts a
+    /// circular groove: its cross-section (read from the height field on radial lines) is
+    /// the same all round and is the ball's segment at the depth the tool really ran at; the
+    /// removed volume is that area × the circumference at its radius (Pappus) within 3 %,
+    /// the groove's radius is the tool's true radius in the workpiece frame; the force turns
+    /// back into the base frame (the stock drags the stationary tool along its motion).
+    #[test]
+    fn a_turn_under_a_stationary_tool_cuts_a_circular_groove() {
+        let (radius, depth) = (30.0, 1.0);
+        let cfg = CuttingConfig {
+            tool: Tool {
+                spindle_rpm: 12_000.0,
+                max_torque_n_mm: 1e4,
+                ..Tool::default()
+            },
+            turntable: Some(TurntableConfig::default()),
+            ..CuttingConfig::default()
+        };
+        let mut arm = SimArm::new(
+            H4Params::PROTOTYPE,
+            [100.0; 4],
+            PlantConfig::default(),
+            SensorConfig::quiet(),
+            Surface {
+                shape: SurfaceShape::Plane {
+                    point_mm: [0.0, 0.0, -250.0],
+                    normal: [0.0, 0.0, 1.0],
+                },
+                material: MaterialPreset::Resin.material(),
+            },
+            Pose::new(radius, 0.0, -248.0, 0.0),
+            1,
+        )
+        .unwrap()
+        .with_cutting(&cfg)
+        .unwrap();
+        // Plunge with the table still, then turn it 1.1 revolutions at 0.5 rad/s.
+        for k in 0..1600u32 {
+            let z = (-248.0 - 5e-3 * f64::from(k)).max(-250.0 - depth);
+            go(&mut arm, [radius, 0.0, z, 0.0], 1);
+        }
+        let plunged = arm.cut().unwrap().report().removed_mm3;
+        let l = H4Params::PROTOTYPE
+            .ik_checked(&Pose::new(radius, 0.0, -250.0 - depth, 0.0))
+            .unwrap();
+        let omega = 0.5;
+        let end = 1.1 * 2.0 * std::f64::consts::PI;
+        let (mut sum_r, mut sum_z, mut sum_fy, mut n) = (0.0, 0.0, 0.0, 0.0);
+        for k in 0..((end / omega) * 1000.0) as u32 + 500 {
+            let sp = (omega * f64::from(k) * 1e-3).min(end);
+            arm.command(&[l[0], l[1], l[2], l[3]]);
+            arm.command_turntable(sp);
+            arm.advance(1_000_000);
+            if k > 500 && sp < end {
+                let tp = arm.true_pose();
+                let wp = arm.cut().unwrap().to_workpiece([tp[0], tp[1], tp[2]]);
+                sum_r += (wp[0] * wp[0] + wp[1] * wp[1]).sqrt();
+                sum_z += tp[2];
+                sum_fy += arm.cut().unwrap().report().mean_force_n[1];
+                n += 1.0;
+            }
+        }
+        let table = *arm.cut().unwrap().turntable().unwrap();
+        assert!((table.angle_rad() - end).abs() < 1e-3, "{}", table.angle_rad());
+        let measured = arm.turntable_rad().unwrap();
+        assert!((measured - table.angle_rad()).abs() <= 1e-5);
+        go(&mut arm, [radius, 0.0, -245.0, 0.0], 500);
+        let cut = arm.cut().unwrap();
+        let removed = cut.report().removed_mm3;
+        let (tip_r, tip_depth) = (sum_r / n, -250.0 - sum_z / n);
+        assert!(
+            (tip_depth - depth).abs() < 0.1,
+            "the tool ran {tip_depth} mm deep"
+        );
+        let r = 3.0;
+        let segment = |d: f64| {
+            r * r * ((r - d) / r).acos() - (r - d) * (2.0 * r * d - d * d).max(0.0).sqrt()
+        };
+        let mut areas = Vec::new();
+        for i in 0..24 {
+            let phi = f64::from(i) * std::f64::consts::PI / 12.0 + 0.1;
+            let (area, at, deepest) = groove_section(cut.stock(), phi, radius - 5.0, radius + 5.0);
+            assert!(
+                (at - tip_r).abs() < 0.2,
+                "azimuth {phi}: groove at radius {at}, tool at {tip_r}"
+            );
+            assert!(
+                (deepest - tip_depth).abs() < 0.06,
+                "azimuth {phi}: groove {deepest} deep, tool {tip_depth}"
+            );
+            assert!(
+                (area - segment(deepest)).abs() < 0.05 * segment(deepest),
+                "azimuth {phi}: section {area} mm² vs the ball's {}",
+                segment(deepest)
+            );
+            areas.push(area);
+        }
+        let mean_area = areas.iter().sum::<f64>() / areas.len() as f64;
+        let spread = areas
+            .iter()
+            .fold(0.0f64, |m, a| m.max((a - mean_area).abs()));
+        assert!(spread < 0.04 * mean_area, "not round: ±{spread} mm²");
+        let pappus = mean_area * 2.0 * std::f64::consts::PI * tip_r;
+        assert!(
+            (removed - pappus).abs() < 0.03 * pappus,
+            "removed {removed} mm³, section × circumference {pappus}"
+        );
+        assert!(plunged < 0.03 * removed, "the plunge alone cut {plunged}");
+        assert!(sum_fy / n > 0.1, "the stock does not drag the tool: {}", sum_fy / n);
     }
 
     #[test]
