@@ -24,23 +24,30 @@ fn segment_mm2(d: f64) -> f64 {
     r * r * ((r - d) / r).acos() - (r - d) * (2.0 * r * d - d * d).max(0.0).sqrt()
 }
 
-/// On the radial line at azimuth `phi` about the workpiece point `c`, between radii `r0` and
-/// `r1`: the deepest cut below the top and its radius, mm.
-fn deepest(stock: &Stock, c: [f64; 2], phi: f64, r0: f64, r1: f64) -> (f64, f64) {
-    let (mut best, mut at) = (0.0, f64::NAN);
+/// The cut's depth below the top on the radial line at azimuth `phi` about the workpiece
+/// point `c`, at radius `rho`, mm.
+fn depth_at(stock: &Stock, c: [f64; 2], phi: f64, rho: f64) -> f64 {
+    stock.top_mm()
+        - stock
+            .height_under(c[0] + rho * phi.cos(), c[1] + rho * phi.sin())
+            .unwrap()
+}
+
+/// The radii between `r0` and `r1` (searched every 0.01 mm) where the cut on that radial
+/// line is deeper than `d_mm`: the first and the last, mm (NaN: nowhere).
+fn edges(stock: &Stock, c: [f64; 2], phi: f64, r0: f64, r1: f64, d_mm: f64) -> (f64, f64) {
+    let (mut first, mut last) = (f64::NAN, f64::NAN);
     let mut rho = r0;
     while rho <= r1 {
-        let h = stock
-            .height_under(c[0] + rho * phi.cos(), c[1] + rho * phi.sin())
-            .unwrap();
-        let d = stock.top_mm() - h;
-        if d > best + 1e-6 {
-            best = d;
-            at = rho;
+        if depth_at(stock, c, phi, rho) > d_mm {
+            if first.is_nan() {
+                first = rho;
+            }
+            last = rho;
         }
         rho += 0.01;
     }
-    (best, at)
+    (first, last)
 }
 
 /// `cut-profile.toml` as shipped: the ring groove is cut all round (its volume within 10 % of
@@ -112,8 +119,9 @@ fn the_profile_meets_the_surface_target() {
 }
 
 /// The operator's script for the synchronous-mode test: down at 25 mm from the axis for a
-/// revolution and a quarter of the table (0.5 rad/s), then radially in to 19 mm for another
-/// revolution and a quarter, then up; straying `stray_mm` sideways (along y) all the while.
+/// revolution and a quarter of the table (0.5 rad/s), then radially in to 19 mm (the hand,
+/// feeling the cut's resistance, takes ~10 s to get there) and a revolution and more there,
+/// then up; straying `stray_mm` sideways (along y) all the while.
 fn radial_operator(stray_mm: f64) -> Vec<IntentSegment> {
     let seg = |at_s: f64, x: f64, y: f64, z: f64, move_s: f64, push_z: f64| IntentSegment {
         at_s,
@@ -128,7 +136,7 @@ fn radial_operator(stray_mm: f64) -> Vec<IntentSegment> {
         seg(0.0, 0.0, 0.0, 0.0, 0.5, 0.0),
         seg(0.5, 0.0, 0.0, 0.0, 0.0, -5.0),
     ];
-    let (inward_s, up_s) = (17.5, 34.0);
+    let (inward_s, up_s) = (17.5, 42.0);
     let mut t = 1.0;
     let mut side = 1.0;
     while t < up_s {
@@ -145,7 +153,7 @@ fn radial_operator(stray_mm: f64) -> Vec<IntentSegment> {
 /// without the synchronous fixture; and the largest distance of the tool's true point from
 /// the fixture's radial line (y = 0) while it cuts.
 fn radial_run(sync: bool, stray_mm: f64) -> (Stock, f64) {
-    let mut cfg = profile(&["duration_s=35"]);
+    let mut cfg = profile(&["duration_s=43"]);
     cfg.operator.intent = radial_operator(stray_mm);
     cfg.cut_target = None;
     if !sync {
@@ -153,7 +161,7 @@ fn radial_run(sync: bool, stray_mm: f64) -> (Stock, f64) {
     }
     let mut s = Session::new(&cfg).unwrap();
     let mut off: f64 = 0.0;
-    for _ in 0..35_000 {
+    for _ in 0..43_000 {
         s.cycle().unwrap();
         let p = s.slave.arm().true_pose();
         if p[2] < -250.5 {
@@ -164,30 +172,42 @@ fn radial_run(sync: bool, stray_mm: f64) -> (Stock, f64) {
 }
 
 /// The synchronous fixture: the operator moves only radially (25 mm, then 19 mm from the
-/// axis) and the turning part gets a round profile: two concentric grooves all round, at
+/// axis) and the turning part gets a round profile: two concentric grooves all round, whose
+/// outer and inner edges (where the cut is 0.5 mm deep: the ball's half-width there, 1.66 mm,
+/// beyond the tool's circle; the spiral between the two lies inside them) are circles at
 /// those radii; straying 2 mm sideways, the tool stays on the radial line. Control: without
 /// the fixture the table does not turn and only a radial slot is cut.
 #[test]
 fn the_synchronous_fixture_turns_radial_guidance_into_a_round_part() {
     let c = [-25.0, 0.0];
+    let half = (2.0_f64 * 3.0 * 0.5 - 0.25).sqrt();
     let (stock, off) = radial_run(true, 2.0);
     assert!(off < 0.3, "the tool strayed {off} mm off the radial line");
+    let (mut outer, mut inner) = (Vec::new(), Vec::new());
     for i in 0..36 {
         let phi = f64::from(i) * PI / 18.0 + 0.05;
-        for (r0, r1, want) in [(24.0, 26.0, 25.0), (18.0, 20.0, 19.0)] {
-            let (d, at) = deepest(&stock, c, phi, r0, r1);
-            assert!(d > 0.8, "azimuth {phi:.2}: the groove at {want} mm is {d} mm deep");
-            assert!(
-                (at - want).abs() < 0.35,
-                "azimuth {phi:.2}: the groove is at {at} mm, the operator's radius {want}"
-            );
-        }
+        let (first, last) = edges(&stock, c, phi, 12.0, 32.0, 0.5);
+        assert!(
+            depth_at(&stock, c, phi, 25.0) > 0.8 && depth_at(&stock, c, phi, 19.0) > 0.8,
+            "azimuth {phi:.2}: a groove is missing"
+        );
+        outer.push(last);
+        inner.push(first);
+    }
+    for (edge, want, name) in [(&outer, 25.0 + half, "outer"), (&inner, 19.0 - half, "inner")] {
+        let lo = edge.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = edge.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        assert!(
+            (lo - want).abs() < 0.3 && (hi - want).abs() < 0.3,
+            "the {name} edge runs from {lo} to {hi} mm, the operator's circle's at {want}"
+        );
+        assert!(hi - lo < 0.3, "the {name} edge is not round: {lo} to {hi} mm");
     }
     let (still, _) = radial_run(false, 0.0);
     let round = (0..36)
         .filter(|i| {
             let phi = f64::from(*i) * PI / 18.0 + 0.05;
-            deepest(&still, c, phi, 24.0, 26.0).0 > 0.8
+            depth_at(&still, c, phi, 25.0) > 0.8
         })
         .count();
     assert!(round <= 3, "without the fixture {round} of 36 azimuths are cut");
