@@ -53,7 +53,8 @@ fn edges(stock: &Stock, c: [f64; 2], phi: f64, r0: f64, r1: f64, d_mm: f64) -> (
 /// `cut-profile.toml` as shipped: the ring groove is cut all round (its volume within 10 % of
 /// the ball's segment 1 mm deep × the circumference at 25 mm), the part's files are written,
 /// the recording carries the turntable's angle and its command, the true force stays within
-/// the slave's force limit, no stall, no gouge below the floor.
+/// the slave's force limit, no stall, no gouge below the floor, and the surface error p99
+/// against the ring is within the issue's 0.3 mm.
 #[test]
 fn the_profile_session_cuts_the_ring_and_writes_the_part() {
     let cfg = profile(&[]);
@@ -76,6 +77,12 @@ fn the_profile_session_cuts_the_ring_and_writes_the_part() {
     assert!(c.cutting_force_max_n <= limit, "{}", c.cutting_force_max_n);
     assert_eq!(c.spindle_stalls, 0);
     assert!(c.gouge_max_mm <= 0.05, "gouge {}", c.gouge_max_mm);
+    // The issue's target for the aluminium profile on the turning part.
+    assert!(
+        c.surface_error_p99_mm <= 0.3,
+        "surface error p99 {} mm",
+        c.surface_error_p99_mm
+    );
     for f in ["height.png", "deviation.png"] {
         let b = std::fs::read(dir.join(f)).unwrap();
         assert_eq!(&b[1..4], b"PNG", "{f}");
@@ -107,15 +114,6 @@ fn the_profile_session_cuts_the_ring_and_writes_the_part() {
         a.min(2.0 * PI - a) < 0.05,
         "the tip does not turn with the part: {last}"
     );
-}
-
-/// Issue target (not met yet): the aluminium profile's surface error p99 ≤ 0.3 mm.
-#[test]
-#[ignore = "the profile's surface error: figure in docs/cutting.md"]
-fn the_profile_meets_the_surface_target() {
-    let s = session::run(&profile(&[]), None).unwrap();
-    let e = s.cutting.unwrap().surface_error_p99_mm;
-    assert!(e <= 0.3, "surface error p99 {e} mm");
 }
 
 /// The operator's script for the synchronous-mode test: down at 25 mm from the axis for a
