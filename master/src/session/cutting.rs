@@ -394,7 +394,7 @@ mod tests {
             ..t
         };
         assert_eq!(ring.height_mm(5.0, 20.0, 0.0, &tool), -2.0);
-        let h = ring.height_mm(27.0, 0.0, 0.0, &tool);
+        let h = ring.height_mm(26.0, 0.0, 0.0, &tool);
         assert!((h - (-2.0 + 3.0 - 8f64.sqrt())).abs() < 1e-12, "{h}");
         assert_eq!(ring.height_mm(5.0, 0.0, 0.0, &tool), 0.0);
     }
