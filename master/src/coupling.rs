@@ -764,7 +764,11 @@ impl MasterCoupling {
     /// push; damping only dissipates), faded with the feedback only when
     /// `coupling.brake_on_loss` is off.
     fn brake(&self) -> f64 {
-        if self.p.brake_on_loss { 1.0 } else { self.fade }
+        if self.p.brake_on_loss && self.feedback.is_some() {
+            1.0
+        } else {
+            self.fade
+        }
     }
 
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
