@@ -393,6 +393,11 @@ pub struct MasterCoupling {
     handover_n: [f64; 3],
     /// Fade factor of `handover_n` (1 at the re-pairing, falling to 0 over `fade_ms`).
     handover_fade: f64,
+    /// The brake's damping force beyond the faded coupling's (`brake_on_loss` while the
+    /// feedback is lost), N: a local dissipative element, not the link's, so the master
+    /// port does not book it (booked, a brake flapping with a jittered link's safe stops
+    /// drained the master's ledger by 6 mJ).
+    brake_extra_n: [f64; 3],
     /// Share of `contact_damping_n_s_per_mm` rendered: whether the newest feedback reports a
     /// contact, except within a re-pairing's fade, where it follows over `fade_ms` (the new
     /// slave's first feedback switching the damping in one cycle stepped the rendered force
@@ -440,6 +445,7 @@ impl MasterCoupling {
             fade: 0.0,
             handover_n: [0.0; 3],
             handover_fade: 0.0,
+            brake_extra_n: [0.0; 3],
             contact_damping_share: 0.0,
             last_feedback_ns: None,
             feedback: None,
@@ -861,11 +867,16 @@ impl MasterCoupling {
         );
         let mut force = pc.force_n;
         self.port_force_n = pc.force_n;
+        self.brake_extra_n = [0.0; 3];
         if p.mode == CouplingMode::PositionForce && !self.clutched {
-            // Faded with the feedback: with no slave there is no loop to stabilise, and the
-            // operator holds a free handle (the feedback-loss safe state renders nothing).
-            for (f, v) in force.iter_mut().zip(handle_velocity.iter()) {
-                *f -= self.local_damping() * self.brake() * v;
+            // The local damping: faded with the feedback, except that the brake
+            // (`brake_on_loss`) keeps it on while the feedback is lost; the brake's share
+            // beyond the fade is not the link's (see `brake_extra_n`).
+            let b = self.local_damping();
+            let extra = b * (self.brake() - self.fade).max(0.0);
+            for (i, (f, v)) in force.iter_mut().zip(handle_velocity.iter()).enumerate() {
+                *f -= b * self.brake() * v;
+                self.brake_extra_n[i] = -extra * v;
             }
         }
         // Force-guided: the local virtual spring sets the set-point.
@@ -906,11 +917,12 @@ impl MasterCoupling {
     /// (after its own limits) for the next, and returns the command to send, stamped
     /// `now_ns`.
     pub fn finish(&mut self, applied: &[f64; 4], dev: &DeviceState, now_ns: u64) -> Command {
-        // Position–force: all of the applied force (the local damping included) is the
-        // master port's. Force-guided: the local spring is not the link's, and the link
+        // Position–force: all of the applied force (the local damping included, except the
+        // brake's share beyond the fade) is the master port's. Force-guided: the local spring is not the link's, and the link
         // renders nothing.
         let link = if self.p.mode == CouplingMode::PositionForce {
-            [applied[0], applied[1], applied[2]]
+            let e = self.brake_extra_n;
+            [applied[0] - e[0], applied[1] - e[1], applied[2] - e[2]]
         } else if self.p.feed_force_gain > 0.0 {
             // Force-guided: the port's force (the feed resistance after the passivity
             // controller), not the local spring's.
