@@ -103,8 +103,14 @@ fn the_profile_session_cuts_the_ring_and_writes_the_part() {
     let angle = last["turntable_rad"].as_f64().unwrap();
     let cmd = last["turntable_cmd_rad"].as_f64().unwrap();
     // 17 s at 0.5 rad/s after a 0.25 s ramp (the safe stop never held it).
-    assert!((cmd - (0.5 * 17.0 - 0.0625)).abs() < 0.01, "commanded {cmd} rad");
-    assert!((angle - cmd).abs() < 0.02, "true {angle} vs commanded {cmd}");
+    assert!(
+        (cmd - (0.5 * 17.0 - 0.0625)).abs() < 0.01,
+        "commanded {cmd} rad"
+    );
+    assert!(
+        (angle - cmd).abs() < 0.02,
+        "true {angle} vs commanded {cmd}"
+    );
     // The tip in the workpiece frame: 25 mm from the axis, turned with the part.
     let tip = last["tool_tip_in_workpiece_mm"].as_array().unwrap();
     let (x, y) = (tip[0].as_f64().unwrap() + 25.0, tip[1].as_f64().unwrap());
@@ -192,14 +198,20 @@ fn the_synchronous_fixture_turns_radial_guidance_into_a_round_part() {
         outer.push(last);
         inner.push(first);
     }
-    for (edge, want, name) in [(&outer, 25.0 + half, "outer"), (&inner, 19.0 - half, "inner")] {
+    for (edge, want, name) in [
+        (&outer, 25.0 + half, "outer"),
+        (&inner, 19.0 - half, "inner"),
+    ] {
         let lo = edge.iter().cloned().fold(f64::INFINITY, f64::min);
         let hi = edge.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
         assert!(
             (lo - want).abs() < 0.3 && (hi - want).abs() < 0.3,
             "the {name} edge runs from {lo} to {hi} mm, the operator's circle's at {want}"
         );
-        assert!(hi - lo < 0.3, "the {name} edge is not round: {lo} to {hi} mm");
+        assert!(
+            hi - lo < 0.3,
+            "the {name} edge is not round: {lo} to {hi} mm"
+        );
     }
     let (still, _) = radial_run(false, 0.0);
     let round = (0..36)
@@ -208,5 +220,8 @@ fn the_synchronous_fixture_turns_radial_guidance_into_a_round_part() {
             depth_at(&still, c, phi, 25.0) > 0.8
         })
         .count();
-    assert!(round <= 3, "without the fixture {round} of 36 azimuths are cut");
+    assert!(
+        round <= 3,
+        "without the fixture {round} of 36 azimuths are cut"
+    );
 }

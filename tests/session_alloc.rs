@@ -91,19 +91,26 @@ fn turntable_cycles_allocate_nothing() {
         s.cycle().unwrap();
     }
     let angle = |s: &Session| {
-        s.slave.arm().cut().unwrap().turntable().unwrap().angle_rad()
+        s.slave
+            .arm()
+            .cut()
+            .unwrap()
+            .turntable()
+            .unwrap()
+            .angle_rad()
     };
-    let (removed_before, angle_before) = (
-        s.slave.arm().cut().unwrap().report().removed_mm3,
-        angle(&s),
-    );
+    let (removed_before, angle_before) =
+        (s.slave.arm().cut().unwrap().report().removed_mm3, angle(&s));
     let (n, ()) = count_allocations(|| {
         for _ in 0..4000 {
             s.cycle().unwrap();
         }
     });
     let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
-    assert!(removed > 10.0, "nothing cut in the counted cycles: {removed} mm³");
+    assert!(
+        removed > 10.0,
+        "nothing cut in the counted cycles: {removed} mm³"
+    );
     assert!(angle(&s) - angle_before > 1.5, "the table did not turn");
     assert_eq!(n, 0, "{n} allocations in 4000 turntable cycles");
 }

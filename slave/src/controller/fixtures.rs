@@ -292,7 +292,10 @@ impl Fixtures {
             let (near, d) = self.nearest_on_path(q);
             if d > self.half_width_mm && d > 0.0 {
                 let s = self.half_width_mm / d;
-                let q = [near[0] + (q[0] - near[0]) * s, near[1] + (q[1] - near[1]) * s];
+                let q = [
+                    near[0] + (q[0] - near[0]) * s,
+                    near[1] + (q[1] - near[1]) * s,
+                ];
                 let b = match frame {
                     Some((th, c)) => turn_about(c, th, q),
                     None => q,
@@ -407,7 +410,10 @@ mod tests {
         let mut f = Fixtures::new(&sync(1.0));
         f.set_turntable_axis([10.0, 0.0]);
         let p = f.limit(Pose::new(13.0, 20.0, -251.0, 0.2));
-        assert!((p[0] - 10.0).abs() < 1e-12 && (p[1] - 20.0).abs() < 1e-12, "{p:?}");
+        assert!(
+            (p[0] - 10.0).abs() < 1e-12 && (p[1] - 20.0).abs() < 1e-12,
+            "{p:?}"
+        );
         assert_eq!((p[2], p[3]), (-251.0, 0.2));
         assert!(f.active);
         let p = f.limit(Pose::new(10.0, 60.0, -251.0, 0.0));
@@ -440,7 +446,11 @@ mod tests {
             last = a;
         }
         assert!(speed.abs() < 1e-9, "still turning at {speed}");
-        assert!(Fixtures::new(&corridor()).turntable_command(1e-3, false).is_none());
+        assert!(
+            Fixtures::new(&corridor())
+                .turntable_command(1e-3, false)
+                .is_none()
+        );
     }
 
     /// With a turntable the corridor's path is in the workpiece frame: a quarter turn of
@@ -458,7 +468,10 @@ mod tests {
         f.observe_turntable(Some(std::f64::consts::FRAC_PI_2));
         // The path now runs along +y in the base frame: (3, 20) comes back to (0.5, 20).
         let p = f.limit(Pose::new(3.0, 20.0, -251.0, 0.0));
-        assert!((p[0] - 0.5).abs() < 1e-9 && (p[1] - 20.0).abs() < 1e-9, "{p:?}");
+        assert!(
+            (p[0] - 0.5).abs() < 1e-9 && (p[1] - 20.0).abs() < 1e-9,
+            "{p:?}"
+        );
         f.observe_turntable(Some(0.0));
         let p = f.limit(Pose::new(20.0, 3.0, -251.0, 0.0));
         assert!((p[1] - 0.5).abs() < 1e-9, "{p:?}");
@@ -478,7 +491,10 @@ mod tests {
         let mut c = sync(1.0);
         c.turntable_sync.as_mut().unwrap().radius_range_mm = [10.0, 5.0];
         let e = c.validate_at("fixtures.").unwrap_err().to_string();
-        assert!(e.contains("fixtures.turntable_sync.radius_range_mm[1]"), "{e}");
+        assert!(
+            e.contains("fixtures.turntable_sync.radius_range_mm[1]"),
+            "{e}"
+        );
         let e = sync(1.0).check_turntable("fixtures.", false).unwrap_err();
         assert!(e.to_string().contains("fixtures.turntable_sync"), "{e}");
         assert!(sync(1.0).check_turntable("fixtures.", true).is_ok());

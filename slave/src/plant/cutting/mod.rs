@@ -580,7 +580,11 @@ mod tests {
             }
         }
         let table = *arm.cut().unwrap().turntable().unwrap();
-        assert!((table.angle_rad() - end).abs() < 1e-3, "{}", table.angle_rad());
+        assert!(
+            (table.angle_rad() - end).abs() < 1e-3,
+            "{}",
+            table.angle_rad()
+        );
         let measured = arm.turntable_rad().unwrap();
         assert!((measured - table.angle_rad()).abs() <= 1e-5);
         go(&mut arm, [radius, 0.0, -245.0, 0.0], 500);
@@ -592,9 +596,8 @@ mod tests {
             "the tool ran {tip_depth} mm deep"
         );
         let r = 3.0;
-        let segment = |d: f64| {
-            r * r * ((r - d) / r).acos() - (r - d) * (2.0 * r * d - d * d).max(0.0).sqrt()
-        };
+        let segment =
+            |d: f64| r * r * ((r - d) / r).acos() - (r - d) * (2.0 * r * d - d * d).max(0.0).sqrt();
         let mut areas = Vec::new();
         for i in 0..24 {
             let phi = f64::from(i) * std::f64::consts::PI / 12.0 + 0.1;
@@ -625,7 +628,11 @@ mod tests {
             "removed {removed} mm³, section × circumference {pappus}"
         );
         assert!(plunged < 0.03 * removed, "the plunge alone cut {plunged}");
-        assert!(sum_fy / n > 0.1, "the stock does not drag the tool: {}", sum_fy / n);
+        assert!(
+            sum_fy / n > 0.1,
+            "the stock does not drag the tool: {}",
+            sum_fy / n
+        );
     }
 
     #[test]

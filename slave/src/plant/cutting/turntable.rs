@@ -272,7 +272,10 @@ mod tests {
         }
         assert!(top <= vmax + 1e-9 && top > 0.99 * vmax, "speed {top}");
         assert!(acc <= amax * (1.0 + 1e-9), "acceleration {acc}");
-        assert!(jump <= vmax * DT * (1.0 + 1e-9), "jumped {jump} rad in a period");
+        assert!(
+            jump <= vmax * DT * (1.0 + 1e-9),
+            "jumped {jump} rad in a period"
+        );
         assert!(peak <= 5.0 + 1e-6, "overshoot to {peak}");
         assert!((t.angle_rad() - 5.0).abs() < 1e-4, "{}", t.angle_rad());
     }
@@ -336,7 +339,10 @@ mod tests {
         t.angle_rad = std::f64::consts::FRAC_PI_2;
         // A quarter turn on: the base point at +x of the axis was the part's −y.
         let p = t.to_workpiece([13.0, -5.0, 2.0]);
-        assert!((p[0] - 10.0).abs() < 1e-12 && (p[1] + 8.0).abs() < 1e-12, "{p:?}");
+        assert!(
+            (p[0] - 10.0).abs() < 1e-12 && (p[1] + 8.0).abs() < 1e-12,
+            "{p:?}"
+        );
     }
 
     #[test]
