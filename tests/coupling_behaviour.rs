@@ -528,3 +528,35 @@ fn a_blackout_mid_hold_rides_through_on_steel() {
         "handle moved only {h1:.3} mm"
     );
 }
+
+/// The slave closes a gap between where it is commanded and where the master is (the
+/// catch-up on its first command, a re-anchoring, drift) at most at
+/// `passivity.drift_speed_max_mm_per_s`: the gap is a path the master's handle did not
+/// move it along, so it may hold a surface. Steel, 1 s one way with 200 ms of jitter and 5 %
+/// loss (seed 4): the first command the slave accepts is 10 mm ahead of it. Control: without
+/// the bound the slave closes that gap at its 60 mm/s speed limit and hits the steel at
+/// 97 N, above its 80 N limit.
+#[test]
+fn a_catch_up_never_hits_a_surface_at_full_speed() {
+    let cell = [
+        "environment.stiffness_n_per_mm=2000",
+        "link.delay_ms=1000",
+        "link.jitter_ms=200",
+        "link.loss=0.05",
+        "seed=4",
+    ];
+    let cfg = load("wall-push.toml", &cell);
+    let limit = cfg.slave.controller.force_limit_n;
+    let s = session::run(&cfg, None).unwrap();
+    println!("bounded catch-up: true force max {:.1} N", s.max_force_n);
+    assert!(s.max_force_n < 0.75 * limit, "{:.1} N", s.max_force_n);
+    let mut o = cell.to_vec();
+    o.push("passivity.drift_speed_max_mm_per_s=0");
+    let s = session::run(&load("wall-push.toml", &o), None).unwrap();
+    println!("unbounded catch-up: true force max {:.1} N", s.max_force_n);
+    assert!(
+        s.max_force_n > limit,
+        "control: only {:.1} N",
+        s.max_force_n
+    );
+}

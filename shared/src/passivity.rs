@@ -42,6 +42,12 @@ pub struct PassivityParams {
     pub max_correction_mm_per_s: f64,
     /// Drift compensation gain, 1/s.
     pub drift_gain_per_s: f64,
+    /// Largest speed at which the slave closes a gap between where it is commanded and
+    /// where the master is (drift compensation, and the catch-up on a first command or a
+    /// re-anchoring), mm/s: the gap is a position the master's handle did not move the
+    /// slave through, so the slave does not know what lies in it (a 10 mm catch-up at the
+    /// 60 mm/s speed limit hit steel at 97 N).
+    pub drift_speed_max_mm_per_s: f64,
     /// Share of the slave observer's surplus the drift compensation may spend per cycle.
     pub drift_energy_share: f64,
     /// Contact force below which the slave's controller does not act (sensor noise), N.
@@ -81,6 +87,7 @@ impl Default for PassivityParams {
             max_damping_n_s_per_mm: 2.0,
             max_correction_mm_per_s: 50.0,
             drift_gain_per_s: 10.0,
+            drift_speed_max_mm_per_s: 20.0,
             drift_energy_share: 0.2,
             force_floor_n: 0.3,
             force_hold_ms: 100.0,
@@ -106,6 +113,13 @@ impl PassivityParams {
         check_range(
             &format!("{prefix}max_correction_mm_per_s"),
             self.max_correction_mm_per_s,
+            0.0,
+            1e4,
+            "mm/s",
+        )?;
+        check_range(
+            &format!("{prefix}drift_speed_max_mm_per_s"),
+            self.drift_speed_max_mm_per_s,
             0.0,
             1e4,
             "mm/s",
@@ -410,6 +424,9 @@ pub struct AdmittancePort {
     pub drift_energy_share: f64,
     /// Largest backing-off speed the controller may command, mm/s.
     pub max_correction_mm_per_s: f64,
+    /// Largest speed of the drift compensation, mm/s (0: no bound; see
+    /// [`PassivityParams::drift_speed_max_mm_per_s`]).
+    pub drift_speed_max_mm_per_s: f64,
     /// Contact force below which the controller does not act, N.
     pub force_floor_n: f64,
     /// Time constant of the force memory the energy bound uses, ms (see
@@ -462,6 +479,7 @@ impl AdmittancePort {
         AdmittancePort {
             force_floor_n: p.force_floor_n,
             force_hold_ms: p.force_hold_ms,
+            drift_speed_max_mm_per_s: p.drift_speed_max_mm_per_s,
             return_reserve_j: p.return_reserve_j,
             return_rate_per_s: p.return_rate_per_s,
             ..AdmittancePort::new(
@@ -591,6 +609,12 @@ impl AdmittancePort {
         for i in 0..3 {
             let gap = desired_mm[i] - commanded_mm[i] - desired_mm_per_s[i] * dt_s;
             vc[i] = (self.drift_gain_per_s * gap).clamp(-gap.abs() / dt_s, gap.abs() / dt_s);
+        }
+        let vc_speed = dot3(&vc, &vc).sqrt();
+        if self.drift_speed_max_mm_per_s > 0.0 && vc_speed > self.drift_speed_max_mm_per_s {
+            for c in vc.iter_mut() {
+                *c *= self.drift_speed_max_mm_per_s / vc_speed;
+            }
         }
         let pc = power(&vc);
         let share = if bounded && pc > 0.0 {
