@@ -393,10 +393,11 @@ pub struct MasterCoupling {
     handover_n: [f64; 3],
     /// Fade factor of `handover_n` (1 at the re-pairing, falling to 0 over `fade_ms`).
     handover_fade: f64,
-    /// The brake's damping force beyond the faded coupling's (`brake_on_loss` while the
-    /// feedback is lost), N: a local dissipative element, not the link's, so the master
-    /// port does not book it (booked, a brake flapping with a jittered link's safe stops
-    /// drained the master's ledger by 6 mJ).
+    /// The forces rendered beside the link this cycle, N, which the master port does not
+    /// book: the brake's damping beyond the faded coupling's (`brake_on_loss` while the
+    /// feedback is lost: a local dissipative element; booked, a brake flapping with a
+    /// jittered link's safe stops drained the master's ledger by 6 mJ) and the old slave's
+    /// fading force after a re-pairing.
     brake_extra_n: [f64; 3],
     /// Share of `contact_damping_n_s_per_mm` rendered: whether the newest feedback reports a
     /// contact, except within a re-pairing's fade, where it follows over `fade_ms` (the new
@@ -507,15 +508,21 @@ impl MasterCoupling {
         self.model.reset_used();
     }
 
-    /// Adds the old slave's fading force after a re-pairing (see [`Self::new_pairing`]).
-    fn add_handover(&mut self, link_force: &mut [f64; 3], dt_s: f64) {
+    /// The old slave's fading force after a re-pairing (see [`Self::new_pairing`]), N: rendered
+    /// beside the port (the new pairing's ledger starts empty and would cut it in one cycle)
+    /// and not booked; its work is bounded by its size times the handle's travel over
+    /// `fade_ms`.
+    fn handover_force(&mut self, dt_s: f64) -> [f64; 3] {
         if self.handover_fade <= 0.0 {
-            return;
+            return [0.0; 3];
         }
-        for (f, h) in link_force.iter_mut().zip(self.handover_n.iter()) {
-            *f += h * self.handover_fade;
-        }
+        let k = self.handover_fade;
         self.handover_fade = (self.handover_fade - dt_s * 1e3 / self.p.fade_ms.max(1e-3)).max(0.0);
+        [
+            self.handover_n[0] * k,
+            self.handover_n[1] * k,
+            self.handover_n[2] * k,
+        ]
     }
 
     /// The master is acknowledging the slave's safe stop (it has faded out and started a new
@@ -849,9 +856,11 @@ impl MasterCoupling {
                 link_force = self.feed_resistance(&vel);
             }
         }
-        if !self.clutched {
-            self.add_handover(&mut link_force, dt_s);
-        }
+        let handover = if self.clutched {
+            [0.0; 3]
+        } else {
+            self.handover_force(dt_s)
+        };
         self.filter_force(&mut link_force, dt_s);
         self.last_slave_target = target;
         self.offset_mm = offset;
@@ -866,6 +875,9 @@ impl MasterCoupling {
             p.passivity && self.fade > 0.0,
         );
         let mut force = pc.force_n;
+        for i in 0..3 {
+            force[i] += handover[i];
+        }
         self.port_force_n = pc.force_n;
         self.brake_extra_n = [0.0; 3];
         if p.mode == CouplingMode::PositionForce && !self.clutched {
@@ -878,6 +890,9 @@ impl MasterCoupling {
                 *f -= b * self.brake() * v;
                 self.brake_extra_n[i] = -extra * v;
             }
+        }
+        for i in 0..3 {
+            self.brake_extra_n[i] += handover[i];
         }
         // Force-guided: the local virtual spring sets the set-point.
         if p.mode == CouplingMode::ForceGuided && !self.clutched {

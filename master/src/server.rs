@@ -110,7 +110,8 @@ pub struct MasterRunSummary {
     /// Times the rendered force reached zero fade after a loss.
     pub faded_out: u64,
     /// Largest force of the slave's (the link force, scaled) rendered while faded out
-    /// completely (should be 0), N.
+    /// completely (should be 0), N. (A slave replaced within the feedback timeout: the old
+    /// one's last force fading out over `coupling.fade_ms` beside the link is not counted.)
     pub max_force_while_faded_out_n: f64,
     /// Largest force rendered while faded out completely, N: only the local brake's damping
     /// (`coupling.brake_on_loss`), against the handle's motion.

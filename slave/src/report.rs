@@ -628,10 +628,40 @@ fn feedback_losses(master: &Topic, duration_s: f64) -> Option<(Vec<(f64, f64)>, 
     Some((points, last as u64))
 }
 
+/// Commands the slave did not act on, per 100 ms bin (every bin), from the sequence numbers
+/// of the commands a process's `/slave/cycle` acted on (`command_seq`): a jump of k > 1
+/// between consecutive records is k − 1 commands lost, rejected or overtaken within one
+/// cycle; and their total. None when the recording has no sequence numbers.
+fn commands_missed(slave: &Topic, duration_s: f64) -> Option<(Vec<(f64, f64)>, u64)> {
+    let seqs = series(slave, |v| num(v, "command_seq"));
+    seqs.first()?;
+    let mut missed: BTreeMap<i64, f64> = BTreeMap::new();
+    let bins = (duration_s / 0.1).ceil() as i64;
+    for b in 0..bins {
+        missed.entry(b).or_default();
+    }
+    let mut total = 0u64;
+    let mut prev: Option<f64> = None;
+    for (t, seq) in seqs {
+        // 0: nothing acted on yet; a smaller number: a new master (a new sequence).
+        if seq > 0.0 {
+            if let Some(p) = prev.filter(|p| seq > *p) {
+                let gap = (seq - p - 1.0).max(0.0);
+                *missed.entry((t / 0.1).floor() as i64).or_default() += gap;
+                total += gap as u64;
+            }
+            prev = Some(seq);
+        }
+    }
+    let points = missed.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect();
+    Some((points, total))
+}
+
 /// The link: the round trip the master measured each cycle (`round_trip_us` of
 /// `/master/cycle`: sessions and processes), and below it the messages lost per 100 ms: in
-/// each direction for sessions (`/link/events`), the feedback for processes (`feedback_lost`
-/// of `/master/cycle`; the commands the slave missed are not recorded).
+/// each direction for sessions (`/link/events`); for processes the feedback (`feedback_lost`
+/// of `/master/cycle`) and, when the slave's record is there, the commands it did not act on
+/// (`command_seq` of `/slave/cycle`).
 fn link_figure(
     topics: &BTreeMap<String, Topic>,
     master: Option<&Topic>,
@@ -685,17 +715,31 @@ fn link_figure(
         )
     } else if let Some((fb, fb_total)) = master.and_then(|m| feedback_losses(m, duration_s)) {
         // The processes: the master counts the feedback it missed; the commands the slave
-        // missed are not recorded.
+        // did not act on are read from the slave's record when the recording has it
+        // (`loopback --record`, or the slave's own recording).
         metrics.insert("feedback_lost".into(), Value::from(fb_total));
-        let lines = vec![Line {
-            label: "feedback lost or rejected (slave → master); commands: not recorded",
+        let mut lines = vec![Line {
+            label: "feedback lost or rejected (slave → master)",
             color: C_MEAS,
             points: fb,
         }];
-        (
-            Some(lines),
-            format!("feedback losses ({fb_total} messages)"),
-        )
+        let mut what = format!("feedback losses ({fb_total} messages)");
+        if let Some((cmd, cmd_total)) = topics
+            .get("/slave/cycle")
+            .and_then(|t| commands_missed(t, duration_s))
+        {
+            metrics.insert("commands_lost".into(), Value::from(cmd_total));
+            lines.insert(
+                0,
+                Line {
+                    label: "commands the slave did not act on (master → slave)",
+                    color: C_TRUE,
+                    points: cmd,
+                },
+            );
+            what = format!("losses ({cmd_total} commands, {fb_total} feedback)");
+        }
+        (Some(lines), what)
     } else {
         (None, String::new())
     };
@@ -951,6 +995,28 @@ mod tests {
         let per_bin: Vec<f64> = points.iter().map(|p| p.1).collect();
         assert_eq!(per_bin, [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0]);
         assert!(feedback_losses(&vec![(0.0, serde_json::json!({}))], 1.0).is_none());
+
+        // The slave acted on commands 1..=349, missed 350-352 at 0.35 s and one at 0.55 s;
+        // a new master (its sequence starting again at 1) at 0.8 s is no loss.
+        let mut seq = 0u64;
+        let slave: Topic = (0..1000)
+            .map(|i| {
+                let t = i as f64 * 1e-3;
+                seq = match i {
+                    0 => 0,
+                    350 => seq + 4,
+                    550 => seq + 2,
+                    800 => 1,
+                    _ => seq + 1,
+                };
+                (t, serde_json::json!({ "command_seq": seq }))
+            })
+            .collect();
+        let (points, total) = commands_missed(&slave, 1.0).unwrap();
+        assert_eq!(total, 4);
+        let per_bin: Vec<f64> = points.iter().map(|p| p.1).collect();
+        assert_eq!(per_bin, [0.0, 0.0, 0.0, 3.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+        assert!(commands_missed(&vec![(0.0, serde_json::json!({}))], 1.0).is_none());
 
         let ev = |t: f64, dir: &str, kind: &str| {
             (
