@@ -39,7 +39,12 @@ pub(super) struct StiffnessEstimator {
     /// The environment's compliance at the last cycle the force was settled at its
     /// set-point (or at the touch), mm/N: what a contact loss falls back to.
     c_env_settled: f64,
+    /// Consecutive cycles with the force at its set-point.
+    settled_cycles: u32,
 }
+
+/// Cycles the force must stay at its set-point for the estimate to count as settled.
+const SETTLED_CYCLES: u32 = 50;
 
 /// Force increments within this many standard deviations of the sensor's noise (along the
 /// normal, measured while taring) do not update the estimate: at 0.3 N σ raw noise they
@@ -57,6 +62,7 @@ impl StiffnessEstimator {
             updates: 0,
             excitation_n: p.estimator_excitation_n,
             c_env_settled: c_env,
+            settled_cycles: 0,
         }
     }
 
@@ -90,12 +96,22 @@ impl StiffnessEstimator {
             self.seed_from_touchdown(window, n, c_arm, cycles, floor_n, p);
         }
         self.c_env_settled = self.c_env;
+        self.settled_cycles = 0;
     }
 
-    /// Marks this cycle's estimate as the one of a settled contact (the force at its
-    /// set-point): a later loss of contact falls back to it.
-    pub(super) fn settled(&mut self) {
-        self.c_env_settled = self.c_env;
+    /// Books whether the force is at its set-point this cycle: once it has stayed there for
+    /// [`SETTLED_CYCLES`] in a row, the estimate counts as the one of a settled contact, which
+    /// a later loss of contact falls back to (a force merely passing through its set-point,
+    /// as it falls away from a surface that left the tool, does not count).
+    pub(super) fn settled(&mut self, at_setpoint: bool) {
+        if at_setpoint {
+            self.settled_cycles = self.settled_cycles.saturating_add(1);
+            if self.settled_cycles >= SETTLED_CYCLES {
+                self.c_env_settled = self.c_env;
+            }
+        } else {
+            self.settled_cycles = 0;
+        }
     }
 
     /// Contact lost: the estimate falls back to the one of the last settled contact. The

@@ -587,9 +587,8 @@ impl SlaveController {
         } else {
             cmd.force_setpoint_n
         };
-        if (sp - f_n).abs() <= (SETTLED_SHARE * sp).max(SETTLED_MIN_N) {
-            self.estimator.settled();
-        }
+        self.estimator
+            .settled((sp - f_n).abs() <= (SETTLED_SHARE * sp).max(SETTLED_MIN_N));
         if self.contact.loses(f_n, expected_n, &self.p) {
             self.estimator.lost();
             self.force_law.e_prev_n = 0.0;
