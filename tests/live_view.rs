@@ -335,3 +335,52 @@ fn loopback_serves_both_processes_live() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A cutting loopback (`config/sessions/cut-pocket.toml`): the slave process also serves
+/// `/slave/cut` (schema `h4.CutCycle`, the recording's cut record), decimated like the
+/// cycles, with the tool's tip in the workpiece frame and the volume removed so far, which
+/// never decreases.
+#[test]
+fn a_cutting_slave_serves_the_cut_live() {
+    let port = free_port_pair();
+    let root = h4_tests::bins::workspace();
+    let child = std::process::Command::new(&h4_tests::bins::binaries().0)
+        .current_dir(&root)
+        .args(["loopback", "--duration-s", "5", "--config"])
+        .arg(root.join("config/sessions/cut-pocket.toml"))
+        .arg("--foxglove-ws")
+        .arg(format!("127.0.0.1:{port}"))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut child = Child(child);
+    let mut slave = Client::connect(&format!("127.0.0.1:{}", port + 1), Duration::from_secs(20));
+    slave.wait_for_topics(&["/slave/cycle", "/slave/cut"]);
+    slave.subscribe(3, "/slave/cut");
+    let m = slave.messages(40);
+    for key in [
+        "tool_tip_in_workpiece_mm",
+        "cutting_force_n",
+        "removed_mm3",
+        "spindle_torque_n_mm",
+        "stalled",
+    ] {
+        assert!(
+            !m[0].2[key].is_null(),
+            "cut message lacks {key}: {}",
+            m[0].2
+        );
+    }
+    let removed: Vec<f64> = m
+        .iter()
+        .map(|x| x.2["removed_mm3"].as_f64().unwrap())
+        .collect();
+    assert!(
+        removed.windows(2).all(|w| w[1] >= w[0]),
+        "removed volume decreased: {removed:?}"
+    );
+    drop(slave);
+    let _ = child.0.kill();
+    let _ = child.0.wait();
+}

@@ -388,6 +388,16 @@ pub struct MasterCoupling {
     started: bool,
     seq: u64,
     fade: f64,
+    /// The old slave's link force at a re-pairing, faded out by `handover_fade` while the
+    /// new slave's fades in (no step in the rendered force), N.
+    handover_n: [f64; 3],
+    /// Fade factor of `handover_n` (1 at the re-pairing, falling to 0 over `fade_ms`).
+    handover_fade: f64,
+    /// Share of `contact_damping_n_s_per_mm` rendered: whether the newest feedback reports a
+    /// contact, except within a re-pairing's fade, where it follows over `fade_ms` (the new
+    /// slave's first feedback switching the damping in one cycle stepped the rendered force
+    /// by the whole damping times the handle's speed, up to 7 N).
+    contact_damping_share: f64,
     last_feedback_ns: Option<u64>,
     feedback: Option<Feedback>,
     normal: [f64; 3],
@@ -428,6 +438,9 @@ impl MasterCoupling {
             started: false,
             seq: 0,
             fade: 0.0,
+            handover_n: [0.0; 3],
+            handover_fade: 0.0,
+            contact_damping_share: 0.0,
             last_feedback_ns: None,
             feedback: None,
             normal: [0.0, 0.0, 1.0],
@@ -471,13 +484,32 @@ impl MasterCoupling {
     /// A new pairing (the slave restarted; a session id can call it too): the port starts
     /// a new ledger, taking the newest feedback's energy as its first, and the rendering
     /// fades in again from zero.
+    /// The force rendered from the old slave does not vanish in one cycle: it fades out over
+    /// `fade_ms` while the new slave's fades in (a slave replaced within the feedback
+    /// timeout rendered a step of up to 6 N before).
     pub fn new_pairing(&mut self) {
         self.port.new_pairing();
         if let Some(fb) = &self.feedback {
             self.port.receive_remote_in(fb.energy_in_j * self.kappa());
         }
+        let old = self.last.link_force_n;
+        for (h, o) in self.handover_n.iter_mut().zip(old.iter()) {
+            *h = *h * self.handover_fade + o;
+        }
+        self.handover_fade = 1.0;
         self.fade = 0.0;
         self.model.reset_used();
+    }
+
+    /// Adds the old slave's fading force after a re-pairing (see [`Self::new_pairing`]).
+    fn add_handover(&mut self, link_force: &mut [f64; 3], dt_s: f64) {
+        if self.handover_fade <= 0.0 {
+            return;
+        }
+        for (f, h) in link_force.iter_mut().zip(self.handover_n.iter()) {
+            *f += h * self.handover_fade;
+        }
+        self.handover_fade = (self.handover_fade - dt_s * 1e3 / self.p.fade_ms.max(1e-3)).max(0.0);
     }
 
     /// The master is acknowledging the slave's safe stop (it has faded out and started a new
@@ -706,16 +738,25 @@ impl MasterCoupling {
     /// `contact_damping_n_s_per_mm` while the newest feedback reports a contact held by the
     /// slave's force loop.
     fn local_damping(&self) -> f64 {
+        self.p.master_damping_n_s_per_mm
+            + self.contact_damping_share * self.p.contact_damping_n_s_per_mm
+    }
+
+    /// The contact damping's share: whether the newest feedback reports a contact held by
+    /// the slave's force loop, reached over `fade_ms` within a re-pairing's fade.
+    fn update_contact_damping(&mut self, dt_s: f64) {
         let contact = self.feedback.is_some_and(|fb| {
             let w = fb.wrench_desired;
             w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 1e-6
         });
-        self.p.master_damping_n_s_per_mm
-            + if contact {
-                self.p.contact_damping_n_s_per_mm
-            } else {
-                0.0
-            }
+        let target = if contact { 1.0 } else { 0.0 };
+        if self.handover_fade > 0.0 {
+            let rate = dt_s * 1e3 / self.p.fade_ms.max(1e-3);
+            let d = (target - self.contact_damping_share).clamp(-rate, rate);
+            self.contact_damping_share += d;
+        } else {
+            self.contact_damping_share = target;
+        }
     }
 
     /// The share of the local damping rendered: all of it while the feedback is fresh and
@@ -723,7 +764,11 @@ impl MasterCoupling {
     /// push; damping only dissipates), faded with the feedback only when
     /// `coupling.brake_on_loss` is off.
     fn brake(&self) -> f64 {
-        if self.p.brake_on_loss { 1.0 } else { self.fade }
+        if self.p.brake_on_loss && self.feedback.is_some() {
+            1.0
+        } else {
+            self.fade
+        }
     }
 
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
@@ -774,6 +819,7 @@ impl MasterCoupling {
         }
         let mut step = MasterStep::default();
         self.update_fade(now_ns, dt_s);
+        self.update_contact_damping(dt_s);
         self.update_clutch(dev);
         let handle_velocity = [dev.velocity[0], dev.velocity[1], dev.velocity[2]];
         self.update_normal();
@@ -796,6 +842,9 @@ impl MasterCoupling {
             } else if p.mode == CouplingMode::ForceGuided && p.feed_force_gain > 0.0 {
                 link_force = self.feed_resistance(&vel);
             }
+        }
+        if !self.clutched {
+            self.add_handover(&mut link_force, dt_s);
         }
         self.filter_force(&mut link_force, dt_s);
         self.last_slave_target = target;
