@@ -22,6 +22,11 @@ struct Rig {
 impl Rig {
     /// The rig on fig7b's realistic sensor and plant, plus `extra`.
     fn new(extra: &[&str]) -> Rig {
+        Rig::seeded(extra, 3)
+    }
+
+    /// The rig with the sensor noise drawn from `seed`.
+    fn seeded(extra: &[&str], seed: u64) -> Rig {
         let path = concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../config/experiments/fig7b.toml"
@@ -31,7 +36,7 @@ impl Rig {
         let p = cfg.surface.contact_point_mm;
         let (arm, ctrl) = cfg
             .world()
-            .build(Pose::new(p[0], p[1], p[2] + 2.0, 0.0), 3)
+            .build(Pose::new(p[0], p[1], p[2] + 2.0, 0.0), seed)
             .unwrap();
         Rig { arm, ctrl, cfg }
     }
@@ -139,9 +144,8 @@ fn position_mode_follows_within_limits_and_rejects_outside_the_workspace() {
 
 #[test]
 fn lost_contact_is_reapproached_without_a_jump() {
-    // The ideal sensor (no payload on it, no weight, no latency). With issue 13's realistic
-    // sensor the re-contact after the 3 mm drop peaks at 26 N (30 % over the 20 N set-point):
-    // a known miss, docs/slave-results.md.
+    // The ideal sensor (no payload on it, no weight, no latency); the realistic one:
+    // `recontact_after_a_drop_keeps_the_first_touch_targets_with_a_real_sensor`.
     let mut rig = Rig::new(&[
         "plant.payload_mass_kg=0",
         "plant.gravity_mm_per_s2=[0,0,0]",
@@ -197,6 +201,109 @@ fn lost_contact_is_reapproached_without_a_jump() {
         "{}",
         rig.true_normal_force()
     );
+}
+
+/// What a re-contact after a drop of the surface did: the peak true force once the
+/// controller touched again, when it settled within the first touch's band (ms after the
+/// re-touch, `None` if not within the run), the final true force.
+#[derive(Debug)]
+struct Recontact {
+    peak_n: f64,
+    settled_ms: Option<usize>,
+    final_n: f64,
+}
+
+/// Presses `setpoint_n` on fig7b's steel with `extra`, drops the surface by 3 mm under the
+/// tool, and follows the loss, the re-approach and the re-contact.
+fn recontact_after_a_drop(extra: &[&str], seed: u64, setpoint_n: f64) -> Recontact {
+    let mut rig = Rig::seeded(extra, seed);
+    for _ in 0..2500 {
+        rig.step(rig.press(setpoint_n, 3.5));
+    }
+    let Surface { shape, material } = *rig.arm.surface();
+    let SurfaceShape::Plane { point_mm, normal } = shape else {
+        panic!("plane expected")
+    };
+    rig.arm.set_surface(Surface {
+        shape: SurfaceShape::Plane {
+            point_mm: [point_mm[0], point_mm[1], point_mm[2] - 3.0],
+            normal,
+        },
+        material,
+    });
+    let band = (0.05 * setpoint_n).max(0.5);
+    let mut saw_lost = false;
+    let mut regained_at = None;
+    let mut last_outside: usize = 0;
+    let mut peak: f64 = 0.0;
+    let mut k_end = 0;
+    for k in 0..4000 {
+        let out = rig.step(rig.press(setpoint_n, 3.5));
+        saw_lost |= out.status == Status::ContactLost;
+        let touching = matches!(out.status, Status::Contact | Status::ForceLimited);
+        if saw_lost && regained_at.is_none() && touching {
+            regained_at = Some(k);
+        }
+        if regained_at.is_some() {
+            let f = rig.true_normal_force();
+            peak = peak.max(f);
+            if (f - setpoint_n).abs() > band {
+                last_outside = k;
+            }
+        }
+        k_end = k;
+    }
+    assert!(saw_lost, "contact loss not detected");
+    let k0 = regained_at.expect("contact not regained");
+    Recontact {
+        peak_n: peak,
+        settled_ms: (last_outside + 500 < k_end).then(|| last_outside.saturating_sub(k0)),
+        final_n: rig.true_normal_force(),
+    }
+}
+
+/// Re-contact after a 3 mm drop on steel with the realistic sensor (payload on the sensor,
+/// one period of latency, bias drift) at 0.1 and 0.3 N σ, the plant's stiffness ×0.7 and
+/// ×1.3, four seeds: the re-contact keeps the first touch's targets (overshoot ≤ 5 %,
+/// settling ≤ 150 ms, measured on the true force; before the fix 10–20 % and 180–690 ms:
+/// the payload ringing after the drop cut the loop gains and dragged the stiffness
+/// estimate, and both carried over to the re-contact). Control: the same measurement
+/// catches a controller whose compliance is wrong (estimator off, steel taken for
+/// 50 N/mm), whose re-contact overshoots far.
+#[test]
+fn recontact_after_a_drop_keeps_the_first_touch_targets_with_a_real_sensor() {
+    let mut all = Vec::new();
+    let mut worst = (0.0f64, 0usize);
+    for noise in ["0.1", "0.3"] {
+        for scale in ["0.7", "1.3"] {
+            for seed in 1..=4 {
+                let n = format!("sensor.noise_std_n={noise}");
+                let s = format!("plant.stiffness_scale={scale}");
+                let r = recontact_after_a_drop(&[&n, &s], seed, 20.0);
+                let over_pct = 100.0 * (r.peak_n - 20.0).max(0.0) / 20.0;
+                let settled = r.settled_ms.unwrap_or(usize::MAX);
+                worst = (worst.0.max(over_pct), worst.1.max(settled));
+                if over_pct > 5.0 || settled > 150 || (r.final_n - 20.0).abs() > 1.0 {
+                    all.push(format!("σ {noise} ×{scale} seed {seed}: {r:?}"));
+                }
+            }
+        }
+    }
+    eprintln!(
+        "re-contact: worst overshoot {:.1} %, settling {} ms",
+        worst.0, worst.1
+    );
+    assert!(all.is_empty(), "{}", all.join("\n"));
+    let wrong = recontact_after_a_drop(
+        &[
+            "plant.stiffness_scale=1.3",
+            "controller.estimate_env_stiffness=false",
+            "controller.initial_env_stiffness_n_per_mm=50",
+        ],
+        1,
+        20.0,
+    );
+    assert!(wrong.peak_n > 1.25 * 20.0, "control: {wrong:?}");
 }
 
 #[test]

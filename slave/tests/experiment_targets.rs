@@ -226,23 +226,28 @@ fn tracking_along_y_on_aluminium_meets_targets() {
 }
 
 /// The force guard keeps the *true* force under the limit when the force loop itself is far
-/// too hot (proportional gain 10× the default: the tool rings and bounces on steel), at both
-/// plant stiffnesses and over eight seeds. The loop's other protections are mistuned so they
-/// let the hot gain through: the tool mass is told 100× too light (the gain schedule then
-/// sees the contact mode far above the sensor filter and keeps kp) and the normal
-/// acceleration limit is out of the way. Negative control: the same runs with the limit out
-/// of the way (500 N) peak above the 80 N limit (by 5 % or more) in every one of them
-/// (measured before issue 13: 107–135 N at ×0.7, 168–211 N at ×1.3; with its noise-aware
-/// contact detection from 88 N at ×0.7), so the scenario does threaten the limit
-/// and the guard is what holds it. (Not a proof for every mistuning: see
-/// docs/slave-results.md, "Known limits".)
+/// too hot (proportional gain 10× the default; on the softer arm, ×0.7, the integral gain
+/// doubled as well, without which that arm barely rings), at both plant stiffnesses and over
+/// eight seeds. The loop's other protections are mistuned so they let the hot gains through:
+/// the tool mass is told 100× too light (the gain schedule then sees the contact mode far
+/// above the sensor filter and keeps kp) and the normal acceleration limit is out of the
+/// way. Negative control: the same runs with the limit out of the way (500 N) go well past
+/// the 80 N limit, above 1.5× it in every one (measured 2026-12-02: 122–157 N at ×0.7,
+/// 193–221 N at ×1.3; guarded 31–45 N and 67–78 N), so the scenario does threaten the limit
+/// and the guard is what holds it. Until then the control asserted only 1.05× (the ×0.7
+/// runs with kp alone peak at 85–129 N unguarded). Not a proof for every mistuning: a
+/// hotter loop defeats it (kp 4 at ×0.7: guarded peaks 83–128 N; ki doubled at ×1.3: up
+/// to 89 N; docs/slave-results.md, "Known limits").
 const HOT_KP: &str = "controller.kp=3";
 const HOT_MASS: &str = "controller.tool_mass_kg=0.01";
 const HOT_ACCEL: &str = "controller.force_accel_mm_per_s2=1e6";
 
 #[test]
 fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
-    for scale in ["0.7", "1.3"] {
+    for (scale, hot_ki) in [
+        ("0.7", "controller.ki_per_s=160"),
+        ("1.3", "controller.ki_per_s=80"),
+    ] {
         for seed in 1..=8 {
             let set = format!("plant.stiffness_scale={scale}");
             let seed_set = format!("seed={seed}");
@@ -251,6 +256,7 @@ fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
             // and the control would prove nothing.
             let hot = [
                 HOT_KP,
+                hot_ki,
                 HOT_MASS,
                 HOT_ACCEL,
                 "duration_s=6",
@@ -272,7 +278,7 @@ fn force_guard_holds_the_limit_on_the_true_force_with_a_hot_loop() {
             unguarded_set.push("controller.force_limit_n=500");
             let (_, unguarded) = run("fig7c.toml", &unguarded_set);
             assert!(
-                unguarded.max_force_n > 1.05 * limit_n,
+                unguarded.max_force_n > 1.5 * limit_n,
                 "×{scale} seed {seed}: the hot loop does not threaten the limit: {:.1} N",
                 unguarded.max_force_n
             );

@@ -36,7 +36,15 @@ pub(super) struct StiffnessEstimator {
     /// Smallest force increment that updates the estimate on this contact: the larger of
     /// `estimator_excitation_n` and [`EXCITATION_NOISE_SIGMAS`] × the sensor's noise, N.
     excitation_n: f64,
+    /// The environment's compliance at the last cycle the force was settled at its
+    /// set-point (or at the touch), mm/N: what a contact loss falls back to.
+    c_env_settled: f64,
+    /// Consecutive cycles with the force at its set-point.
+    settled_cycles: u32,
 }
+
+/// Cycles the force must stay at its set-point for the estimate to count as settled.
+const SETTLED_CYCLES: u32 = 50;
 
 /// Force increments within this many standard deviations of the sensor's noise (along the
 /// normal, measured while taring) do not update the estimate: at 0.3 N σ raw noise they
@@ -53,6 +61,8 @@ impl StiffnessEstimator {
             p_rls: 100.0,
             updates: 0,
             excitation_n: p.estimator_excitation_n,
+            c_env_settled: c_env,
+            settled_cycles: 0,
         }
     }
 
@@ -85,6 +95,33 @@ impl StiffnessEstimator {
             let floor_n = TOUCHDOWN_FLOOR_N.max(TOUCHDOWN_NOISE_SIGMAS * noise_n);
             self.seed_from_touchdown(window, n, c_arm, cycles, floor_n, p);
         }
+        self.c_env_settled = self.c_env;
+        self.settled_cycles = 0;
+    }
+
+    /// Books whether the force is at its set-point this cycle: once it has stayed there for
+    /// [`SETTLED_CYCLES`] in a row, the estimate counts as the one of a settled contact, which
+    /// a later loss of contact falls back to (a force merely passing through its set-point,
+    /// as it falls away from a surface that left the tool, does not count).
+    pub(super) fn settled(&mut self, at_setpoint: bool) {
+        if at_setpoint {
+            self.settled_cycles = self.settled_cycles.saturating_add(1);
+            if self.settled_cycles >= SETTLED_CYCLES {
+                self.c_env_settled = self.c_env;
+            }
+        } else {
+            self.settled_cycles = 0;
+        }
+    }
+
+    /// Contact lost: the estimate falls back to the one of the last settled contact. The
+    /// cycles between carry no stiffness: the force falls away from a surface that left
+    /// the tool, and the sensor shows the payload ringing on the arm (measured: an
+    /// aluminium-class 550 N/mm estimate on steel dragged to 100 N/mm by a 3 mm drop, and
+    /// the re-contact, with the loop gain 3.6× too high, overshot by 20 %).
+    pub(super) fn lost(&mut self) {
+        self.c_env = self.c_env_settled;
+        self.updates = 0;
     }
 
     /// One update in contact, `contact_cycles` after the touch: the force and position

@@ -96,9 +96,15 @@ impl OscillationGuard {
         }
     }
 
-    /// At a touch: the second difference restarts.
+    /// At a touch: a new contact's loop starts at full gain, its second difference from
+    /// rest (what the guard saw before belonged to the last contact: after a loss, the
+    /// payload ringing in free space had cut the gains to ≈ 0.5, and the re-contact then
+    /// took 0.3–0.7 s to settle). The swing, the force guard's estimate of an
+    /// oscillation's unseen peak, is kept: it decays by itself.
     pub(super) fn touch(&mut self) {
         self.de_prev_n = 0.0;
+        self.swing2_n = 0.0;
+        self.gain = 1.0;
     }
 
     /// Feeds this cycle's change of the force error `de`.

@@ -85,6 +85,11 @@ use tare::SensorTare;
 use tracking::Tracking;
 use window::MotionWindow;
 
+/// The force counts as settled at its set-point within this share of it …
+const SETTLED_SHARE: f64 = 0.05;
+/// … or this many newtons, whichever is larger (the experiments' settling band).
+const SETTLED_MIN_N: f64 = 0.5;
+
 /// This cycle's measurements, derived once at the start of the step.
 #[derive(Clone, Copy, Debug)]
 struct Cycle {
@@ -604,7 +609,10 @@ impl SlaveController {
         } else {
             cmd.force_setpoint_n
         };
+        self.estimator
+            .settled((sp - f_n).abs() <= (SETTLED_SHARE * sp).max(SETTLED_MIN_N));
         if self.contact.loses(f_n, expected_n, &self.p) {
+            self.estimator.lost();
             self.force_law.e_prev_n = 0.0;
             self.tracking.tangent = Vector3::zeros();
             status = Status::ContactLost;
