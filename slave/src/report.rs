@@ -653,7 +653,10 @@ fn commands_missed(slave: &Topic, duration_s: f64) -> Option<(Vec<(f64, f64)>, u
             prev = Some(seq);
         }
     }
-    let points = missed.into_iter().map(|(b, n)| (b as f64 * 0.1, n)).collect();
+    let points = missed
+        .into_iter()
+        .map(|(b, n)| (b as f64 * 0.1, n))
+        .collect();
     Some((points, total))
 }
 
