@@ -871,8 +871,8 @@ impl MasterCoupling {
             p.passivity && self.fade > 0.0,
         );
         let mut force = pc.force_n;
-        for i in 0..3 {
-            force[i] += handover[i];
+        for (f, h) in force.iter_mut().zip(handover.iter()) {
+            *f += h;
         }
         self.port_force_n = pc.force_n;
         self.brake_extra_n = [0.0; 3];
@@ -887,8 +887,8 @@ impl MasterCoupling {
                 self.brake_extra_n[i] = -extra * v;
             }
         }
-        for i in 0..3 {
-            self.brake_extra_n[i] += handover[i];
+        for (e, h) in self.brake_extra_n.iter_mut().zip(handover.iter()) {
+            *e += h;
         }
         // Force-guided: the local virtual spring sets the set-point.
         if p.mode == CouplingMode::ForceGuided && !self.clutched {
