@@ -10,20 +10,39 @@ use h4_shared::alloc_count::{CountingAllocator, allocations_in, count_allocation
 #[global_allocator]
 static GLOBAL: CountingAllocator = CountingAllocator;
 
-#[test]
-fn master_and_slave_steps_allocate_nothing() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
+/// A shipped session under a light impairment (10 ms delay, 3 ms jitter, 5 % loss), run for
+/// `warm_up` cycles (the first messages through the link's queues, the approach).
+fn impaired_session(file: &str, warm_up: usize) -> Session {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../config/sessions")
+        .join(file);
     let o: Vec<String> = ["link.delay_ms=10", "link.jitter_ms=3", "link.loss=0.05"]
         .iter()
         .map(|s| s.to_string())
         .collect();
     let cfg = session::load(&path, &o).unwrap();
     let mut s = Session::new(&cfg).unwrap();
-    // Warm up (first messages through the link's queues), then count through approach,
-    // contact and hold.
-    for _ in 0..200 {
+    for _ in 0..warm_up {
         s.cycle().unwrap();
     }
+    s
+}
+
+/// Allocations over `n` cycles of `s`.
+fn allocations_over(s: &mut Session, n: usize) -> u64 {
+    let (count, ()) = count_allocations(|| {
+        for _ in 0..n {
+            s.cycle().unwrap();
+        }
+    });
+    count
+}
+
+#[test]
+fn master_and_slave_steps_allocate_nothing() {
+    // Warm up (first messages through the link's queues), then count through approach,
+    // contact and hold.
+    let mut s = impaired_session("wall-push.toml", 200);
     let (n, max_force) = count_allocations(|| {
         let mut max_force = 0.0f64;
         for _ in 0..4000 {
@@ -46,22 +65,9 @@ fn master_and_slave_steps_allocate_nothing() {
 /// nothing either: cycles of the pocket session while the tool cuts along the floor.
 #[test]
 fn cutting_cycles_allocate_nothing() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
-    let o: Vec<String> = ["link.delay_ms=10", "link.jitter_ms=3", "link.loss=0.05"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-    let cfg = session::load(&path, &o).unwrap();
-    let mut s = Session::new(&cfg).unwrap();
-    for _ in 0..2500 {
-        s.cycle().unwrap();
-    }
+    let mut s = impaired_session("cut-pocket.toml", 2500);
     let removed_before = s.slave.arm().cut().unwrap().report().removed_mm3;
-    let (n, ()) = count_allocations(|| {
-        for _ in 0..4000 {
-            s.cycle().unwrap();
-        }
-    });
+    let n = allocations_over(&mut s, 4000);
     let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
     assert!(
         removed > 10.0,
@@ -79,17 +85,7 @@ fn cutting_cycles_allocate_nothing() {
 /// tool.
 #[test]
 fn turntable_cycles_allocate_nothing() {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-profile.toml");
-    let o: Vec<String> = ["link.delay_ms=10", "link.jitter_ms=3", "link.loss=0.05"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-    let cfg = session::load(&path, &o).unwrap();
-    let mut s = Session::new(&cfg).unwrap();
-    for _ in 0..2500 {
-        s.cycle().unwrap();
-    }
+    let mut s = impaired_session("cut-profile.toml", 2500);
     let angle = |s: &Session| {
         s.slave
             .arm()
@@ -101,11 +97,7 @@ fn turntable_cycles_allocate_nothing() {
     };
     let (removed_before, angle_before) =
         (s.slave.arm().cut().unwrap().report().removed_mm3, angle(&s));
-    let (n, ()) = count_allocations(|| {
-        for _ in 0..4000 {
-            s.cycle().unwrap();
-        }
-    });
+    let n = allocations_over(&mut s, 4000);
     let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
     assert!(
         removed > 10.0,
