@@ -199,8 +199,10 @@ fn a_topic_is_advertised_with_its_schema_and_streams_decimated_json() {
 
 /// Every series of the shipped layout (`config/foxglove/h4-teleop.json`) names a field the
 /// processes really publish, checked against the schemas they advertise.
-fn check_layout(root: &std::path::Path, clients: &[&Client]) {
-    let text = std::fs::read_to_string(root.join("config/foxglove/h4-teleop.json")).unwrap();
+/// Every series of the shipped layout `file` (config/foxglove/) names a topic the clients
+/// were offered and a field of its schema.
+fn check_layout(root: &std::path::Path, file: &str, clients: &[&Client]) {
+    let text = std::fs::read_to_string(root.join("config/foxglove").join(file)).unwrap();
     let layout: Value = serde_json::from_str(&text).unwrap();
     let mut checked = 0;
     for (panel, cfg) in layout["configById"].as_object().unwrap() {
@@ -277,7 +279,7 @@ fn loopback_serves_both_processes_live() {
     slave.wait_for_topics(&["/slave/cycle"]);
     slave.subscribe(2, "/slave/cycle");
 
-    check_layout(&root, &[&master, &slave]);
+    check_layout(&root, "h4-teleop.json", &[&master, &slave]);
 
     let m = master.messages(30);
     for key in [
@@ -339,7 +341,8 @@ fn loopback_serves_both_processes_live() {
 /// A cutting loopback (`config/sessions/cut-pocket.toml`): the slave process also serves
 /// `/slave/cut` (schema `h4.CutCycle`, the recording's cut record), decimated like the
 /// cycles, with the tool's tip in the workpiece frame and the volume removed so far, which
-/// never decreases.
+/// never decreases; every series of `config/foxglove/h4-cutting.json` names a published
+/// field.
 #[test]
 fn a_cutting_slave_serves_the_cut_live() {
     let port = free_port_pair();
@@ -355,8 +358,12 @@ fn a_cutting_slave_serves_the_cut_live() {
         .spawn()
         .unwrap();
     let mut child = Child(child);
+    let mut master = Client::connect(&format!("127.0.0.1:{port}"), Duration::from_secs(20));
+    master.wait_for_topics(&["/master/cycle"]);
     let mut slave = Client::connect(&format!("127.0.0.1:{}", port + 1), Duration::from_secs(20));
     slave.wait_for_topics(&["/slave/cycle", "/slave/cut"]);
+    // The cutting layout's every series is published, the cut's and the turntable's included.
+    check_layout(&root, "h4-cutting.json", &[&master, &slave]);
     slave.subscribe(3, "/slave/cut");
     let m = slave.messages(40);
     for key in [
@@ -381,6 +388,7 @@ fn a_cutting_slave_serves_the_cut_live() {
         "removed volume decreased: {removed:?}"
     );
     drop(slave);
+    drop(master);
     let _ = child.0.kill();
     let _ = child.0.wait();
 }
