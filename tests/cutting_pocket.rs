@@ -107,14 +107,7 @@ fn the_part_files_and_the_recording_carry_the_cut() {
     let mut rec = h4_shared::recording::Recorder::in_memory().unwrap();
     let s = session::run_with_outputs(&cfg, Some(&mut rec), Some(&dir)).unwrap();
     let bytes = rec.finish_into_bytes().unwrap();
-    for f in ["height.png", "deviation.png"] {
-        let b = std::fs::read(dir.join(f)).unwrap();
-        assert_eq!(&b[1..4], b"PNG", "{f}");
-    }
-    let stl = std::fs::read(dir.join("part.stl")).unwrap();
-    let n = u32::from_le_bytes(stl[80..84].try_into().unwrap()) as usize;
-    assert_eq!(stl.len(), 84 + 50 * n);
-    std::fs::remove_dir_all(&dir).unwrap();
+    h4_tests::check_cut_outputs(&dir);
     let mut last: Option<serde_json::Value> = None;
     let mut count = 0;
     for m in mcap::MessageStream::new(&bytes).unwrap() {

@@ -83,14 +83,7 @@ fn the_profile_session_cuts_the_ring_and_writes_the_part() {
         "surface error p99 {} mm",
         c.surface_error_p99_mm
     );
-    for f in ["height.png", "deviation.png"] {
-        let b = std::fs::read(dir.join(f)).unwrap();
-        assert_eq!(&b[1..4], b"PNG", "{f}");
-    }
-    let stl = std::fs::read(dir.join("part.stl")).unwrap();
-    let n = u32::from_le_bytes(stl[80..84].try_into().unwrap()) as usize;
-    assert_eq!(stl.len(), 84 + 50 * n);
-    std::fs::remove_dir_all(&dir).unwrap();
+    h4_tests::check_cut_outputs(&dir);
     let bytes = rec.finish_into_bytes().unwrap();
     let mut last: Option<serde_json::Value> = None;
     for m in mcap::MessageStream::new(&bytes).unwrap() {

@@ -160,17 +160,7 @@ fn lost_contact_is_reapproached_without_a_jump() {
     }
     assert!((rig.true_normal_force() - 20.0).abs() < 1.0);
     // The surface drops by 3 mm under the tool (a step in the part).
-    let Surface { shape, material } = *rig.arm.surface();
-    let SurfaceShape::Plane { point_mm, normal } = shape else {
-        panic!("plane expected")
-    };
-    rig.arm.set_surface(Surface {
-        shape: SurfaceShape::Plane {
-            point_mm: [point_mm[0], point_mm[1], point_mm[2] - 3.0],
-            normal,
-        },
-        material,
-    });
+    drop_surface(&mut rig, 3.0);
     let mut saw_lost = false;
     let mut regained_at = None;
     let mut prev: Option<[f64; 4]> = None;
@@ -213,6 +203,21 @@ struct Recontact {
     final_n: f64,
 }
 
+/// Drops the rig's plane surface by `mm` under the tool (a step in the part).
+fn drop_surface(rig: &mut Rig, mm: f64) {
+    let Surface { shape, material } = *rig.arm.surface();
+    let SurfaceShape::Plane { point_mm, normal } = shape else {
+        panic!("plane expected")
+    };
+    rig.arm.set_surface(Surface {
+        shape: SurfaceShape::Plane {
+            point_mm: [point_mm[0], point_mm[1], point_mm[2] - mm],
+            normal,
+        },
+        material,
+    });
+}
+
 /// Presses `setpoint_n` on fig7b's steel with `extra`, drops the surface by 3 mm under the
 /// tool, and follows the loss, the re-approach and the re-contact.
 fn recontact_after_a_drop(extra: &[&str], seed: u64, setpoint_n: f64) -> Recontact {
@@ -220,17 +225,7 @@ fn recontact_after_a_drop(extra: &[&str], seed: u64, setpoint_n: f64) -> Reconta
     for _ in 0..2500 {
         rig.step(rig.press(setpoint_n, 3.5));
     }
-    let Surface { shape, material } = *rig.arm.surface();
-    let SurfaceShape::Plane { point_mm, normal } = shape else {
-        panic!("plane expected")
-    };
-    rig.arm.set_surface(Surface {
-        shape: SurfaceShape::Plane {
-            point_mm: [point_mm[0], point_mm[1], point_mm[2] - 3.0],
-            normal,
-        },
-        material,
-    });
+    drop_surface(&mut rig, 3.0);
     let band = (0.05 * setpoint_n).max(0.5);
     let mut saw_lost = false;
     let mut regained_at = None;

@@ -11,6 +11,21 @@ pub mod remote_procs;
 
 pub mod bins;
 
+/// Checks the files `h4-master sim --out DIR` writes for a cutting session (`height.png`,
+/// `deviation.png`: PNG; `part.stl`: a binary STL whose length matches its triangle count)
+/// and removes `dir`.
+pub fn check_cut_outputs(dir: &std::path::Path) {
+    for f in ["height.png", "deviation.png"] {
+        let b = std::fs::read(dir.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert_eq!(&b[1..4], b"PNG", "{f}");
+    }
+    let stl = std::fs::read(dir.join("part.stl")).unwrap_or_else(|e| panic!("part.stl: {e}"));
+    assert!(stl.len() >= 84, "part.stl: {} bytes", stl.len());
+    let n = u32::from_le_bytes([stl[80], stl[81], stl[82], stl[83]]) as usize;
+    assert_eq!(stl.len(), 84 + 50 * n);
+    std::fs::remove_dir_all(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+}
+
 use h4_shared::H4Params;
 use serde::Deserialize;
 
