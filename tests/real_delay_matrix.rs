@@ -26,6 +26,9 @@
 //! times, and reported as starved if it never ran fed. Nothing asserts a wall-clock duration.
 //! ≈ 2.5 min on 2 cores.
 //! `cargo test --release -p h4-tests --test real_delay_matrix -- --nocapture` prints the table.
+//! For diagnosis: `H4_REAL_MATRIX_ONLY=<part of a cell's name>` runs only the cells whose name
+//! holds it (`ZenohRelay-Resin-rtt250-loss0.05`), and `H4_REAL_MATRIX_RECORD=<dir>` has both
+//! processes record (`--record`) into that directory.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -165,6 +168,15 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         None => Command::new(master_bin),
     };
     master_cmd.arg("run").arg("--config").arg(SESSION);
+    if let Some(dir) = std::env::var_os("H4_REAL_MATRIX_RECORD") {
+        let dir = std::path::PathBuf::from(dir);
+        master_cmd
+            .arg("--record")
+            .arg(dir.join(format!("{tag}-master.mcap")));
+        slave_cmd
+            .arg("--record")
+            .arg(dir.join(format!("{tag}-slave.mcap")));
+    }
     for o in cell.overrides() {
         master_cmd.arg("--set").arg(o);
     }
@@ -354,6 +366,9 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
         protected: false,
     };
     cells.push(control);
+    if let Ok(only) = std::env::var("H4_REAL_MATRIX_ONLY") {
+        cells.retain(|c| c.name().contains(&only));
+    }
     let results = run_all(cells, &scratch);
     println!(
         "| path | wall | round trip ms | loss | stable | max true force N (slave guard's limit) | max rendered N / limit | observers min master / slave mJ | measured rtt p50 ms | lost msgs | safe stops | deadline misses master + slave | runs |"

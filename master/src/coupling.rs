@@ -780,20 +780,65 @@ impl MasterCoupling {
         }
     }
 
+    /// The local damping along each of the handle's principal directions
+    /// (`dev.principal_masses`), N·s/mm: [`MasterCoupling::local_damping`], bounded by
+    /// `passivity.damping_step_fraction · m / dt` along a direction of effective mass `m`
+    /// (0: unbounded). The bound is the discrete-time one: a damping held over a cycle
+    /// with the velocity estimated from the encoders (a backward difference through a
+    /// low-pass) is unstable above about `2 m / dt` along the light direction. Unbounded, the
+    /// wall-push contact's 1.0 N·s/mm against the lightest 0.39 kg of the shipped handle
+    /// chattered at 125 Hz with ±25 N once a stalled host kicked the handle sideways
+    /// (process delay matrix, CI, 2026-12-02); along the heavy directions the full damping
+    /// stays.
+    fn local_damping_along(&self, dev: &DeviceState, dt_s: f64) -> [f64; 3] {
+        let b = self.local_damping();
+        let frac = self.p.passivity_params.damping_step_fraction;
+        let mut out = [b; 3];
+        if frac > 0.0 {
+            for (o, m) in out.iter_mut().zip(dev.principal_masses.mass_kg.iter()) {
+                if *m > 0.0 {
+                    *o = o.min(frac * m * 1e-3 / dt_s);
+                }
+            }
+        }
+        out
+    }
+
+    /// The local damping's force against `v`, N: `−Σ bₖ (aₖ·v) aₖ` over the principal
+    /// directions `aₖ` with the bounded dampings `b` of
+    /// [`MasterCoupling::local_damping_along`].
+    fn local_damping_force(dev: &DeviceState, b: &[f64; 3], v: &[f64; 3]) -> [f64; 3] {
+        let mut f = [0.0; 3];
+        for (a, bk) in dev.principal_masses.axes.iter().zip(b.iter()) {
+            let along = bk * (a[0] * v[0] + a[1] * v[1] + a[2] * v[2]);
+            for (fi, ai) in f.iter_mut().zip(a.iter()) {
+                *fi -= along * ai;
+            }
+        }
+        f
+    }
+
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
-    /// the local damping, stays within what the handle's mass takes in one cycle
-    /// (discrete-time bound).
-    fn bound_damping(&mut self, dev: &DeviceState, dt_s: f64) {
+    /// the local damping, stays within what the handle's mass takes in one cycle along each
+    /// principal direction (discrete-time bound).
+    fn bound_damping(&mut self, dev: &DeviceState, local: &[f64; 3], dt_s: f64) {
         let p = &self.p;
         self.port.mass_estimate_kg = (dev.effective_mass_kg > 0.0).then_some(dev.effective_mass_kg);
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
-            let local = if p.mode == CouplingMode::PositionForce && !self.clutched {
-                self.local_damping() * self.brake()
+            let share = if p.mode == CouplingMode::PositionForce && !self.clutched {
+                self.brake()
             } else {
                 0.0
             };
-            Some((frac * dev.effective_mass_kg * 1e-3 / dt_s - local).max(0.0))
+            let room = dev
+                .principal_masses
+                .mass_kg
+                .iter()
+                .zip(local.iter())
+                .map(|(m, b)| frac * m * 1e-3 / dt_s - share * b)
+                .fold(f64::INFINITY, f64::min);
+            Some(room.max(0.0))
         } else {
             None
         };
@@ -861,7 +906,8 @@ impl MasterCoupling {
         self.last_slave_target = target;
         self.offset_mm = offset;
         self.velocity = vel;
-        self.bound_damping(dev, dt_s);
+        let local_damping = self.local_damping_along(dev, dt_s);
+        self.bound_damping(dev, &local_damping, dt_s);
         // Faded out there is nothing to render: the port only observes (its controller's
         // damping, released over `damping_release_ms`, would otherwise push the handle).
         let pc = self.port.step(
@@ -880,11 +926,12 @@ impl MasterCoupling {
             // The local damping: faded with the feedback, except that the brake
             // (`brake_on_loss`) keeps it on while the feedback is lost; the brake's share
             // beyond the fade is not the link's (see `brake_extra_n`).
-            let b = self.local_damping();
-            let extra = b * (self.brake() - self.fade).max(0.0);
-            for (i, (f, v)) in force.iter_mut().zip(handle_velocity.iter()).enumerate() {
-                *f -= b * self.brake() * v;
-                self.brake_extra_n[i] = -extra * v;
+            let d = Self::local_damping_force(dev, &local_damping, &handle_velocity);
+            let brake = self.brake();
+            let extra = (brake - self.fade).max(0.0);
+            for ((f, e), di) in force.iter_mut().zip(self.brake_extra_n.iter_mut()).zip(d) {
+                *f += brake * di;
+                *e = extra * di;
             }
         }
         for (e, h) in self.brake_extra_n.iter_mut().zip(handover.iter()) {

@@ -31,6 +31,67 @@ pub struct DeviceState {
     /// A force that changes with the measured velocity by more than about this mass per
     /// cycle overshoots within one cycle (discrete-time damping limit).
     pub effective_mass_kg: f64,
+    /// The handle's effective translational masses along its principal directions, kg
+    /// (ascending: the first is `effective_mass_kg`), and those directions (unit vectors,
+    /// device frame; the eigenvectors of the translational block of `M⁻¹`): the
+    /// discrete-time damping limit along each. A driver that knows only one mass gives it
+    /// along the three axes.
+    pub principal_masses: PrincipalMasses,
+}
+
+/// The handle's effective masses along its principal directions (see
+/// [`DeviceState::principal_masses`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PrincipalMasses {
+    /// Effective mass along each direction, kg (ascending; 0: unknown).
+    pub mass_kg: [f64; 3],
+    /// The directions, unit vectors, device frame.
+    pub axes: [[f64; 3]; 3],
+}
+
+impl Default for PrincipalMasses {
+    fn default() -> Self {
+        PrincipalMasses::isotropic(0.0)
+    }
+}
+
+impl PrincipalMasses {
+    /// One mass along the three axes.
+    pub fn isotropic(mass_kg: f64) -> Self {
+        PrincipalMasses {
+            mass_kg: [mass_kg; 3],
+            axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        }
+    }
+
+    /// The masses scaled by `factor` (a datasheet's share of the truth).
+    pub fn scaled(mut self, factor: f64) -> Self {
+        for m in self.mass_kg.iter_mut() {
+            *m *= factor;
+        }
+        self
+    }
+
+    /// From the inverse of [`mass_matrix`]: the eigen-decomposition of its translational
+    /// block, masses `1e3 / λ` kg, ascending; `None` if not computable.
+    fn from_inverse_mass(inv_mass: &Matrix4<f64>) -> Option<Self> {
+        let a: Matrix3<f64> = inv_mass.fixed_view::<3, 3>(0, 0).into_owned();
+        let eig = a.symmetric_eigen();
+        let mut order = [0usize, 1, 2];
+        // Largest eigenvalue of M⁻¹ first: the smallest mass first.
+        order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
+        let mut out = PrincipalMasses::isotropic(0.0);
+        for (k, &i) in order.iter().enumerate() {
+            let l = eig.eigenvalues[i];
+            if !(l.is_finite() && l > 0.0) {
+                return None;
+            }
+            out.mass_kg[k] = 1e3 / l;
+            let v = eig.eigenvectors.column(i);
+            out.axes[k] = [v[0], v[1], v[2]];
+        }
+        Some(out)
+    }
 }
 
 /// What the master needs of a haptic device: a real driver implements this.
@@ -197,11 +258,14 @@ pub struct SimMasterArm {
     hand_wrench: Vector4<f64>,
     clutch: bool,
     kinematics_faults: u64,
-    effective_mass_kg: f64,
+    principal_masses: PrincipalMasses,
     /// The encoders' reading (quantised pose) and the velocity estimated from it.
     sensed_pose: [f64; 4],
     sensed_vel: [f64; 4],
 }
+
+/// The longest step of the simulated device's physics and electronics, ns.
+const STEP_NS: u64 = 1_000_000;
 
 /// `x` quantised to `res` (0: exact).
 fn quantise(x: f64, res: f64) -> f64 {
@@ -220,15 +284,10 @@ fn mass_matrix(c: &MasterArmConfig, j: &Matrix4<f64>) -> Matrix4<f64> {
     Matrix4::from_diagonal(&Vector4::new(mp, mp, mp, ip)) + j.transpose() * j * mc
 }
 
-/// Smallest effective translational mass from `M⁻¹`, kg (0 if not computable).
-fn effective_mass_kg(inv_mass: &Matrix4<f64>) -> f64 {
-    let a: Matrix3<f64> = inv_mass.fixed_view::<3, 3>(0, 0).into_owned();
-    let l = a.symmetric_eigenvalues().max();
-    if l.is_finite() && l > 0.0 {
-        1e3 / l
-    } else {
-        0.0
-    }
+/// The principal effective translational masses from `M⁻¹` (unknown, 0, if not
+/// computable).
+fn principal_masses(inv_mass: &Matrix4<f64>) -> PrincipalMasses {
+    PrincipalMasses::from_inverse_mass(inv_mass).unwrap_or_default()
 }
 
 impl SimMasterArm {
@@ -238,9 +297,9 @@ impl SimMasterArm {
         let pose = Pose::from(cfg.home_pose);
         let jac = cfg.geometry.jacobian(&pose)?;
         cfg.geometry.ik_checked(&pose)?;
-        let effective_mass_kg = mass_matrix(&cfg, &jac)
+        let principal_masses = mass_matrix(&cfg, &jac)
             .try_inverse()
-            .map_or(0.0, |m| effective_mass_kg(&m));
+            .map_or_else(PrincipalMasses::default, |m| principal_masses(&m));
         Ok(SimMasterArm {
             cfg,
             time_ns: 0,
@@ -251,7 +310,7 @@ impl SimMasterArm {
             hand_wrench: Vector4::zeros(),
             clutch: false,
             kinematics_faults: 0,
-            effective_mass_kg,
+            principal_masses,
             sensed_pose: [0.0; 4],
             sensed_vel: [0.0; 4],
         }
@@ -275,7 +334,8 @@ impl SimMasterArm {
             pose: [self.pose[0], self.pose[1], self.pose[2], self.pose[3]],
             velocity: [self.vel[0], self.vel[1], self.vel[2], self.vel[3]],
             clutch: self.clutch,
-            effective_mass_kg: self.effective_mass_kg,
+            effective_mass_kg: self.principal_masses.mass_kg[0],
+            principal_masses: self.principal_masses,
         }
     }
 
@@ -308,8 +368,21 @@ impl SimMasterArm {
         self.kinematics_faults
     }
 
-    /// Advances the physics by `dt_ns`.
+    /// Advances the physics by `dt_ns`, in steps of at most 1 ms (each with `substeps`
+    /// integration steps, a re-linearisation and an encoder reading, as the device's own
+    /// electronics run whatever the host does): a host that stalled for 30 ms moves the
+    /// handle through 30 such steps with the last force written held.
     pub fn advance(&mut self, dt_ns: u64) {
+        let mut left = dt_ns;
+        while left > 0 {
+            let step = left.min(STEP_NS);
+            self.advance_step(step);
+            left -= step;
+        }
+    }
+
+    /// One step of at most 1 ms.
+    fn advance_step(&mut self, dt_ns: u64) {
         if let Ok(j) = self.cfg.geometry.jacobian(&self.pose) {
             self.jac = j;
         } else {
@@ -321,7 +394,7 @@ impl SimMasterArm {
             self.kinematics_faults += 1;
             return;
         };
-        self.effective_mass_kg = effective_mass_kg(&inv_mass);
+        self.principal_masses = principal_masses(&inv_mass);
         let motor = j.transpose() * self.motor_n;
         let n = c.substeps.max(1);
         let dt = dt_ns as f64 * 1e-9 / f64::from(n);
@@ -374,7 +447,8 @@ impl HapticDevice for SimMasterArm {
             pose: self.sensed_pose,
             velocity: self.sensed_vel,
             clutch: self.clutch,
-            effective_mass_kg: self.effective_mass_kg * self.cfg.mass_estimate_factor,
+            effective_mass_kg: self.principal_masses.mass_kg[0] * self.cfg.mass_estimate_factor,
+            principal_masses: self.principal_masses.scaled(self.cfg.mass_estimate_factor),
         }
     }
 
@@ -422,6 +496,65 @@ mod tests {
             "{big:?}"
         );
         assert!(arm.motor_forces_n().iter().all(|t| t.abs() <= 12.0 + 1e-9));
+    }
+
+    /// The principal masses are ascending, their directions orthonormal, and the force
+    /// `M a` along each direction gives that direction's acceleration (the masses are
+    /// the handle's, not a label).
+    #[test]
+    fn principal_masses_are_the_handles_along_orthonormal_directions() {
+        let pm = SimMasterArm::new(MasterArmConfig::default())
+            .unwrap()
+            .true_state()
+            .principal_masses;
+        // The shipped arm: lightest sideways (y), heaviest along the platform's axis.
+        assert!(
+            pm.axes[0][1].abs() > 0.99 && pm.axes[2][2].abs() > 0.99,
+            "{pm:?}"
+        );
+        assert!(
+            pm.mass_kg[0] > 0.0 && pm.mass_kg[0] <= pm.mass_kg[1] && pm.mass_kg[1] <= pm.mass_kg[2]
+        );
+        for i in 0..3 {
+            for j in 0..3 {
+                let d: f64 = (0..3).map(|k| pm.axes[i][k] * pm.axes[j][k]).sum();
+                let want = if i == j { 1.0 } else { 0.0 };
+                assert!((d - want).abs() < 1e-9, "{pm:?}");
+            }
+        }
+        // A 1 N push along each direction, from rest, without friction's share: the
+        // velocity after 1 ms is 1 N / m along it.
+        let mut cfg = MasterArmConfig::default();
+        cfg.coulomb_friction_n = 0.0;
+        cfg.viscous_friction_n_s_per_mm = 0.0;
+        for (a, m) in pm.axes.iter().zip(pm.mass_kg.iter()) {
+            let mut arm = SimMasterArm::new(cfg).unwrap();
+            arm.set_hand([a[0], a[1], a[2], 0.0], false);
+            arm.advance(1_000_000);
+            let v = arm.true_state().velocity;
+            let along = v[0] * a[0] + v[1] * a[1] + v[2] * a[2];
+            // mm/s = N / kg · s · 1e3
+            let want = 1.0 / m * 1e-3 * 1e3;
+            assert!((along - want).abs() < 0.02 * want, "{along} vs {want}");
+        }
+    }
+
+    /// A stalled host: the device keeps its 1 ms steps (its own electronics), so a 30 ms
+    /// advance is thirty 1 ms steps, not one coarse one.
+    #[test]
+    fn a_long_advance_is_the_same_as_one_millisecond_steps() {
+        let mut one = SimMasterArm::new(MasterArmConfig::default()).unwrap();
+        let mut many = one.clone();
+        for a in [&mut one, &mut many] {
+            a.set_hand([0.5, -0.3, 2.0, 0.0], false);
+            a.write_wrench(&[0.0, 1.0, -1.0, 0.0]);
+        }
+        one.advance(30_000_000);
+        for _ in 0..30 {
+            many.advance(1_000_000);
+        }
+        assert_eq!(one.true_state(), many.true_state());
+        assert_eq!(one.read(), many.read());
     }
 
     #[test]

@@ -269,8 +269,9 @@ pub fn run_then<L: Link<Command, Feedback>>(
     let mut link_stats = crate::link_stats::LossMeter::new();
     rt.run(|cx| {
         let now = cx.now_ns;
+        side.stalled(now, period_ns, cx.tick.missed);
         let m = side.step(&mut link, now, dt_s);
-        side.device_mut().advance(period_ns * (1 + cx.tick.missed));
+        side.device_mut().advance(period_ns);
         s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
         let fade = m.step.fade;
         let force = stats.rendered(&mut s, &m.rendered_wrench, &m.step.link_force_n, fade);

@@ -316,6 +316,38 @@ impl MasterTeleop {
         d.accepted > 0
     }
 
+    /// The operator's hand alone, for `dt_s` at `now_ns`: it is physics and acts on the
+    /// handle's true state, also while the loop itself does not run (a host stall: the
+    /// device holds the last wrench written, the hand goes on).
+    pub fn hand_step(&mut self, now_ns: u64, dt_s: f64) -> HandOutput {
+        let before = self.device.true_state();
+        let hand = self
+            .operator
+            .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, dt_s);
+        self.device.set_hand(hand.wrench, hand.clutch);
+        hand
+    }
+
+    /// The `missed` periods of `period_ns` before the cycle at `now_ns` that a stalled host
+    /// did not run: the device held the last wrench written while the hand went on, 1 ms
+    /// at a time (at most [`MAX_STALL_CATCH_UP_MS`] of them; a longer stall's rest is one
+    /// step).
+    pub fn stalled(&mut self, now_ns: u64, period_ns: u64, missed: u64) {
+        if missed == 0 {
+            return;
+        }
+        let dt_s = period_ns as f64 * 1e-9;
+        let steps = missed.min(MAX_STALL_CATCH_UP_MS);
+        let rest = missed - steps;
+        if rest > 0 {
+            self.device.advance(rest * period_ns);
+        }
+        for k in (1..=steps).rev() {
+            self.hand_step(now_ns.saturating_sub(k * period_ns), dt_s);
+            self.device.advance(period_ns);
+        }
+    }
+
     /// One cycle at `now_ns` of `dt_s` seconds on `link`.
     pub fn step<L: Link<Command, Feedback>>(
         &mut self,
@@ -323,12 +355,7 @@ impl MasterTeleop {
         now_ns: u64,
         dt_s: f64,
     ) -> MasterCycle {
-        // The hand is physics: it acts on the handle's true state.
-        let before = self.device.true_state();
-        let hand = self
-            .operator
-            .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, dt_s);
-        self.device.set_hand(hand.wrench, hand.clutch);
+        let hand = self.hand_step(now_ns, dt_s);
         let dev = self.device.read();
         let fresh = self.receive(link, now_ns);
         let step = self.coupling.step(&dev, now_ns, dt_s);
@@ -350,6 +377,9 @@ impl MasterTeleop {
         }
     }
 }
+
+/// Most missed periods [`MasterTeleop::stalled`] replays one by one (10 s at 1 kHz).
+pub const MAX_STALL_CATCH_UP_MS: u64 = 10_000;
 
 /// Most feedback messages taken from the link in one cycle.
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;

@@ -297,6 +297,9 @@ pub fn run<L: Link<Feedback, Command>>(
     let mut state = SlaveState::Idle;
     let Ok(()) = rt.run(|cx| {
         let now = cx.now_ns;
+        // The simulated arm keeps real time: through deadlines the loop missed (a stalled
+        // host) its servos held the last command written, before this cycle reads it.
+        teleop.arm_mut().advance(period_ns * cx.tick.missed);
         let c = teleop.step(link, now, dt_s);
         s.energy_min_j = s.energy_min_j.min(c.port.observed_j);
         state = c.state;
@@ -310,8 +313,7 @@ pub fn run<L: Link<Feedback, Command>>(
                 s.safe_stop_entry_lateness_ms = lateness_ms;
             }
         }
-        // The simulated arm keeps real time, skipped deadlines included.
-        teleop.arm_mut().advance(period_ns * (1 + cx.tick.missed));
+        teleop.arm_mut().advance(period_ns);
 
         let out = &c.out;
         let true_force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
@@ -380,8 +382,9 @@ fn shut_down<L: Link<Feedback, Command>>(
     let mut r = ShutdownReport::default();
     let mut held = 0;
     rt.run_after_stop(opts.shutdown_limit_s, |cx| {
+        teleop.arm_mut().advance(period_ns * cx.tick.missed);
         let c = teleop.step(&mut deaf, cx.now_ns, period_ns as f64 * 1e-9);
-        teleop.arm_mut().advance(period_ns * (1 + cx.tick.missed));
+        teleop.arm_mut().advance(period_ns);
         let force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
         recorder.push(cx.unix_ns, CycleRecord::of(&c, cx, force_n));
         r.cycles += 1;

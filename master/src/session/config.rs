@@ -21,6 +21,70 @@ use crate::device::MasterArmConfig;
 use crate::operator::{HandConfig, IntentError, IntentSegment, Script};
 use crate::teleop::MasterTeleopConfig;
 
+/// Which loop a host stall freezes (`host.stalls`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StallSide {
+    /// Both loops at once (a frozen virtual machine).
+    #[default]
+    Both,
+    /// The master's loop only.
+    Master,
+    /// The slave's loop only.
+    Slave,
+}
+
+/// The host the two loops run on (`[host]`): stalls during which a loop does not run while
+/// the physics go on (the devices hold the last force or position written), as this
+/// project's virtual machines stall for 3–66 ms a few times a minute
+/// (`docs/processes.md`). The simulated clock, the physics and the link keep their 1 ms
+/// steps; a stalled loop runs its next cycle after the stall, seeing what moved.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HostConfig {
+    /// Length of each stall, ms (0: none).
+    pub stall_ms: f64,
+    /// Mean time from one stall's start to the next's, ms; each interval is drawn
+    /// uniformly in 0.5–1.5 × this (seeded).
+    pub stall_every_ms: f64,
+    /// Which loop stalls.
+    pub stalls: StallSide,
+    /// Mixed with the top-level `seed`.
+    pub seed: u64,
+}
+
+impl Default for HostConfig {
+    fn default() -> Self {
+        HostConfig {
+            stall_ms: 0.0,
+            stall_every_ms: 1000.0,
+            stalls: StallSide::Both,
+            seed: 0,
+        }
+    }
+}
+
+impl HostConfig {
+    /// No stalls configured and every field at its default (not written out).
+    pub fn is_default(&self) -> bool {
+        *self == HostConfig::default()
+    }
+}
+
+impl Section for HostConfig {
+    fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        let f = |name: &str| format!("{prefix}{name}");
+        check_range(&f("stall_ms"), self.stall_ms, 0.0, 1000.0, "ms")?;
+        check_range(
+            &f("stall_every_ms"),
+            self.stall_every_ms,
+            (2.0 * self.stall_ms).max(1.0),
+            3.6e6,
+            "ms (at least twice host.stall_ms)",
+        )
+    }
+}
+
 /// The surface the slave touches.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -163,6 +227,9 @@ pub struct SessionConfig {
     /// The surface.
     #[serde(default)]
     pub environment: EnvironmentConfig,
+    /// The host's stalls (none by default).
+    #[serde(default, skip_serializing_if = "HostConfig::is_default")]
+    pub host: HostConfig,
     /// Passivity control.
     #[serde(default)]
     pub passivity: PassivityConfig,
@@ -304,6 +371,7 @@ impl Validate for SessionConfig {
     fn validate(&self) -> Result<(), ConfigError> {
         check_range("duration_s", self.duration_s, 0.01, 3600.0, "s")?;
         self.link.validate_at("link.")?;
+        self.host.validate_at("host.")?;
         self.environment.validate_at("environment.")?;
         self.passivity.validate_at("passivity.")?;
         self.coupling.validate_at("coupling.")?;

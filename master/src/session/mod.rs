@@ -28,7 +28,8 @@ mod run;
 pub use crate::coupling::{CouplingConfig, ScaleConfig};
 pub use crate::teleop::MasterCycle;
 pub use config::{
-    EnvironmentConfig, OperatorConfig, PassivityConfig, SessionConfig, SlaveConfig, load,
+    EnvironmentConfig, HostConfig, OperatorConfig, PassivityConfig, SessionConfig, SlaveConfig,
+    StallSide, load,
 };
 pub use detector::{DetectorConfig, Summary};
 pub use run::{Session, run, run_with_outputs};

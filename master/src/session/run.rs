@@ -20,7 +20,7 @@ use h4_transport::inproc::{self, InprocEnd};
 use super::cutting::{CutEvaluator, CutSample, CutSummary, RevolutionMean, write_outputs};
 use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
-use super::{CYCLE_NS, DT_S, SessionConfig, SessionError, Summary};
+use super::{CYCLE_NS, DT_S, HostConfig, SessionConfig, SessionError, StallSide, Summary};
 use crate::teleop::{MasterCycle, MasterTeleop, MasterTeleopError};
 
 type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
@@ -36,6 +36,53 @@ pub struct Session {
     pub slave: SlaveTeleop<SimArm>,
     master_end: MasterEnd,
     slave_end: SlaveEnd,
+    stalls: HostStalls,
+    /// The last cycle of each side (what a stalled loop's devices still hold).
+    last: Option<(MasterCycle, TeleopCycle)>,
+}
+
+/// The schedule of `[host]`'s stalls on the simulated clock.
+struct HostStalls {
+    cfg: HostConfig,
+    rng: Rng,
+    next_start_ns: u64,
+    until_ns: u64,
+}
+
+impl HostStalls {
+    fn new(cfg: HostConfig, seed: u64) -> Self {
+        let mut s = HostStalls {
+            cfg,
+            rng: Rng::fork(seed, cfg.seed ^ 0x5741_4c4c),
+            next_start_ns: 0,
+            until_ns: 0,
+        };
+        s.next_start_ns = s.interval_ns();
+        s
+    }
+
+    fn interval_ns(&mut self) -> u64 {
+        (self.cfg.stall_every_ms * self.rng.uniform_in(0.5, 1.5) * 1e6) as u64
+    }
+
+    /// Whether the master's and the slave's loops are frozen at `now_ns`.
+    fn frozen(&mut self, now_ns: u64) -> (bool, bool) {
+        if self.cfg.stall_ms <= 0.0 {
+            return (false, false);
+        }
+        if now_ns >= self.next_start_ns {
+            self.until_ns = self.next_start_ns + (self.cfg.stall_ms * 1e6) as u64;
+            self.next_start_ns += self
+                .interval_ns()
+                .max(self.until_ns - self.next_start_ns + 1);
+        }
+        let on = now_ns < self.until_ns;
+        match self.cfg.stalls {
+            StallSide::Both => (on, on),
+            StallSide::Master => (on, false),
+            StallSide::Slave => (false, on),
+        }
+    }
 }
 
 impl Session {
@@ -79,14 +126,39 @@ impl Session {
             slave,
             master_end,
             slave_end,
+            stalls: HostStalls::new(cfg.host, cfg.seed),
+            last: None,
         })
     }
 
-    /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms.
+    /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms. A
+    /// loop frozen by a host stall (`[host]`) does not step: its device holds what it was
+    /// last given, and the cycle returns that loop's last cycle.
     pub fn cycle(&mut self) -> Result<(MasterCycle, TeleopCycle), SessionError> {
         let now = self.clock.now_ns();
-        let m = self.master.step(&mut self.master_end, now, DT_S);
-        let s = self.slave.step(&mut self.slave_end, now, DT_S);
+        let (master_frozen, slave_frozen) = self.stalls.frozen(now);
+        let (m, s) = match self.last {
+            Some((m, s)) if master_frozen || slave_frozen => (
+                if master_frozen {
+                    // The hand is physics: it goes on while the loop is frozen.
+                    let mut m = m;
+                    m.hand = self.master.hand_step(now, DT_S);
+                    m
+                } else {
+                    self.master.step(&mut self.master_end, now, DT_S)
+                },
+                if slave_frozen {
+                    s
+                } else {
+                    self.slave.step(&mut self.slave_end, now, DT_S)
+                },
+            ),
+            _ => (
+                self.master.step(&mut self.master_end, now, DT_S),
+                self.slave.step(&mut self.slave_end, now, DT_S),
+            ),
+        };
+        self.last = Some((m, s));
         self.master.device_mut().advance(CYCLE_NS);
         self.slave.arm_mut().advance(CYCLE_NS);
         self.clock.advance_ns(CYCLE_NS);
