@@ -44,23 +44,28 @@ struct Outcome {
     rendered_limit_n: f64,
 }
 
+/// `value ≤ limit`; NaN is not.
+fn at_most(value: f64, limit: f64) -> bool {
+    value <= limit
+}
+
 impl Outcome {
     /// Reasons it fails (empty: passes).
     fn failures(&self) -> Vec<String> {
         let mut why = Vec::new();
-        if !(self.vibration_mm_per_s <= VIBRATION_MM_PER_S) {
+        if !at_most(self.vibration_mm_per_s, VIBRATION_MM_PER_S) {
             why.push(format!(
                 "the handle vibrates: {:.1} mm/s per cycle RMS",
                 self.vibration_mm_per_s
             ));
         }
-        if !(self.max_true_force_n <= 80.0) {
+        if !at_most(self.max_true_force_n, 80.0) {
             why.push(format!("true force {:.1} N > 80 N", self.max_true_force_n));
         }
-        if !(self.max_rendered_n <= self.rendered_limit_n + 1e-9) {
+        if !at_most(self.max_rendered_n, self.rendered_limit_n + 1e-9) {
             why.push(format!("rendered {:.1} N", self.max_rendered_n));
         }
-        if !(self.observer_min_j >= -1e-3) {
+        if !at_most(-1e-3, self.observer_min_j) {
             why.push(format!(
                 "an observer reached {:.3} mJ",
                 self.observer_min_j * 1e3

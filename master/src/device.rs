@@ -524,9 +524,11 @@ mod tests {
         }
         // A 1 N push along each direction, from rest, without friction's share: the
         // velocity after 1 ms is 1 N / m along it.
-        let mut cfg = MasterArmConfig::default();
-        cfg.coulomb_friction_n = 0.0;
-        cfg.viscous_friction_n_s_per_mm = 0.0;
+        let cfg = MasterArmConfig {
+            coulomb_friction_n: 0.0,
+            viscous_friction_n_s_per_mm: 0.0,
+            ..MasterArmConfig::default()
+        };
         for (a, m) in pm.axes.iter().zip(pm.mass_kg.iter()) {
             let mut arm = SimMasterArm::new(cfg).unwrap();
             arm.set_hand([a[0], a[1], a[2], 0.0], false);
