@@ -329,9 +329,9 @@ impl MasterTeleop {
     }
 
     /// The `missed` periods of `period_ns` before the cycle at `now_ns` that a stalled host
-    /// did not run: the device held the last wrench written while the hand went on, 1 ms
-    /// at a time (at most [`MAX_STALL_CATCH_UP_MS`] of them; a longer stall's rest is one
-    /// step).
+    /// did not run: the device held the last wrench written while the hand went on, a
+    /// period at a time (at most [`MAX_STALL_CATCH_UP_MS`] of them; through a longer
+    /// stall's rest the hand's last wrench is held too).
     pub fn stalled(&mut self, now_ns: u64, period_ns: u64, missed: u64) {
         if missed == 0 {
             return;
