@@ -137,26 +137,18 @@ impl Session {
     pub fn cycle(&mut self) -> Result<(MasterCycle, TeleopCycle), SessionError> {
         let now = self.clock.now_ns();
         let (master_frozen, slave_frozen) = self.stalls.frozen(now);
-        let (m, s) = match self.last {
-            Some((m, s)) if master_frozen || slave_frozen => (
-                if master_frozen {
-                    // The hand is physics: it goes on while the loop is frozen.
-                    let mut m = m;
-                    m.hand = self.master.hand_step(now, DT_S);
-                    m
-                } else {
-                    self.master.step(&mut self.master_end, now, DT_S)
-                },
-                if slave_frozen {
-                    s
-                } else {
-                    self.slave.step(&mut self.slave_end, now, DT_S)
-                },
-            ),
-            _ => (
-                self.master.step(&mut self.master_end, now, DT_S),
-                self.slave.step(&mut self.slave_end, now, DT_S),
-            ),
+        let last = self.last;
+        let m = match last {
+            Some((mut m, _)) if master_frozen => {
+                // The hand is physics: it goes on while the loop is frozen.
+                m.hand = self.master.hand_step(now, DT_S);
+                m
+            }
+            _ => self.master.step(&mut self.master_end, now, DT_S),
+        };
+        let s = match last {
+            Some((_, s)) if slave_frozen => s,
+            _ => self.slave.step(&mut self.slave_end, now, DT_S),
         };
         self.last = Some((m, s));
         self.master.device_mut().advance(CYCLE_NS);
