@@ -21,12 +21,15 @@
 //! model off, aluminium, 250 ms) must fail the same criteria.
 //!
 //! Host stalls: two more cells (Zenoh on resin and iceoryx2 on aluminium, 250 ms, 5 % loss)
-//! stop both processes together (SIGSTOP/SIGCONT) for 40 ms every 2 s, as this VM's host
-//! does, under the same criteria; they are not re-run for starvation (they are starved by
-//! design). Their control: the iceoryx2 aluminium cell with stalls and without the master's
-//! damping bound (`passivity.damping_step_fraction = 0`) must fail (measured: the handle
-//! chatters, the master's observer to −80…−131 mJ, as in CI's failure; the simulated
-//! version is `tests/host_stalls.rs`).
+//! stop both processes together (SIGSTOP/SIGCONT) for 40 ms every 500 ms (this VM's host
+//! stalls 3–66 ms, a few times a minute: the same kind, more often), under the same
+//! criteria; they are not re-run for starvation (they are starved by design). Their
+//! control: the iceoryx2 aluminium cell with stalls and without the master's damping bound
+//! (`passivity.damping_step_fraction = 0`) must fail (measured: the handle chatters, the
+//! master's observer to −12…−918 mJ, as in CI's failure; the simulated version is
+//! `tests/host_stalls.rs`). Whether a stall kicks the handle into the chatter is chance (6
+//! of 7 runs): the control is run again while it passes, up to three runs, and must fail in
+//! one.
 //!
 //! Both loops run under `--fifo-priority 10` (as in `tests/processes.rs`). Cells run two at a
 //! time (each is two 1 kHz loops at ~15–20 % of a core); a cell that fails while a loop was
@@ -60,8 +63,11 @@ const CONCURRENT: usize = 2;
 /// Runs of a cell at most: a cell that fails while a loop was starved is run again.
 const ATTEMPTS: usize = 3;
 /// A stalled cell's stalls: length, ms, and the time from one stall's start to the next's.
+/// 40 ms is within the 3–66 ms this VM's host stalls for; every 500 ms (about 13 stalls in
+/// a cell, several in the contact) is harsher than its few a minute, so that the control's
+/// chatter is not left to the chance of one or two stalls.
 const STALL_MS: u64 = 40;
-const STALL_EVERY_MS: u64 = 2000;
+const STALL_EVERY_MS: u64 = 500;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Wall {
@@ -305,18 +311,26 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
 
 /// [`run_cell`], again (up to [`ATTEMPTS`] runs) while it fails the criteria *and* a loop
 /// was starved: a starved run's physics describe the host (this VM under other builds), not
-/// the link. A cell failing without starvation is not re-run.
+/// the link. A cell failing without starvation is not re-run; nor is a stalled cell (it is
+/// starved by design).
+///
+/// The stall control is run again while it *passes* (up to [`ATTEMPTS`] runs): whether a
+/// stall kicks the unbounded handle into its chatter depends on the handle's state at that
+/// instant (measured 2026-12-02: with a stall every 2 s about half the runs chattered,
+/// the other half stayed at −0.02…−0.7 mJ and CI once saw such a run; with a stall every
+/// 500 ms 6 of 7 runs chattered, −12…−918 mJ). It must chatter in one of its runs; the
+/// protected stalled cells, on the same schedule, must pass in their one run.
 fn run_cell_until_fed(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
     let mut attempt = 1;
     loop {
         let mut o = run_cell(cell, scratch)?;
         o.attempts = attempt;
-        if o.reasons.is_empty()
-            || !o.starved
-            || attempt >= ATTEMPTS
-            || cell.is_control()
-            || cell.stalls
-        {
+        let again = if cell.is_control() {
+            cell.stalls && o.reasons.is_empty()
+        } else {
+            !o.reasons.is_empty() && o.starved && !cell.stalls
+        };
+        if !again || attempt >= ATTEMPTS {
             return Ok(o);
         }
         attempt += 1;
