@@ -24,12 +24,12 @@
 //! stop both processes together (SIGSTOP/SIGCONT) for 40 ms every 500 ms (this VM's host
 //! stalls 3–66 ms, a few times a minute: the same kind, more often), under the same
 //! criteria; they are not re-run for starvation (they are starved by design). Their
-//! control: the iceoryx2 aluminium cell with stalls and without the master's damping bound
-//! (`passivity.damping_step_fraction = 0`) must fail (measured: the handle chatters, the
-//! master's observer to −12…−918 mJ, as in CI's failure; the simulated version is
-//! `tests/host_stalls.rs`). Whether a stall kicks the handle into the chatter is chance (6
-//! of 7 runs): the control is run again while it passes, up to three runs, and must fail in
-//! one.
+//! control: the iceoryx2 aluminium cell with stalls and without the master's discrete-time
+//! damping bound (`passivity.damping_step_fraction = 0` and `damping_hold_memory_ms = 0`)
+//! must fail (measured: the handle chatters, the master's observer to −12…−918 mJ, as in
+//! CI's failure; the simulated version is `tests/host_stalls.rs`). Whether a stall kicks
+//! the handle into the chatter is chance (6 of 7 runs): the control is run again while it
+//! passes, up to three runs, and must fail in one.
 //!
 //! Both loops run under `--fifo-priority 10` (as in `tests/processes.rs`). Cells run two at a
 //! time (each is two 1 kHz loops at ~15–20 % of a core); a cell that fails while a loop was
@@ -93,8 +93,8 @@ struct Cell {
     /// [`STALL_EVERY_MS`], as this VM's host stalls them (`tests/host_stalls.rs` on the
     /// simulated clock).
     stalls: bool,
-    /// The master's discrete-time damping bound (`passivity.damping_step_fraction`; off only
-    /// in the stall control).
+    /// The master's discrete-time damping bound (`passivity.damping_step_fraction` and
+    /// `passivity.damping_hold_memory_ms`; off only in the stall control).
     damping_bound: bool,
 }
 
@@ -125,7 +125,10 @@ impl Cell {
             format!("coupling.model={}", self.protected),
         ];
         if !self.damping_bound {
+            // Neither the per-direction bound nor the hold it counts (the master as CI
+            // first saw it chatter).
             o.push("passivity.damping_step_fraction=0".into());
+            o.push("passivity.damping_hold_memory_ms=0".into());
         }
         // Experiments: `H4_REAL_MATRIX_SET="key=value;key=value"` appended to every cell.
         if let Ok(extra) = std::env::var("H4_REAL_MATRIX_SET") {

@@ -427,6 +427,11 @@ pub struct MasterCoupling {
     acking: bool,
     /// Safe stops of the slave seen (each counted once, when first reported).
     pub safe_stops_seen: u64,
+    /// The step before's `now_ns`.
+    last_step_ns: Option<u64>,
+    /// The time a force is expected to be held, s: the longest recent cycle interval,
+    /// its excess over the nominal period decaying over `damping_hold_memory_ms`.
+    hold_s: f64,
 }
 
 /// Commands remembered for the contact model (≥ the longest round trip in cycles).
@@ -458,6 +463,8 @@ impl MasterCoupling {
             offset_mm: [0.0; 3],
             filtered_n: [0.0; 3],
             model: ContactModel::default(),
+            last_step_ns: None,
+            hold_s: 0.0,
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
             slave_stopped: false,
             acking: false,
@@ -789,7 +796,8 @@ impl MasterCoupling {
     /// wall-push contact's 1.0 N·s/mm against the lightest 0.39 kg of the shipped handle
     /// chattered at 125 Hz with ±25 N once a stalled host kicked the handle sideways
     /// (process delay matrix, CI, 2026-12-02); along the heavy directions the full damping
-    /// stays.
+    /// stays. `dt_s` is the time the force is expected to be held
+    /// ([`MasterCoupling::update_hold`]), not always the nominal period.
     fn local_damping_along(&self, dev: &DeviceState, dt_s: f64) -> [f64; 3] {
         let b = self.local_damping();
         let frac = self.p.passivity_params.damping_step_fraction;
@@ -818,9 +826,31 @@ impl MasterCoupling {
         f
     }
 
+    /// The time this cycle's force is expected to be held: the nominal `dt_s`, or the
+    /// longest recent interval between two steps (a late, starved or stalled loop), its
+    /// excess decaying over `passivity.damping_hold_memory_ms` (0: `dt_s` only).
+    fn update_hold(&mut self, now_ns: u64, dt_s: f64) {
+        let memory_s = self.p.passivity_params.damping_hold_memory_ms * 1e-3;
+        let interval_s = match self.last_step_ns {
+            // On time (within 1 %): the nominal period, exactly.
+            Some(t) if now_ns > t && (now_ns - t) as f64 * 1e-9 > 1.01 * dt_s => {
+                (now_ns - t) as f64 * 1e-9
+            }
+            _ => dt_s,
+        };
+        self.last_step_ns = Some(now_ns);
+        self.hold_s = if memory_s > 0.0 && self.hold_s > dt_s {
+            (dt_s + (self.hold_s - dt_s) * (-interval_s / memory_s).exp()).max(interval_s)
+        } else if memory_s > 0.0 {
+            interval_s
+        } else {
+            dt_s
+        };
+    }
+
     /// `passivity.damping_step_fraction` (0: off): the passivity controller's damping, with
     /// the local damping, stays within what the handle's mass takes in one cycle along each
-    /// principal direction (discrete-time bound).
+    /// principal direction (discrete-time bound; `dt_s` the expected hold).
     fn bound_damping(&mut self, dev: &DeviceState, local: &[f64; 3], dt_s: f64) {
         let p = &self.p;
         self.port.mass_estimate_kg = (dev.effective_mass_kg > 0.0).then_some(dev.effective_mass_kg);
@@ -872,6 +902,7 @@ impl MasterCoupling {
             self.started = true;
         }
         let mut step = MasterStep::default();
+        self.update_hold(now_ns, dt_s);
         self.update_fade(now_ns, dt_s);
         self.update_contact_damping(dt_s);
         self.update_clutch(dev);
@@ -906,14 +937,15 @@ impl MasterCoupling {
         self.last_slave_target = target;
         self.offset_mm = offset;
         self.velocity = vel;
-        let local_damping = self.local_damping_along(dev, dt_s);
-        self.bound_damping(dev, &local_damping, dt_s);
+        let hold_s = self.hold_s;
+        let local_damping = self.local_damping_along(dev, hold_s);
+        self.bound_damping(dev, &local_damping, hold_s);
         // Faded out there is nothing to render: the port only observes (its controller's
         // damping, released over `damping_release_ms`, would otherwise push the handle).
         let pc = self.port.step(
             link_force,
             handle_velocity,
-            dt_s,
+            hold_s,
             p.passivity && self.fade > 0.0,
         );
         let mut force = pc.force_n;
@@ -1028,5 +1060,61 @@ impl MasterCoupling {
                     0
                 },
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use h4_shared::config::ArmConfig;
+
+    fn coupling(hold_memory_ms: f64) -> MasterCoupling {
+        let passivity = PassivityParams {
+            damping_hold_memory_ms: hold_memory_ms,
+            ..PassivityParams::default()
+        };
+        MasterCoupling::new(CouplingParams::from_config(
+            &CouplingConfig::default(),
+            &ScaleConfig::default(),
+            &passivity,
+            ArmConfig::default().workspace(),
+            [0.0, 0.0, -245.0, 0.0],
+            50.0,
+            1,
+        ))
+    }
+
+    /// On time the hold is the period exactly; a late cycle sets it to its interval, which
+    /// then decays back over the memory; with no memory it is always the period.
+    #[test]
+    fn the_expected_hold_follows_late_cycles_and_decays_back() {
+        let dt = 1e-3;
+        let mut c = coupling(100.0);
+        let mut now = 0u64;
+        for _ in 0..10 {
+            now += 1_000_000;
+            c.update_hold(now, dt);
+            assert_eq!(c.hold_s, dt);
+        }
+        now += 8_000_000;
+        c.update_hold(now, dt);
+        assert!((c.hold_s - 8e-3).abs() < 1e-12, "{}", c.hold_s);
+        for _ in 0..100 {
+            now += 1_000_000;
+            c.update_hold(now, dt);
+        }
+        // 100 ms later: 1 + 7 e⁻¹ ms.
+        let expected = dt + 7e-3 * (-1.0f64).exp();
+        assert!((c.hold_s - expected).abs() < 1e-4, "{}", c.hold_s);
+        for _ in 0..2000 {
+            now += 1_000_000;
+            c.update_hold(now, dt);
+        }
+        assert!(c.hold_s - dt < 1e-9, "{}", c.hold_s);
+
+        let mut off = coupling(0.0);
+        off.update_hold(1_000_000, dt);
+        off.update_hold(9_000_000, dt);
+        assert_eq!(off.hold_s, dt);
     }
 }

@@ -65,12 +65,20 @@ pub struct PassivityParams {
     /// would fall below this, J (0: only below zero).
     pub energy_reserve_j: f64,
     /// Discrete-time bound of the master controller's damping: `(α + local damping) · dt ≤
-    /// damping_step_fraction · m`, `m` the handle's smallest effective mass (more makes the
+    /// damping_step_fraction · m` along each principal direction of the handle's mass `m`
+    /// (`dt`: the expected hold, `damping_hold_memory_ms`; more makes the
     /// light handle's velocity overshoot and flip sign every cycle). What the bounded
     /// damping cannot dissipate is not put out: the port then scales its force down
     /// (force limiting), so the observer stays ≥ 0 either way. 0: off (the handle then
     /// chatters under a large deficit); default 1.
     pub damping_step_fraction: f64,
+    /// Memory of the master's damping bound for a late loop, ms: the bound uses the
+    /// longest recent time a force was held (the interval between two cycles, a starved
+    /// or stalled loop's included) instead of the nominal period, that excess decaying
+    /// with this time constant. A damping held over 8 ms instead of 1 ms is 8 times the
+    /// step it was bounded for (a host that starved the loop 8 ms in every 20 set the
+    /// handle vibrating, −200 mJ, `tests/host_stalls.rs`). 0: the nominal period only.
+    pub damping_hold_memory_ms: f64,
     /// The slave hands the part of its observer's surplus above this reserve back to the
     /// master (slave units), J; negative: never. Energy the operator put in that the slave
     /// has not spent then pays for the master's model updates (the plane moved out, a
@@ -94,6 +102,7 @@ impl Default for PassivityParams {
             damping_release_ms: 20.0,
             energy_reserve_j: 0.0,
             damping_step_fraction: 1.0,
+            damping_hold_memory_ms: 100.0,
             return_reserve_j: 0.01,
             return_rate_per_s: 10.0,
         }
@@ -172,6 +181,13 @@ impl PassivityParams {
             0.0,
             2.0,
             "",
+        )?;
+        check_range(
+            &format!("{prefix}damping_hold_memory_ms"),
+            self.damping_hold_memory_ms,
+            0.0,
+            1e4,
+            "ms",
         )?;
         check_range(
             &format!("{prefix}return_reserve_j"),
