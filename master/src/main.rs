@@ -38,6 +38,7 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    h4_transport::zenoh::init_log_from_env();
     let result = match cli.command {
         Command::Sim(args) => args.run(),
         Command::Run(args) => args.run(),

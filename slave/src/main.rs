@@ -38,6 +38,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    h4_transport::zenoh::init_log_from_env();
     let result = match cli.command {
         Command::Kin(args) => args.run(),
         Command::Experiment(args) => args.run(),

@@ -259,6 +259,11 @@ impl Drop for Relay {
     }
 }
 
+/// UDP: one flow per client address, as a NAT keeps one mapping per source port: each flow
+/// has its own socket towards the slave (a new port there), so a client's new socket (Zenoh
+/// retrying a connection whose handshake lost a datagram) is a new peer for the slave, not
+/// the old, failed one's address (with one shared socket the slave's Zenoh never accepted
+/// the retries and a session lossy from its first datagram never came up).
 fn udp_relay(
     control: Arc<Control>,
     bind: SocketAddr,
@@ -266,46 +271,77 @@ fn udp_relay(
     ready: &std::sync::mpsc::Sender<Result<SocketAddr, String>>,
 ) -> Result<(), String> {
     let front = UdpSocket::bind(bind).map_err(|e| format!("relay bind {bind}: {e}"))?;
-    let back = UdpSocket::bind(SocketAddr::new(bind.ip(), 0)).map_err(|e| e.to_string())?;
-    back.connect(target).map_err(|e| e.to_string())?;
+    front
+        .set_read_timeout(Some(POLL))
+        .map_err(|e| e.to_string())?;
     let listen = front.local_addr().map_err(|e| e.to_string())?;
-    for s in [&front, &back] {
-        s.set_read_timeout(Some(POLL)).map_err(|e| e.to_string())?;
-    }
-    let client: Arc<Mutex<Option<SocketAddr>>> = Arc::new(Mutex::new(None));
-    // Down: slave → master, on a thread of its own (it inherits nothing: sockets are made).
-    let down = {
-        let control = Arc::clone(&control);
-        let front = front.try_clone().map_err(|e| e.to_string())?;
-        let back = back.try_clone().map_err(|e| e.to_string())?;
-        let client = Arc::clone(&client);
-        std::thread::spawn(move || {
-            let mut lane = Lane::new(Arc::clone(&control), 2, false);
-            let mut buf = vec![0u8; 65_536];
-            while !control.stop.load(Ordering::SeqCst) {
-                if let Ok(n) = back.recv(&mut buf) {
-                    lane.push(buf[..n].to_vec());
-                }
-                let to = *client.lock().unwrap_or_else(|e| e.into_inner());
-                if let Some(to) = to {
-                    let _ = lane.flush(|b| front.send_to(b, to).map(|_| ()));
-                }
-            }
-        })
-    };
     let _ = ready.send(Ok(listen));
-    let mut lane = Lane::new(Arc::clone(&control), 1, false);
+    // Up (master → slave) lanes on this thread; down (slave → master) a thread per flow.
+    let mut flows: Vec<(SocketAddr, UdpSocket, Lane)> = Vec::new();
+    let mut downs = Vec::new();
     let mut buf = vec![0u8; 65_536];
     while !control.stop.load(Ordering::SeqCst) {
         if let Ok((n, from)) = front.recv_from(&mut buf) {
-            *client.lock().unwrap_or_else(|e| e.into_inner()) = Some(from);
-            lane.push(buf[..n].to_vec());
+            let flow = match flows.iter().position(|f| f.0 == from) {
+                Some(i) => Some(i),
+                None => {
+                    let stream = 2 * flows.len() as u64 + 1;
+                    match udp_flow(&control, &front, bind, target, from, stream + 1) {
+                        Ok((back, down)) => {
+                            downs.push(down);
+                            flows.push((
+                                from,
+                                back,
+                                Lane::new(Arc::clone(&control), stream, false),
+                            ));
+                            Some(flows.len() - 1)
+                        }
+                        Err(_) => None,
+                    }
+                }
+            };
+            if let Some((_, _, lane)) = flow.and_then(|i| flows.get_mut(i)) {
+                lane.push(buf[..n].to_vec());
+            }
         }
-        // A refused send (the slave not listening yet) is the network's loss.
-        let _ = lane.flush(|b| back.send(b).map(|_| ()));
+        for (_, back, lane) in flows.iter_mut() {
+            // A refused send (the slave not listening yet) is the network's loss.
+            let _ = lane.flush(|b| back.send(b).map(|_| ()));
+        }
     }
-    let _ = down.join();
+    for d in downs {
+        let _ = d.join();
+    }
     Ok(())
+}
+
+/// A new flow's socket towards the slave and its down thread (slave → `client`).
+fn udp_flow(
+    control: &Arc<Control>,
+    front: &UdpSocket,
+    bind: SocketAddr,
+    target: SocketAddr,
+    client: SocketAddr,
+    down_stream: u64,
+) -> Result<(UdpSocket, std::thread::JoinHandle<()>), String> {
+    let back = UdpSocket::bind(SocketAddr::new(bind.ip(), 0)).map_err(|e| e.to_string())?;
+    back.connect(target).map_err(|e| e.to_string())?;
+    back.set_read_timeout(Some(POLL))
+        .map_err(|e| e.to_string())?;
+    let control = Arc::clone(control);
+    let front = front.try_clone().map_err(|e| e.to_string())?;
+    let from_slave = back.try_clone().map_err(|e| e.to_string())?;
+    let down = std::thread::spawn(move || {
+        let mut lane = Lane::new(Arc::clone(&control), down_stream, false);
+        let mut buf = vec![0u8; 65_536];
+        while !control.stop.load(Ordering::SeqCst) {
+            if let Ok(n) = from_slave.recv(&mut buf) {
+                lane.push(buf[..n].to_vec());
+            }
+            let _ = lane.flush(|b| front.send_to(b, client).map(|_| ()));
+        }
+    });
+    Ok((back, down))
 }
 
 fn tcp_relay(

@@ -320,6 +320,13 @@ impl<Out: WireMessage, In: WireMessage> std::fmt::Debug for ZenohLink<Out, In> {
     }
 }
 
+/// Zenoh's own log (the `tracing` of its transport: links, handshakes, dropped frames) on
+/// stdout, filtered by `RUST_LOG` (e.g. `RUST_LOG=zenoh_transport=debug`); nothing when
+/// `RUST_LOG` is unset. Call once, first thing in `main`.
+pub fn init_log_from_env() {
+    ::zenoh::try_init_log_from_env();
+}
+
 impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
     /// Opens a session with `config` and declares the publisher and subscriber of `arm_id`.
     /// Blocks while Zenoh starts (tens of ms); call it before the control loop.
