@@ -339,6 +339,51 @@ fn safe_stop_ramps_force_down_retracts_and_holds() {
     assert!((after - before).norm() < 1e-3, "moved while holding");
 }
 
+/// Once safe-stopped (retracted, holding), the arm still keeps its force limit: a surface
+/// that advances into the held tool (a workpiece on a moving fixture, 2 mm/s for 4 s) is
+/// backed away from at the limit. Control: with the limit moved out of the way the same
+/// advance presses far past it (the guard is what holds it).
+#[test]
+fn a_safe_stopped_arm_backs_away_from_a_surface_that_advances_into_it() {
+    let peak_for = |extra: &[&str]| {
+        let mut rig = Rig::new(extra);
+        for _ in 0..2000 {
+            rig.step(rig.press(30.0, 0.0));
+        }
+        rig.ctrl.safe_stop();
+        for _ in 0..4000 {
+            rig.step(rig.press(30.0, 0.0));
+        }
+        assert_eq!(rig.true_normal_force(), 0.0, "not retracted");
+        let mut surface = *rig.arm.surface();
+        let mut peak: f64 = 0.0;
+        for _ in 0..4000 {
+            if let SurfaceShape::Plane { point_mm, normal } = &mut surface.shape {
+                for (p, n) in point_mm.iter_mut().zip(normal.iter()) {
+                    *p += n * 2.0e-3;
+                }
+            }
+            rig.arm.set_surface(surface);
+            let out = rig.step(rig.press(30.0, 0.0));
+            assert!(matches!(out.status, Status::SafeStop | Status::Holding));
+            peak = peak.max(rig.true_normal_force());
+        }
+        peak
+    };
+    let limit = 80.0;
+    let guarded = peak_for(&[]);
+    assert!(
+        guarded <= 1.1 * limit,
+        "{guarded} N against a {limit} N limit"
+    );
+    assert!(
+        guarded > 0.5 * limit,
+        "the surface never reached the tool: {guarded} N"
+    );
+    let unguarded = peak_for(&["controller.force_limit_n=1000"]);
+    assert!(unguarded > 2.0 * limit, "control: {unguarded} N");
+}
+
 /// A position-mode push into a surface (teleoperation, position–force coupling) is not in
 /// force control: a safe stop must still release the force, back away and hold, not hold the
 /// arm pressed into the surface.

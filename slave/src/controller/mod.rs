@@ -327,8 +327,14 @@ impl SlaveController {
                 cmd = ramped;
                 true
             }
-            SafeStopStep::Move { next, status } => {
+            SafeStopStep::Move { mut next, status } => {
                 self.contact.in_contact = false;
+                // The safe stop's moves and its hold keep the force limit: something
+                // pressing into the stopped tool (a moving workpiece, a fixture, a retract
+                // that meets a surface) is backed away from, as in Hold mode.
+                if cx.f_mag > self.p.force_limit_n {
+                    guards::back_off(&mut next, &cx, self.estimator.c_env, &self.p);
+                }
                 return self.commit(next, &cx, 0.0, status);
             }
         };
