@@ -7,6 +7,11 @@
 //! the process delay matrix's resin cell rendered ±25 N at 125 Hz sideways and drained the
 //! master's observer to −71 mJ. The sim now reproduces that on the simulated clock.
 //!
+//! A starved host (the loops late by 8 ms every 20 ms, as the process matrix's master was
+//! with two cells on two cores) held each force 8 times as long as its bound assumed, and
+//! the handle vibrated; the bound now counts the hold (`passivity.damping_hold_memory_ms`),
+//! and the grid runs that host too, with its own control.
+//!
 //! Judged on the handle's true motion (its sideways velocity swinging cycle to cycle), the
 //! true force at the slave and both observers, over every wall, three links and two kinds
 //! of stall. Control: without the discrete-time bound (`passivity.damping_step_fraction =
@@ -160,10 +165,9 @@ fn print(all: &[Outcome]) {
     }
 }
 
-#[test]
-fn a_stalled_host_does_not_start_a_chatter_on_any_wall() {
-    let all = grid(&STALLS, &[]);
-    print(&all);
+/// Prints `all` and asserts every cell meets the criteria.
+fn all_pass(all: &[Outcome]) {
+    print(all);
     let failures: Vec<String> = all
         .iter()
         .filter_map(|o| {
@@ -172,6 +176,11 @@ fn a_stalled_host_does_not_start_a_chatter_on_any_wall() {
         })
         .collect();
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn a_stalled_host_does_not_start_a_chatter_on_any_wall() {
+    all_pass(&grid(&STALLS, &[]));
 }
 
 /// Control: the same cells without the discrete-time damping bound chatter, and the
@@ -213,16 +222,7 @@ fn no_stall_and_a_slave_only_stall_leave_the_handle_still() {
 /// Measured: ≤ 1.6 mm/s per cycle, observers ≥ −0.56 mJ.
 #[test]
 fn a_starved_host_does_not_start_a_chatter_on_any_wall() {
-    let all = grid(&STARVED, &[]);
-    print(&all);
-    let failures: Vec<String> = all
-        .iter()
-        .filter_map(|o| {
-            let why = o.failures();
-            (!why.is_empty()).then(|| format!("{}: {}", o.name, why.join("; ")))
-        })
-        .collect();
-    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    all_pass(&grid(&STARVED, &[]));
 }
 
 /// Control: the bound on the nominal period only (`damping_hold_memory_ms = 0`, the
