@@ -839,10 +839,9 @@ impl MasterCoupling {
             _ => dt_s,
         };
         self.last_step_ns = Some(now_ns);
-        self.hold_s = if memory_s > 0.0 && self.hold_s > dt_s {
-            (dt_s + (self.hold_s - dt_s) * (-interval_s / memory_s).exp()).max(interval_s)
-        } else if memory_s > 0.0 {
-            interval_s
+        self.hold_s = if memory_s > 0.0 {
+            let excess = (self.hold_s - dt_s).max(0.0) * (-interval_s / memory_s).exp();
+            (dt_s + excess).max(interval_s)
         } else {
             dt_s
         };
