@@ -59,6 +59,40 @@ trait Endpoint {
     }
 }
 
+/// How a receiving end of one of our links waits for the next message between polls:
+/// busy-polling (spinning) unless the link can block.
+trait WaitFor {
+    fn wait_for(&self, _timeout: Duration) {
+        spin_loop();
+    }
+}
+
+#[cfg(feature = "iceoryx2")]
+impl WaitFor for h4_transport::iceoryx2::Iceoryx2Link<Command, Feedback> {}
+#[cfg(feature = "iceoryx2")]
+impl WaitFor for h4_transport::iceoryx2::Iceoryx2Link<Feedback, Command> {}
+
+/// Zenoh's receive path runs on its own threads: a receiver spinning on two vCPUs starves
+/// them (the round trip's tail becomes the scheduler's time slice), so Zenoh ends block until
+/// a message is there, unless `H4_BENCH_ZENOH_WAIT=spin` (how the figures before 2026-12-02
+/// were taken).
+#[cfg(feature = "zenoh")]
+fn zenoh_blocks() -> bool {
+    static BLOCKS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *BLOCKS.get_or_init(|| std::env::var("H4_BENCH_ZENOH_WAIT").map_or(true, |w| w != "spin"))
+}
+
+#[cfg(feature = "zenoh")]
+impl<O: WireMessage, I: WireMessage> WaitFor for h4_transport::zenoh::ZenohLink<O, I> {
+    fn wait_for(&self, timeout: Duration) {
+        if zenoh_blocks() {
+            self.wait_for_message(timeout);
+        } else {
+            spin_loop();
+        }
+    }
+}
+
 fn command(seq: u64) -> Command {
     Command {
         session_id: 1,
@@ -101,23 +135,29 @@ fn feedback(echo_seq: u64) -> Feedback {
 
 /// Our master end as a ping endpoint.
 struct MasterEnd<L>(L);
-impl<L: Link<Command, Feedback>> Endpoint for MasterEnd<L> {
+impl<L: Link<Command, Feedback> + WaitFor> Endpoint for MasterEnd<L> {
     fn send(&mut self, seq: u64) {
         self.0.publish(&command(seq)).expect("publish");
     }
     fn poll(&mut self) -> Option<u64> {
         self.0.try_recv().expect("recv").map(|f| f.echo_seq)
     }
+    fn wait(&mut self, timeout: Duration) {
+        self.0.wait_for(timeout);
+    }
 }
 
 /// Our slave end as a pong endpoint.
 struct SlaveEnd<L>(L);
-impl<L: Link<Feedback, Command>> Endpoint for SlaveEnd<L> {
+impl<L: Link<Feedback, Command> + WaitFor> Endpoint for SlaveEnd<L> {
     fn send(&mut self, seq: u64) {
         self.0.publish(&feedback(seq)).expect("publish");
     }
     fn poll(&mut self) -> Option<u64> {
         self.0.try_recv().expect("recv").map(|c| c.seq)
+    }
+    fn wait(&mut self, timeout: Duration) {
+        self.0.wait_for(timeout);
     }
 }
 
@@ -516,6 +556,8 @@ mod bare_zenoh {
         _session: zenoh::Session,
         publisher: Publisher<'static>,
         subscriber: Subscriber<FifoChannelHandler<Sample>>,
+        /// A sample a blocking wait received, for the next poll.
+        pending: Option<Sample>,
     }
 
     impl End {
@@ -536,6 +578,7 @@ mod bare_zenoh {
                 _session: session,
                 publisher,
                 subscriber,
+                pending: None,
             }
         }
     }
@@ -547,10 +590,20 @@ mod bare_zenoh {
             self.publisher.put(payload).wait().expect("put");
         }
         fn poll(&mut self) -> Option<u64> {
-            let sample = self.subscriber.try_recv().ok()??;
+            let sample = match self.pending.take() {
+                Some(s) => s,
+                None => self.subscriber.try_recv().ok()??,
+            };
             let bytes = sample.payload().to_bytes();
             let seq: [u8; 8] = bytes.get(..8)?.try_into().ok()?;
             Some(u64::from_le_bytes(seq))
+        }
+        fn wait(&mut self, timeout: core::time::Duration) {
+            if !super::zenoh_blocks() {
+                std::hint::spin_loop();
+            } else if self.pending.is_none() {
+                self.pending = self.subscriber.recv_timeout(timeout).ok().flatten();
+            }
         }
     }
 }

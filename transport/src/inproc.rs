@@ -39,6 +39,9 @@ impl<T> Ring<T> {
     pub(crate) fn dropped(&self) -> u64 {
         self.dropped
     }
+    pub(crate) fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
 }
 
 type Shared<T> = Arc<Mutex<Ring<T>>>;

@@ -246,6 +246,11 @@ pub const ROLE_SETTLE: std::time::Duration = std::time::Duration::from_millis(10
 /// What the subscriber callback shares with the link end.
 struct Inbox<In> {
     queue: Mutex<Ring<In>>,
+    /// Signalled after a message is queued while a thread waits in
+    /// [`ZenohLink::wait_for_message`]; `waiters` keeps the callback from paying a wake-up
+    /// syscall when nobody waits (the 1 kHz loops poll, they never wait).
+    arrived: std::sync::Condvar,
+    waiters: std::sync::atomic::AtomicUsize,
     rejects: Mutex<DecodeRejects>,
     last_decode_error: Mutex<Option<WireError>>,
 }
@@ -275,6 +280,9 @@ impl<In: WireMessage> Inbox<In> {
             Ok(msg) => {
                 if let Ok(mut q) = self.queue.lock() {
                     q.push(msg);
+                }
+                if self.waiters.load(std::sync::atomic::Ordering::Acquire) > 0 {
+                    self.arrived.notify_all();
                 }
             }
             Err(e) => {
@@ -359,6 +367,8 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
             })?;
         let inbox = Arc::new(Inbox {
             queue: Mutex::new(Ring::new(config.queue_capacity)),
+            arrived: std::sync::Condvar::new(),
+            waiters: std::sync::atomic::AtomicUsize::new(0),
             rejects: Mutex::new(DecodeRejects::default()),
             last_decode_error: Mutex::new(None),
         });
@@ -382,6 +392,28 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
             arm_id,
             _marker: PhantomData,
         })
+    }
+
+    /// Blocks until a message is waiting for [`Link::try_recv`] or `timeout` passes; true if
+    /// one is waiting. For a receiver that has nothing else to do (a tool, the round-trip
+    /// bench): the 1 kHz loops poll once a cycle and never call it. Waiting this way leaves the
+    /// CPU to Zenoh's own threads, which deliver the message; spinning on `try_recv` on a
+    /// 2-core machine competes with them.
+    pub fn wait_for_message(&self, timeout: std::time::Duration) -> bool {
+        use std::sync::atomic::Ordering;
+        let Ok(queue) = self.inbox.queue.lock() else {
+            return false;
+        };
+        if !queue.is_empty() {
+            return true;
+        }
+        self.inbox.waiters.fetch_add(1, Ordering::AcqRel);
+        let waited = self
+            .inbox
+            .arrived
+            .wait_timeout_while(queue, timeout, |q| q.is_empty());
+        self.inbox.waiters.fetch_sub(1, Ordering::AcqRel);
+        waited.is_ok_and(|(q, _)| !q.is_empty())
     }
 
     /// Claims `role` ("master" or "slave") for this arm on the Zenoh network: refused

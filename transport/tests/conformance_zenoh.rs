@@ -176,3 +176,39 @@ fn second_listener_on_a_taken_port_is_an_error() {
     let _first = SlaveZenohLink::open(1, &ZenohConfig::listen_on_loopback(port)).unwrap();
     assert!(SlaveZenohLink::open(1, &ZenohConfig::listen_on_loopback(port)).is_err());
 }
+
+#[test]
+fn a_waiting_receiver_wakes_for_a_message_and_times_out_without_one() {
+    let port = common::free_port();
+    let mut slave = SlaveZenohLink::open(6, &ZenohConfig::listen_on_loopback(port)).unwrap();
+    let mut master = MasterZenohLink::open(6, &ZenohConfig::connect_to_loopback(port)).unwrap();
+    connect(&mut master, &mut slave, 6);
+    // The connection's own messages may still be on their way: let them land, then drop them.
+    std::thread::sleep(Duration::from_millis(200));
+    while slave.try_recv().unwrap().is_some() {}
+    // Nothing sent: the wait ends at its timeout, with nothing waiting.
+    assert!(!slave.wait_for_message(Duration::from_millis(20)));
+    assert_eq!(slave.try_recv().unwrap(), None);
+    // Sent from another thread while this one waits: the wait ends with it waiting. Zenoh
+    // publishes with congestion control `Drop`, so the sender repeats until it is seen.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sender = {
+        let stop = std::sync::Arc::clone(&stop);
+        std::thread::spawn(move || {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(5));
+                master.publish(&command(6, 91)).unwrap();
+            }
+        })
+    };
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let got = loop {
+        assert!(Instant::now() < deadline, "no message woke the receiver");
+        if slave.wait_for_message(Duration::from_secs(1)) {
+            break slave.try_recv().unwrap();
+        }
+    };
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    sender.join().unwrap();
+    assert_eq!(got, Some(command(6, 91)));
+}
