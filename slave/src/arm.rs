@@ -33,4 +33,10 @@ pub trait ArmDriver {
     /// A new angle set-point for the turntable's servo, rad (ignored without a turntable;
     /// the driver may refuse non-finite values).
     fn command_turntable(&mut self, _angle_rad: f64) {}
+    /// The spindle drive reports a stall (the cut needs more torque than it has: the spindle
+    /// stopped under load); false without a spindle (the default). The slave answers with a
+    /// safe stop that the master cannot clear while the stall lasts.
+    fn spindle_stalled(&self) -> bool {
+        false
+    }
 }

@@ -88,8 +88,10 @@ pub struct SlaveRunSummary {
     pub commands_rejected_by_controller: u64,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
-    /// Times the watchdog put the arm into its safe state.
+    /// Times the watchdog (or a spindle stall) put the arm into its safe state.
     pub safe_stops: u64,
+    /// Of those, the safe stops a spindle stall started (a cutting arm).
+    pub spindle_stall_stops: u64,
     /// Silence when the watchdog tripped, ms on the slave's clock (of the trip where the
     /// silence most exceeded the loop's own lateness).
     pub safe_stop_entry_silence_ms: f64,
@@ -353,6 +355,7 @@ pub fn run<L: Link<Feedback, Command>>(
     s.commands_rejected_by_controller = k.commands_rejected_by_controller;
     s.link_errors = k.link_errors;
     s.safe_stops = k.safe_stops;
+    s.spindle_stall_stops = k.spindle_stall_stops;
     s.repairs = k.repairs;
     s.gate = *teleop.gate_counters();
     s.removed_volume_mm3 = teleop.arm().cut().map(|c| c.report().removed_mm3);

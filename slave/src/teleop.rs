@@ -176,10 +176,13 @@ pub struct TeleopCounters {
     pub commands_rejected_by_controller: u64,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
-    /// Times the watchdog put the arm into its safe state.
+    /// Times the watchdog or a spindle stall put the arm into its safe state.
     pub safe_stops: u64,
     /// Silence when the watchdog tripped (largest over all trips), ms.
     pub safe_stop_entry_silence_ms: f64,
+    /// Of those, the safe stops the arm's spindle stall started (the master's
+    /// acknowledgement is refused while the spindle stays stalled).
+    pub spindle_stall_stops: u64,
     /// Times a master was paired again after a safe stop (each on the master's
     /// acknowledgement, `CMD_FLAG_ACK_SAFE_STOP`).
     pub repairs: u64,
@@ -398,7 +401,15 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
-        let (fresh, acked) = self.receive(link, now_ns);
+        let stalled = self.arm.spindle_stalled();
+        if stalled && self.state == SlaveState::Active {
+            // The spindle stopped under load: feeding on would wedge the tool into the part.
+            self.ctrl.safe_stop_at_once();
+            self.state = SlaveState::SafeStop;
+            self.counters.safe_stops += 1;
+            self.counters.spindle_stall_stops += 1;
+        }
+        let (fresh, acked) = self.receive(link, now_ns, stalled);
         let (repaired, tripped) = self.watch(fresh, acked, now_ns);
         let intent = self.follow(dt_s);
         let port = self.shape_command(&intent, dt_s);
@@ -441,9 +452,14 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     /// Drains the link through the receive gate; returns whether a valid command arrived
     /// and whether the master acknowledged a safe stop (then the port has started a new
     /// ledger before taking the acknowledging command's energy). In the safe stop, commands
-    /// without the acknowledgement are not followed and their energies (the old ledger's)
-    /// are not taken. A restarted master (the gate re-paired) also starts a new ledger.
-    fn receive<L: Link<Feedback, Command>>(&mut self, link: &mut L, now_ns: u64) -> (bool, bool) {
+    /// without the acknowledgement (and every command while the spindle is stalled) are not
+    /// followed and their energies (the old ledger's) are not taken. A restarted master (the gate re-paired) also starts a new ledger.
+    fn receive<L: Link<Feedback, Command>>(
+        &mut self,
+        link: &mut L,
+        now_ns: u64,
+        spindle_stalled: bool,
+    ) -> (bool, bool) {
         let port = &mut self.port;
         let latest = &mut self.latest;
         let safe_stopped = self.state == SlaveState::SafeStop;
@@ -454,7 +470,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             .gate
             .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
                 if safe_stopped && !acked {
-                    if c.flags & CMD_FLAG_ACK_SAFE_STOP == 0 {
+                    if c.flags & CMD_FLAG_ACK_SAFE_STOP == 0 || spindle_stalled {
                         ignored += 1;
                         return;
                     }
@@ -1034,6 +1050,11 @@ mod tests {
     const PERIOD_NS: u64 = 1_000_000;
 
     fn endpoint(passivity: bool) -> SlaveTeleop<SimArm> {
+        let (p, ctrl, arm) = parts(passivity);
+        SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap()
+    }
+
+    fn parts(passivity: bool) -> (TeleopParams, SlaveController, SimArm) {
         let world = SlaveWorld {
             arm: ArmConfig::default(),
             surface: SurfaceConfig::new(
@@ -1050,7 +1071,7 @@ mod tests {
         let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
         let mut p = TeleopParams::default();
         p.passivity.enabled = passivity;
-        SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap()
+        (p, ctrl, arm)
     }
 
     fn command(seq: u64, now_ns: u64, z: f64) -> Command {
@@ -1096,6 +1117,72 @@ mod tests {
             self.now += PERIOD_NS;
             c
         }
+    }
+
+    /// The simulated arm with a spindle drive whose stall the test sets.
+    struct StallingArm {
+        arm: SimArm,
+        stalled: bool,
+    }
+
+    impl ArmDriver for StallingArm {
+        fn read(&mut self) -> crate::arm::ArmReading {
+            self.arm.read()
+        }
+        fn command(&mut self, actuators_mm: &[f64; 4]) {
+            self.arm.command(actuators_mm);
+        }
+        fn spindle_stalled(&self) -> bool {
+            self.stalled
+        }
+    }
+
+    #[test]
+    fn a_spindle_stall_safe_stops_and_the_master_cannot_clear_it_while_it_lasts() {
+        let (p, ctrl, arm) = parts(true);
+        let arm = StallingArm {
+            arm,
+            stalled: false,
+        };
+        let mut ep = SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap();
+        let (mut master, mut slave) = inproc::pair(64);
+        let (mut now, mut seq) = (0, 0);
+        let mut cycle = |ep: &mut SlaveTeleop<StallingArm>, ack: bool| {
+            seq += 1;
+            let mut c = command(seq, now, -251.0);
+            if ack {
+                c.flags |= CMD_FLAG_ACK_SAFE_STOP;
+            }
+            master.publish(&c).unwrap();
+            let out = ep.step(&mut slave, now, 1e-3);
+            while master.try_recv().unwrap().is_some() {}
+            ep.arm_mut().arm.advance(PERIOD_NS);
+            now += PERIOD_NS;
+            out
+        };
+        for _ in 0..100 {
+            assert_eq!(cycle(&mut ep, false).state, SlaveState::Active);
+        }
+        // The spindle stalls: a safe stop at once, with the link alive.
+        ep.arm_mut().stalled = true;
+        let c = cycle(&mut ep, false);
+        assert_eq!(c.state, SlaveState::SafeStop);
+        assert_eq!(ep.counters().safe_stops, 1);
+        assert_eq!(ep.counters().spindle_stall_stops, 1);
+        // The master acknowledges, as it does once it has faded out: refused while the
+        // spindle stays stalled.
+        for _ in 0..200 {
+            let c = cycle(&mut ep, true);
+            assert_eq!(c.state, SlaveState::SafeStop);
+            assert!(!c.repaired);
+        }
+        assert_eq!(ep.counters().repairs, 0);
+        // The spindle runs again: the next acknowledgement re-pairs.
+        ep.arm_mut().stalled = false;
+        let repaired = (0..5).any(|_| cycle(&mut ep, true).repaired);
+        assert!(repaired);
+        assert_eq!(ep.state(), SlaveState::Active);
+        assert_eq!(ep.counters().spindle_stall_stops, 1);
     }
 
     #[test]

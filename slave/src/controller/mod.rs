@@ -248,11 +248,22 @@ impl SlaveController {
     /// normal by `safe_stop_retract_mm`, then holds. Commands
     /// are ignored until [`SlaveController::clear_safe_stop`].
     pub fn safe_stop(&mut self) {
+        self.start_safe_stop(self.p.safe_stop_hold_s);
+    }
+
+    /// A safe stop for a fault of the arm itself (a stalled spindle): no hold of the
+    /// contact force (there is no link to come back), the force ramps down at once and the
+    /// tool retracts.
+    pub fn safe_stop_at_once(&mut self) {
+        self.start_safe_stop(0.0);
+    }
+
+    fn start_safe_stop(&mut self, hold_s: f64) {
         if !self.safe.active() {
             self.safe.start(
                 self.contact.in_contact,
                 self.setpoint.value_n,
-                self.p.safe_stop_hold_s,
+                hold_s,
                 self.p.safe_stop_ramp_s,
             );
             self.position.stop();
@@ -579,7 +590,11 @@ impl SlaveController {
         };
         self.force_law.sent(d_depth);
         let mut mv = -n * d_depth;
-        mv += self.tracking.advance(target_speed, &self.p, dt);
+        // The motion along the surface, held back near the force limit (a feed override):
+        // a tool fed sideways into something it cannot cut (a stalled spindle, a step in
+        // the part) builds force faster than the guards along the normal back it off.
+        let feed = guards::feed_share(cx.f_mag, &self.p);
+        let mut along = self.tracking.advance(target_speed, &self.p, dt);
         let gain = self.p.track_position_gain_per_s;
         if gain > 0.0 && !self.contact.lost {
             // Towards the commanded point along the surface (its normal part is the force
@@ -589,8 +604,9 @@ impl SlaveController {
                 cmd.pose[1] - next[1],
                 cmd.pose[2] - next[2],
             );
-            mv += (e - n * e.dot(&n)) * (gain * dt).min(1.0);
+            along += (e - n * e.dot(&n)) * (gain * dt).min(1.0);
         }
+        mv += along * feed;
         let dmax = self.p.max_speed_mm_per_s * dt;
         let mvn = mv.norm();
         if mvn > dmax {

@@ -454,6 +454,10 @@ impl ArmDriver for SimArm {
             cut.command_turntable(angle_rad);
         }
     }
+
+    fn spindle_stalled(&self) -> bool {
+        self.cut.as_deref().is_some_and(|c| c.report().stalled)
+    }
 }
 
 #[cfg(test)]
