@@ -10,12 +10,17 @@ use h4_master::session::{self, Summary};
 
 /// The pocket session in steel with no depth floor and a spindle of `torque_n_mm`.
 fn run(torque_n_mm: Option<f64>) -> (Summary, f64) {
-    run_in("steel", torque_n_mm, None)
+    run_in("steel", torque_n_mm, None, &[])
 }
 
-/// The pocket session in `material` with no depth floor, a spindle of `torque_n_mm` and the
-/// simulation's `seed`.
-fn run_in(material: &str, torque_n_mm: Option<f64>, seed: Option<u64>) -> (Summary, f64) {
+/// The pocket session in `material` with no depth floor, a spindle of `torque_n_mm`, the
+/// simulation's `seed` and `extra` overrides.
+fn run_in(
+    material: &str,
+    torque_n_mm: Option<f64>,
+    seed: Option<u64>,
+    extra: &[&str],
+) -> (Summary, f64) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
     let mut o: Vec<String> = vec![
         format!("cutting.material={material}"),
@@ -31,6 +36,7 @@ fn run_in(material: &str, torque_n_mm: Option<f64>, seed: Option<u64>) -> (Summa
     if let Some(seed) = seed {
         o.push(format!("seed={seed}"));
     }
+    o.extend(extra.iter().map(|e| e.to_string()));
     let cfg = session::load(&path, &o).unwrap();
     let limit = cfg.slave.controller.force_limit_n;
     (session::run(&cfg, None).unwrap(), limit)
@@ -62,61 +68,97 @@ fn a_weak_spindle_in_steel_stalls_and_stops_cutting() {
     }
 }
 
-/// A stall on any material, at any spindle too weak for the cut, with any seed: the slave
-/// stops itself (its safe stop: the force ramps down, the tool retracts) and the true force
-/// stays at the force limit. Before the feed override and the stall's safe stop (2026-12-02)
-/// the same grid peaked at 137–205 N in 38 of 63 runs (the tool fed sideways into what it
-/// could no longer cut). Measured since: at most 80.6 N (aluminium, 45 N·mm, seed 3: the
-/// stalled tool rattling in its slot for a few milliseconds while the safe stop retracts),
-/// hence 5 % above the limit here; the strict bound is the ignored test below.
-#[test]
-fn a_stall_stops_the_slave_within_the_force_limit_on_every_material() {
-    let mut worst = (0.0, String::new());
-    let mut stalled_runs = 0;
+/// One run of the stall grid.
+struct Stall {
+    case: String,
+    max_force_n: f64,
+    limit_n: f64,
+    stalls: u64,
+    safe_stops: u64,
+}
+
+/// Resin, aluminium and steel × spindles of 20, 30, 45 and 60 N·mm (all too weak for the
+/// pushed cut) × seeds 1–3, no depth floor, with `extra` overrides.
+fn stall_grid(extra: &[&str]) -> Vec<Stall> {
+    let mut runs = Vec::new();
     for material in ["resin", "aluminium", "steel"] {
         for torque in [20.0, 30.0, 45.0, 60.0] {
             for seed in [1, 2, 3] {
-                let (s, limit) = run_in(material, Some(torque), Some(seed));
+                let (s, limit_n) = run_in(material, Some(torque), Some(seed), extra);
                 let c = s.cutting.as_ref().unwrap();
-                let case = format!("{material}, {torque} N·mm, seed {seed}");
-                if c.spindle_stalls > 0 {
-                    stalled_runs += 1;
-                    assert!(
-                        s.slave_safe_stops >= 1,
-                        "{case}: stalled {} times, no safe stop",
-                        c.spindle_stalls
-                    );
-                }
-                assert!(
-                    s.max_force_n <= 1.05 * limit,
-                    "{case}: true force {} N > 1.05 × {limit} N",
-                    s.max_force_n
-                );
-                if s.max_force_n > worst.0 {
-                    worst = (s.max_force_n, case);
-                }
+                runs.push(Stall {
+                    case: format!("{material}, {torque} N·mm, seed {seed}"),
+                    max_force_n: s.max_force_n,
+                    limit_n,
+                    stalls: c.spindle_stalls,
+                    safe_stops: s.slave_safe_stops,
+                });
             }
         }
     }
-    eprintln!("worst true force {:.1} N ({})", worst.0, worst.1);
-    assert!(stalled_runs >= 30, "only {stalled_runs} of 36 runs stalled");
+    runs
+}
+
+/// A stall on any material, at any spindle too weak for the cut, with any seed: the slave
+/// stops itself (its safe stop: the force ramps down, the tool retracts; the master cannot
+/// clear it while the spindle stays stalled) and the true force stays at the force limit.
+/// Measured 2026-12-02: at most 80.6 N (aluminium, 45 N·mm, seed 3: the stalled tool
+/// rattling in its slot for a few milliseconds while the safe stop retracts), every other
+/// run ≤ 76.8 N; hence 5 % above the limit here, the strict bound is the ignored test below.
+/// Control: the same grid without the stall's safe stop (`spindle_stall_safe_stop = false`,
+/// the behaviour before 2026-12-02): the operator feeds the stalled tool on, 20 of 36 runs
+/// above the limit, up to 143 N.
+#[test]
+fn a_stall_stops_the_slave_within_the_force_limit_on_every_material() {
+    let runs = stall_grid(&[]);
+    let stalled = runs.iter().filter(|r| r.stalls > 0).count();
+    assert!(
+        stalled >= 30,
+        "only {stalled} of {} runs stalled",
+        runs.len()
+    );
+    for r in &runs {
+        if r.stalls > 0 {
+            assert!(
+                r.safe_stops >= 1,
+                "{}: stalled {} times, no safe stop",
+                r.case,
+                r.stalls
+            );
+        }
+        assert!(
+            r.max_force_n <= 1.05 * r.limit_n,
+            "{}: true force {} N > 1.05 × {} N",
+            r.case,
+            r.max_force_n,
+            r.limit_n
+        );
+    }
+    let control = stall_grid(&["slave.controller.spindle_stall_safe_stop=false"]);
+    let over: Vec<&Stall> = control
+        .iter()
+        .filter(|r| r.max_force_n > 1.05 * r.limit_n)
+        .collect();
+    assert!(
+        over.len() >= 4,
+        "without the stall's safe stop only {} runs above 1.05 × the limit",
+        over.len()
+    );
+    assert!(control.iter().all(|r| r.safe_stops == 0));
 }
 
 /// The strict bound over the same grid: the true force never above the limit. Measured
-/// 2026-12-02: 80.6 N once (aluminium, 45 N·mm, seed 3), every other run ≤ 79.0 N.
+/// 2026-12-02: 80.6 N once (aluminium, 45 N·mm, seed 3), every other run ≤ 76.8 N.
 #[test]
 #[ignore = "figure: true force 80.6 N > 80 N limit in 1 of 36 stalls (aluminium, 45 N·mm, seed 3); see docs/cutting.md"]
 fn the_stall_stays_within_the_force_limit() {
-    for material in ["resin", "aluminium", "steel"] {
-        for torque in [20.0, 30.0, 45.0, 60.0] {
-            for seed in [1, 2, 3] {
-                let (s, limit) = run_in(material, Some(torque), Some(seed));
-                assert!(
-                    s.max_force_n <= limit,
-                    "{material}, {torque} N·mm, seed {seed}: true force {} N > {limit} N",
-                    s.max_force_n
-                );
-            }
-        }
+    for r in stall_grid(&[]) {
+        assert!(
+            r.max_force_n <= r.limit_n,
+            "{}: true force {} N > {} N",
+            r.case,
+            r.max_force_n,
+            r.limit_n
+        );
     }
 }

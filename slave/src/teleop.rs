@@ -401,7 +401,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
-        let stalled = self.arm.spindle_stalled();
+        let stalled = self.ctrl.params().spindle_stall_safe_stop && self.arm.spindle_stalled();
         if stalled && self.state == SlaveState::Active {
             // The spindle stopped under load: feeding on would wedge the tool into the part.
             self.ctrl.safe_stop_at_once();

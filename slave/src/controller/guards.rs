@@ -196,21 +196,6 @@ pub(super) fn position_force_guard(
     Some(n)
 }
 
-/// Share of the force limit from which the motion along the surface slows down (to none at
-/// [`MAGNITUDE_LIMIT_SHARE`]).
-const FEED_SLOWDOWN_SHARE: f64 = 0.8;
-
-/// The share (0–1) of the motion along the surface allowed at the measured force's
-/// magnitude `f_mag`: all of it below [`FEED_SLOWDOWN_SHARE`] of the limit, none from
-/// [`MAGNITUDE_LIMIT_SHARE`] on, linear between (a feed override: a tool fed sideways into
-/// what it cannot cut, e.g. with its spindle stalled, stops advancing before the force
-/// reaches the limit instead of wedging past it).
-pub(super) fn feed_share(f_mag: f64, p: &ControllerParams) -> f64 {
-    let from = FEED_SLOWDOWN_SHARE * p.force_limit_n;
-    let to = MAGNITUDE_LIMIT_SHARE * p.force_limit_n;
-    ((to - f_mag) / (to - from)).clamp(0.0, 1.0)
-}
-
 /// Whatever the normal estimate says, the measured force's magnitude near the limit backs
 /// the force-guided command off along the force (as Hold and Position mode do). A normal
 /// estimate tilted by friction (a soft surface with dry friction) would otherwise let the

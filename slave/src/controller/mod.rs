@@ -590,11 +590,7 @@ impl SlaveController {
         };
         self.force_law.sent(d_depth);
         let mut mv = -n * d_depth;
-        // The motion along the surface, held back near the force limit (a feed override):
-        // a tool fed sideways into something it cannot cut (a stalled spindle, a step in
-        // the part) builds force faster than the guards along the normal back it off.
-        let feed = guards::feed_share(cx.f_mag, &self.p);
-        let mut along = self.tracking.advance(target_speed, &self.p, dt);
+        mv += self.tracking.advance(target_speed, &self.p, dt);
         let gain = self.p.track_position_gain_per_s;
         if gain > 0.0 && !self.contact.lost {
             // Towards the commanded point along the surface (its normal part is the force
@@ -604,9 +600,8 @@ impl SlaveController {
                 cmd.pose[1] - next[1],
                 cmd.pose[2] - next[2],
             );
-            along += (e - n * e.dot(&n)) * (gain * dt).min(1.0);
+            mv += (e - n * e.dot(&n)) * (gain * dt).min(1.0);
         }
-        mv += along * feed;
         let dmax = self.p.max_speed_mm_per_s * dt;
         let mvn = mv.norm();
         if mvn > dmax {

@@ -71,6 +71,9 @@ pub struct ControllerParams {
     pub tare_cycles: u32,
     /// Take the identified tool's weight and inertia (`arm.tool`) off the sensor's reading.
     pub gravity_compensation: bool,
+    /// A stall reported by the spindle drive puts the slave into its safe stop, which the
+    /// master cannot clear while the stall lasts. Off only to show what it does.
+    pub spindle_stall_safe_stop: bool,
     /// Gravity in the base frame as the controller knows it, mm/s² (the machine's vertical
     /// axis).
     pub gravity_mm_per_s2: [f64; 3],
@@ -139,6 +142,7 @@ impl Default for ControllerParams {
             sensor_filter_cutoff_hz: 80.0,
             tare_cycles: 100,
             gravity_compensation: true,
+            spindle_stall_safe_stop: true,
             gravity_mm_per_s2: [0.0, 0.0, -9810.0],
             command_latency_cycles: 0,
             force_axis: None,
@@ -153,7 +157,7 @@ impl Default for ControllerParams {
 }
 
 impl Section for ControllerParams {
-    /// Checks every field (the two switches aside), naming it under `prefix` (e.g.
+    /// Checks every field (the switches aside), naming it under `prefix` (e.g.
     /// `"controller."`) with its allowed range and unit.
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
