@@ -409,6 +409,10 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             self.counters.safe_stops += 1;
             self.counters.spindle_stall_stops += 1;
         }
+        if stalled && self.state == SlaveState::SafeStop {
+            // Still stalled once the stop holds: lift further until the spindle runs.
+            self.ctrl.lift_stalled_tool();
+        }
         let (fresh, acked) = self.receive(link, now_ns, stalled);
         let (repaired, tripped) = self.watch(fresh, acked, now_ns);
         let intent = self.follow(dt_s);
@@ -1169,13 +1173,18 @@ mod tests {
         assert_eq!(c.state, SlaveState::SafeStop);
         assert_eq!(ep.counters().safe_stops, 1);
         assert_eq!(ep.counters().spindle_stall_stops, 1);
+        let z_stalled = c.out.commanded_pose[2];
         // The master acknowledges, as it does once it has faded out: refused while the
-        // spindle stays stalled.
-        for _ in 0..200 {
+        // spindle stays stalled; meanwhile the tool lifts (to come clear of the stock).
+        let mut z = z_stalled;
+        for _ in 0..500 {
             let c = cycle(&mut ep, true);
             assert_eq!(c.state, SlaveState::SafeStop);
             assert!(!c.repaired);
+            assert!(c.out.commanded_pose[2] >= z - 1e-9, "the lift went down");
+            z = c.out.commanded_pose[2];
         }
+        assert!(z > z_stalled + 1.0, "lifted only {} mm", z - z_stalled);
         assert_eq!(ep.counters().repairs, 0);
         // The spindle runs again: the next acknowledgement re-pairs.
         ep.arm_mut().stalled = false;

@@ -128,6 +128,9 @@ pub struct SlaveController {
     comp: ToolCompensation,
     window: MotionWindow,
     safe: SafeStop,
+    /// How far [`SlaveController::lift_stalled_tool`] has lifted the tool in this safe stop,
+    /// mm.
+    stall_lift_mm: f64,
     position: PositionTrajectory,
     contact: ContactState,
     normal: NormalEstimate,
@@ -163,6 +166,7 @@ impl SlaveController {
             comp: ToolCompensation::new(ToolModel::default()),
             window: MotionWindow::new(params.sensor_filter_cutoff_hz),
             safe: SafeStop::new(),
+            stall_lift_mm: 0.0,
             position: PositionTrajectory::new(),
             contact: ContactState::new(),
             normal: NormalEstimate::new(),
@@ -258,6 +262,21 @@ impl SlaveController {
         self.start_safe_stop(0.0);
     }
 
+    /// Call each cycle while the spindle stays stalled in a safe stop: once the stop holds,
+    /// the tool lifts along the machine's vertical by another `safe_stop_retract_mm`, up to
+    /// `safe_stop_release_max_mm` in all, so that it comes clear of the stock and the spindle
+    /// can run again (a stalled tool in a deep slot was still in it after the retract, and
+    /// the stop could never be cleared). Returns whether it started a lift.
+    pub fn lift_stalled_tool(&mut self) -> bool {
+        if !self.safe.done() || self.stall_lift_mm >= self.p.safe_stop_release_max_mm {
+            return false;
+        }
+        self.normal.normal = Vector3::z();
+        self.safe.retract_more(self.p.safe_stop_retract_mm);
+        self.stall_lift_mm += self.p.safe_stop_retract_mm;
+        true
+    }
+
     fn start_safe_stop(&mut self, hold_s: f64) {
         if !self.safe.active() {
             self.safe.start(
@@ -287,6 +306,7 @@ impl SlaveController {
     pub fn clear_safe_stop(&mut self) {
         let keep_contact = self.safe.holding_contact() && self.contact.in_contact;
         self.safe.clear();
+        self.stall_lift_mm = 0.0;
         self.position.stop();
         if !keep_contact {
             self.contact.leave();

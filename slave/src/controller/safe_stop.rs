@@ -87,6 +87,18 @@ impl SafeStop {
         matches!(self.phase, SafeStopPhase::RampDown { hold_s, .. } if hold_s > 0.0)
     }
 
+    /// True once the safe stop has finished moving and holds.
+    pub(super) fn done(&self) -> bool {
+        matches!(self.phase, SafeStopPhase::Done)
+    }
+
+    /// From the hold, retracts `mm` more along the normal the next steps are given.
+    pub(super) fn retract_more(&mut self, mm: f64) {
+        if self.done() {
+            self.phase = SafeStopPhase::Retract { remaining_mm: mm };
+        }
+    }
+
     /// Leaves the safe stop.
     pub(super) fn clear(&mut self) {
         self.phase = SafeStopPhase::Inactive;
