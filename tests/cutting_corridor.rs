@@ -28,6 +28,8 @@ fn stray(corridor: bool) -> (f64, f64) {
         seg(1.2, [-10.0, 0.0, 0.0], 0.0, -5.0),
         seg(2.5, [10.0, 4.0, 0.0], 4.0, -5.0),
     ];
+    // The corridor alone (not the pocket's region).
+    cfg.fixtures.region = None;
     cfg.fixtures.corridor = corridor.then(|| h4_slave::controller::fixtures::CorridorConfig {
         path_mm: vec![[-12.0, 0.0], [12.0, 0.0]],
         half_width_mm: 0.5,

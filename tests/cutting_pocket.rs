@@ -77,18 +77,40 @@ fn without_the_floor_the_push_cuts_below_the_pocket() {
     assert!(with.cutting.as_ref().unwrap().gouge_max_mm <= 0.05);
 }
 
-/// The issue's targets for the scripted pocket in resin. Measured 2026-12-02: surface error
-/// p99 1.12 mm (the deviation map shows the pocket's two ends along x left uncut: the
-/// operator's hand stops up to ~1 mm short of the line ends), gouge 0.005 mm, and no
-/// steady-feed cycle to judge the force on: the depth floor held the tool in 48 146 of the
-/// 51 500 cycles, where the force loop is suspended by design.
+/// The issue's surface target for the scripted pocket in resin: surface error p99 ≤ 0.2 mm
+/// and gouge ≤ 0.05 mm (measured 2026-12-03: 0.075 mm, 0.005 mm). The operator guides each
+/// line 1.5 mm past the pocket's end and the region fixture holds the tool's tip on the
+/// outline. Control: the same operator without the region cuts past both ends (measured
+/// 1.03 mm p99); the operator who aims at the ends without a region stopped up to ~1 mm
+/// short of them (1.12 mm p99 before 2026-12-03).
 #[test]
-#[ignore = "figure: surface error p99 1.12 mm (target 0.2), force deviation not measurable (no steady feed off the floor); see docs/cutting.md"]
-fn the_pocket_meets_the_issue_targets() {
+fn the_pocket_meets_the_surface_target_with_its_region() {
     let s = run(&[]);
     let c = s.cutting.as_ref().unwrap();
     assert!(c.surface_error_p99_mm <= 0.2, "{}", c.surface_error_p99_mm);
     assert!(c.gouge_max_mm <= 0.05, "{}", c.gouge_max_mm);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
+    let mut cfg = session::load(&path, &[]).unwrap();
+    cfg.fixtures.region = None;
+    let without = session::run(&cfg, None).unwrap();
+    let cw = without.cutting.as_ref().unwrap();
+    assert!(
+        cw.surface_error_p99_mm > 0.5,
+        "without the region: {} mm",
+        cw.surface_error_p99_mm
+    );
+    assert!(cw.removed_volume_mm3 > c.removed_volume_mm3 + 20.0);
+}
+
+/// The issue's force target for the scripted pocket: cutting-force deviation p99 ≤ 10 % at
+/// steady feed. Not measurable in this session: the depth floor holds the tool in nearly
+/// every cycle (49 221 of 51 500 measured 2026-12-03), where the force loop is suspended
+/// by design, so no cycle is steady feed.
+#[test]
+#[ignore = "figure: force deviation not measurable (no steady feed off the floor); see docs/cutting.md"]
+fn the_pocket_meets_the_force_target() {
+    let s = run(&[]);
+    let c = s.cutting.as_ref().unwrap();
     assert!(
         c.cutting_force_dev_p99_pct <= 10.0,
         "{}",

@@ -50,6 +50,11 @@ pub struct DetectorConfig {
     /// While the operator pushes, a contact lost and regained whose force reaches this is a
     /// bounce (any bounce is unstable), N.
     pub bounce_force_n: f64,
+    /// In a cutting session a contact counts as lost only once the tool's tip has also
+    /// risen this far above where its force was lost, mm: a cutter dwelling in its own cut
+    /// (held by a fixture, or at the end of a pass) has no force and has not left the part.
+    /// Without a cut the force alone says (a plain surface's force vanishes only apart).
+    pub bounce_lift_mm: f64,
 }
 
 impl Default for DetectorConfig {
@@ -72,6 +77,7 @@ impl Default for DetectorConfig {
             hold_settle_s: 1.0,
             hold_ripple_limit_n: 1.0,
             bounce_force_n: 2.0,
+            bounce_lift_mm: 0.01,
         }
     }
 }
@@ -137,7 +143,8 @@ impl Section for DetectorConfig {
             1e3,
             "N",
         )?;
-        check_range(&f("bounce_force_n"), self.bounce_force_n, 0.0, 1e4, "N")
+        check_range(&f("bounce_force_n"), self.bounce_force_n, 0.0, 1e4, "N")?;
+        check_range(&f("bounce_lift_mm"), self.bounce_lift_mm, 0.0, 100.0, "mm")
     }
 }
 
@@ -308,12 +315,14 @@ fn detrended_rms(y: &[f64]) -> f64 {
 /// The holds of a run from the true force, the operator's intended push (|push| per cycle,
 /// N: where the holds are), the force the hand really applies to the handle along that push
 /// (per cycle, N: what each hold asks of the slave) and whether the intent was at rest, per
-/// cycle.
+/// cycle; in a cutting session `tip_z_mm`, the tool tip's true height per cycle (a contact
+/// is lost only once the tip has risen `bounce_lift_mm` above where its force was lost).
 pub(super) fn holds(
     force_n: &[f64],
     push_n: &[f64],
     applied_n: &[f64],
     steady: &[bool],
+    tip_z_mm: Option<&[f64]>,
     force_scale: f64,
     d: &DetectorConfig,
 ) -> Holds {
@@ -356,23 +365,34 @@ pub(super) fn holds(
         h.first_touch_peak_n = force_n[first..end].iter().fold(0.0, |a: f64, &b| a.max(b));
     }
     // Bounces: while pushing, after the first touch of the push, a contact lost (force
-    // below the threshold) and regained reaching bounce_force_n.
+    // below the threshold; in a cut, with the tip risen bounce_lift_mm above where the
+    // force was lost) and regained reaching bounce_force_n.
     let mut touched = false;
     let mut lost = false;
     let mut peak = 0.0_f64;
     let mut counting = false;
+    let mut dropped_at_z: Option<f64> = None;
     for kk in 0..len {
         let pushing = push_n[kk] >= d.hold_push_min_n;
         if !pushing {
             touched = false;
             lost = false;
             counting = false;
+            dropped_at_z = None;
             continue;
         }
         let contact = force_n[kk] > d.contact_threshold_n;
+        let apart = match tip_z_mm.and_then(|z| z.get(kk)) {
+            _ if contact => {
+                dropped_at_z = None;
+                false
+            }
+            None => true,
+            Some(&z) => z > *dropped_at_z.get_or_insert(z) + d.bounce_lift_mm,
+        };
         if contact && !touched {
             touched = true;
-        } else if touched && !contact {
+        } else if touched && apart {
             if counting && peak >= d.bounce_force_n {
                 h.bounces += 1;
             }
@@ -427,6 +447,9 @@ pub(super) struct Sample {
     pub(super) applied_push_n: f64,
     /// The intent at rest (holds): like `steady` but the clutch does not matter.
     pub(super) intent_steady: bool,
+    /// In a cutting session, the tool tip's true height (base frame), mm; `None` without a
+    /// cut.
+    pub(super) tip_z_mm: Option<f64>,
 }
 
 /// Contact episodes: runs of cycles with the contact force above `threshold_n`, runs less
@@ -539,6 +562,7 @@ pub(super) struct Evaluator {
     applied_push_n: Vec<f64>,
     /// The intent at rest, every cycle.
     intent_steady: Vec<bool>,
+    tip_z_mm: Vec<f64>,
     steady_s: f64,
     energy_min: f64,
     max_force: f64,
@@ -566,6 +590,7 @@ impl Evaluator {
             push_n: Vec::with_capacity(cycles),
             applied_push_n: Vec::with_capacity(cycles),
             intent_steady: Vec::with_capacity(cycles),
+            tip_z_mm: Vec::with_capacity(cycles),
             steady_s: 0.0,
             energy_min: 0.0,
             max_force: 0.0,
@@ -623,6 +648,9 @@ impl Evaluator {
         self.push_n.push(s.push_n);
         self.applied_push_n.push(s.applied_push_n);
         self.intent_steady.push(s.intent_steady);
+        if let Some(z) = s.tip_z_mm {
+            self.tip_z_mm.push(z);
+        }
         if !in_contact && s.free_motion && s.steady {
             self.track_sq += s.tracking_err_mm * s.tracking_err_mm;
             self.track_n += 1;
@@ -726,11 +754,14 @@ impl Evaluator {
                 self.max_force, d.force_limit_n
             ));
         }
+        // The tip's height, when every cycle had one (a cutting session).
+        let tip_z = (self.tip_z_mm.len() == self.force_n.len()).then_some(&self.tip_z_mm[..]);
         let holds = holds(
             &self.force_n,
             &self.push_n,
             &self.applied_push_n,
             &self.intent_steady,
+            tip_z,
             fin.force_scale,
             &d,
         );
@@ -949,7 +980,7 @@ mod tests {
                     }
             })
             .collect();
-        let h = holds(&slow, &push, &applied, &steady, 0.5, &d);
+        let h = holds(&slow, &push, &applied, &steady, None, 0.5, &d);
         assert!(h.ripple_rms_n > 1.2, "{h:?}");
         assert_eq!(h.hold_count(), 1);
         assert!((h.target_n[0] - 10.0).abs() < 1e-9, "{h:?}");
@@ -965,7 +996,7 @@ mod tests {
                     }
             })
             .collect();
-        let h = holds(&ramp, &push, &applied, &steady, 0.5, &d);
+        let h = holds(&ramp, &push, &applied, &steady, None, 0.5, &d);
         assert!(h.ripple_rms_n < 0.01, "{h:?}");
         assert!(
             (h.force_n[0] - 12.0 - 4.0 * 5000.0 / 8000.0).abs() < 0.3,
@@ -982,7 +1013,7 @@ mod tests {
                 }
             })
             .collect();
-        let h = holds(&bouncy, &push, &applied, &steady, 0.5, &d);
+        let h = holds(&bouncy, &push, &applied, &steady, None, 0.5, &d);
         assert_eq!(h.bounces, 2, "{h:?}");
         // A release (no push) and a new touch is not a bounce.
         let mut push2 = push.clone();
@@ -998,6 +1029,29 @@ mod tests {
                 }
             })
             .collect();
-        assert_eq!(holds(&rel, &push2, &applied, &steady, 0.5, &d).bounces, 0);
+        assert_eq!(
+            holds(&rel, &push2, &applied, &steady, None, 0.5, &d).bounces,
+            0
+        );
+        // In a cut: the same two force losses with the tip where it was (a cutter dwelling
+        // in its own cut) are no bounce; with the tip lifted 0.3 mm off the part, two.
+        let still = vec![-252.0; n];
+        let h = holds(&bouncy, &push, &applied, &steady, Some(&still), 0.5, &d);
+        assert_eq!(h.bounces, 0, "{h:?}");
+        let lifted: Vec<f64> = (0..n)
+            .map(|k| {
+                if (3010..3040).contains(&k) || (5010..5040).contains(&k) {
+                    -251.7
+                } else {
+                    -252.0
+                }
+            })
+            .collect();
+        let h = holds(&bouncy, &push, &applied, &steady, Some(&lifted), 0.5, &d);
+        assert_eq!(h.bounces, 2, "{h:?}");
+        // A lift of less than bounce_lift_mm is no lift.
+        let rise: Vec<f64> = lifted.iter().map(|z| -252.0 + (z + 252.0) * 0.02).collect();
+        let h = holds(&bouncy, &push, &applied, &steady, Some(&rise), 0.5, &d);
+        assert_eq!(h.bounces, 0, "{h:?}");
     }
 }

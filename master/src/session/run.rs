@@ -213,6 +213,11 @@ impl Session {
                 }
             },
             intent_steady: intent.steady,
+            tip_z_mm: self
+                .slave
+                .arm()
+                .cut()
+                .map(|_| self.slave.arm().true_pose()[2]),
         }
     }
 

@@ -8,6 +8,9 @@
 //!   commanded further than `half_width_mm` from it (the nearest point of the path). With a
 //!   turntable the path is in the workpiece frame: the controller turns it with the table's
 //!   measured angle;
+//! * a **region** (a pocket's boundary): the tool point is never commanded outside an x, y
+//!   rectangle (in the workpiece frame with a turntable), so an operator who guides past a
+//!   pocket's edge cuts the edge where it was planned, not where the hand stopped;
 //! * the **turntable-synchronous** mode: the slave turns the table at a configured speed
 //!   while the tool point is held on a radial line through the table's axis; the operator
 //!   guides only its radius and depth, the turning part brings the stock round.
@@ -37,6 +40,17 @@ pub struct CorridorConfig {
     pub path_mm: Vec<[f64; 2]>,
     /// The largest distance of the tool point from the path, mm.
     pub half_width_mm: f64,
+}
+
+/// A rectangle in x, y the tool point is kept within (`fixtures.region`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegionConfig {
+    /// The rectangle's corner with the smallest x and y, `[x_mm, y_mm]`, base (workpiece)
+    /// frame.
+    pub min_mm: [f64; 2],
+    /// The corner with the largest x and y (each ≥ the minimum's).
+    pub max_mm: [f64; 2],
 }
 
 /// The turntable-synchronous mode (`fixtures.turntable_sync`; needs `cutting.turntable`).
@@ -77,6 +91,9 @@ pub struct FixturesConfig {
     /// The corridor.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub corridor: Option<CorridorConfig>,
+    /// The region.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub region: Option<RegionConfig>,
     /// The turntable-synchronous mode.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub turntable_sync: Option<TurntableSync>,
@@ -85,7 +102,10 @@ pub struct FixturesConfig {
 impl FixturesConfig {
     /// No fixture configured.
     pub fn is_empty(&self) -> bool {
-        self.depth_floor.is_none() && self.corridor.is_none() && self.turntable_sync.is_none()
+        self.depth_floor.is_none()
+            && self.corridor.is_none()
+            && self.region.is_none()
+            && self.turntable_sync.is_none()
     }
 
     /// The turntable-synchronous mode needs a turntable (`has_turntable`): the error names
@@ -136,6 +156,14 @@ impl Section for FixturesConfig {
                 "mm",
             )?;
         }
+        if let Some(r) = &self.region {
+            for a in 0..2 {
+                let lo = format!("{prefix}region.min_mm[{a}]");
+                check_range(&lo, r.min_mm[a], -1e4, 1e4, "mm")?;
+                let hi = format!("{prefix}region.max_mm[{a}]");
+                check_range(&hi, r.max_mm[a], r.min_mm[a], 1e4, "mm (≥ the minimum)")?;
+            }
+        }
         if let Some(t) = &self.turntable_sync {
             let f = |n: &str| format!("{prefix}turntable_sync.{n}");
             check_range(
@@ -169,6 +197,8 @@ pub struct Fixtures {
     path: [[f64; 2]; CORRIDOR_POINTS_MAX],
     path_len: usize,
     half_width_mm: f64,
+    /// The region.
+    region: Option<RegionConfig>,
     /// The turntable-synchronous mode.
     sync: Option<TurntableSync>,
     /// The turntable's axis (x, y), base frame, mm, when the machine has one (told).
@@ -193,6 +223,7 @@ impl Default for Fixtures {
             path: [[0.0; 2]; CORRIDOR_POINTS_MAX],
             path_len: 0,
             half_width_mm: 0.0,
+            region: None,
             sync: None,
             table_axis_mm: None,
             table_measured_rad: None,
@@ -211,6 +242,7 @@ impl Fixtures {
     pub fn new(cfg: &FixturesConfig) -> Self {
         let mut f = Fixtures {
             floor_z_mm: cfg.depth_floor.map(|d| d.z_mm),
+            region: cfg.region,
             sync: cfg.turntable_sync,
             ..Fixtures::default()
         };
@@ -263,7 +295,9 @@ impl Fixtures {
 
     /// `pose` moved into the fixtures: onto the floor if below it, onto the synchronous
     /// mode's radial line (its radius kept within the range), into the corridor if outside
-    /// it (towards the path's nearest point, in the workpiece frame with a turntable).
+    /// it (towards the path's nearest point), into the region if outside it (each of x, y
+    /// clamped to its range); the corridor and the region in the workpiece frame with a
+    /// turntable.
     /// Records whether it moved (a radial projection of less than 1 µm does not count).
     pub fn limit(&mut self, pose: Pose) -> Pose {
         let mut p = pose;
@@ -283,19 +317,32 @@ impl Fixtures {
             p[0] = q[0];
             p[1] = q[1];
         }
-        if self.path_len >= 2 {
+        if self.path_len >= 2 || self.region.is_some() {
             let frame = self.table_frame();
-            let q = match frame {
+            let mut q = match frame {
                 Some((th, c)) => turn_about(c, -th, [p[0], p[1]]),
                 None => [p[0], p[1]],
             };
-            let (near, d) = self.nearest_on_path(q);
-            if d > self.half_width_mm && d > 0.0 {
-                let s = self.half_width_mm / d;
-                let q = [
-                    near[0] + (q[0] - near[0]) * s,
-                    near[1] + (q[1] - near[1]) * s,
-                ];
+            let mut moved_here = false;
+            if self.path_len >= 2 {
+                let (near, d) = self.nearest_on_path(q);
+                if d > self.half_width_mm && d > 0.0 {
+                    let s = self.half_width_mm / d;
+                    q = [
+                        near[0] + (q[0] - near[0]) * s,
+                        near[1] + (q[1] - near[1]) * s,
+                    ];
+                    moved_here = true;
+                }
+            }
+            if let Some(r) = self.region {
+                for (a, v) in q.iter_mut().enumerate() {
+                    let c = v.clamp(r.min_mm[a], r.max_mm[a]);
+                    moved_here |= c != *v;
+                    *v = c;
+                }
+            }
+            if moved_here {
                 let b = match frame {
                     Some((th, c)) => turn_about(c, th, q),
                     None => q,
@@ -353,8 +400,54 @@ mod tests {
                 path_mm: vec![[0.0, 0.0], [20.0, 0.0], [20.0, 10.0]],
                 half_width_mm: 1.0,
             }),
-            turntable_sync: None,
+            ..FixturesConfig::default()
         }
+    }
+
+    fn region() -> FixturesConfig {
+        FixturesConfig {
+            region: Some(RegionConfig {
+                min_mm: [-10.0, -6.0],
+                max_mm: [10.0, 6.0],
+            }),
+            ..FixturesConfig::default()
+        }
+    }
+
+    /// The region clamps x and y each to its range (past a corner: onto the corner), leaves
+    /// z, θ and the points inside alone.
+    #[test]
+    fn the_region_keeps_the_tool_point_inside_its_rectangle() {
+        let mut f = Fixtures::new(&region());
+        let p = f.limit(Pose::new(11.5, 2.0, -251.0, 0.1));
+        assert_eq!(p, Pose::new(10.0, 2.0, -251.0, 0.1));
+        assert!(f.active);
+        let p = f.limit(Pose::new(-12.0, -7.0, -260.0, 0.0));
+        assert_eq!(p, Pose::new(-10.0, -6.0, -260.0, 0.0));
+        let q = Pose::new(-9.9, 5.9, -251.0, 0.0);
+        assert_eq!(f.limit(q), q);
+        assert!(!f.active && f.active_cycles == 2);
+    }
+
+    /// With a turntable the region is in the workpiece frame: a quarter turn of the table
+    /// turns it with the part.
+    #[test]
+    fn the_region_turns_with_the_table() {
+        let mut f = Fixtures::new(&region());
+        f.set_turntable_axis([0.0, 0.0]);
+        f.observe_turntable(Some(std::f64::consts::FRAC_PI_2));
+        // Turned a quarter, the rectangle spans x ∈ [−6, 6], y ∈ [−10, 10] in the base frame.
+        let p = f.limit(Pose::new(8.0, 9.0, -251.0, 0.0));
+        assert!(
+            (p[0] - 6.0).abs() < 1e-9 && (p[1] - 9.0).abs() < 1e-9,
+            "{p:?}"
+        );
+        let q = Pose::new(5.0, -9.0, -251.0, 0.0);
+        let p = f.limit(q);
+        assert!(
+            (p[0] - 5.0).abs() < 1e-9 && (p[1] + 9.0).abs() < 1e-9,
+            "{p:?}"
+        );
     }
 
     #[test]
@@ -495,6 +588,14 @@ mod tests {
             e.contains("fixtures.turntable_sync.radius_range_mm[1]"),
             "{e}"
         );
+        let mut c = region();
+        c.region.as_mut().unwrap().max_mm[1] = -7.0;
+        let e = c.validate_at("fixtures.").unwrap_err().to_string();
+        assert!(e.contains("fixtures.region.max_mm[1]"), "{e}");
+        let mut c = region();
+        c.region.as_mut().unwrap().min_mm[0] = f64::NAN;
+        let e = c.validate_at("fixtures.").unwrap_err().to_string();
+        assert!(e.contains("fixtures.region.min_mm[0]"), "{e}");
         let e = sync(1.0).check_turntable("fixtures.", false).unwrap_err();
         assert!(e.to_string().contains("fixtures.turntable_sync"), "{e}");
         assert!(sync(1.0).check_turntable("fixtures.", true).is_ok());

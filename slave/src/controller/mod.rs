@@ -622,6 +622,15 @@ impl SlaveController {
             );
             mv += (e - n * e.dot(&n)) * (gain * dt).min(1.0);
         }
+        let feed = self.p.max_feed_mm_per_s * dt;
+        if feed > 0.0 {
+            // The motion along the surface within the cutter's feed limit.
+            let along = mv - n * mv.dot(&n);
+            let an = along.norm();
+            if an > feed {
+                mv -= along * (1.0 - feed / an);
+            }
+        }
         let dmax = self.p.max_speed_mm_per_s * dt;
         let mvn = mv.norm();
         if mvn > dmax {

@@ -93,6 +93,11 @@ pub struct ControllerParams {
     /// commanded velocity only, and its ramps let the point drift from the master's).
     #[serde(skip_serializing_if = "is_zero")]
     pub track_position_gain_per_s: f64,
+    /// In contact: the fastest motion along the surface, mm/s (0 to 1e4; 0: none but
+    /// `max_speed_mm_per_s`). A cutter's feed limit (feed per tooth × flutes × spindle
+    /// speed): a tool pulled along faster than it can cut is rammed into the stock.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub max_feed_mm_per_s: f64,
     /// Contact detection: the force along the approach must exceed this many standard
     /// deviations of the sensor's noise (measured while taring) besides
     /// `contact_threshold_n` (3 to 20).
@@ -147,6 +152,7 @@ impl Default for ControllerParams {
             command_latency_cycles: 0,
             force_axis: None,
             track_position_gain_per_s: 0.0,
+            max_feed_mm_per_s: 0.0,
             contact_noise_sigmas: 8.0,
             safe_stop_hold_s: default_safe_stop_hold_s(),
             safe_stop_ramp_s: 0.2,
@@ -162,7 +168,7 @@ impl Section for ControllerParams {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let field = |name: &str| format!("{prefix}{name}");
         #[rustfmt::skip]
-        let checks: [(&str, f64, f64, f64, &str); 31] = [
+        let checks: [(&str, f64, f64, f64, &str); 32] = [
             ("force_limit_n", self.force_limit_n, 1.0, 1000.0, "N"),
             ("max_speed_mm_per_s", self.max_speed_mm_per_s, 0.1, 1000.0, "mm/s"),
             ("force_accel_mm_per_s2", self.force_accel_mm_per_s2, 1.0, 1e7, "mm/s²"),
@@ -214,6 +220,7 @@ impl Section for ControllerParams {
             ("tare_cycles", f64::from(self.tare_cycles), 1.0, 100_000.0, "cycles"),
             ("command_latency_cycles", f64::from(self.command_latency_cycles), 0.0, 10.0, "cycles"),
             ("contact_noise_sigmas", self.contact_noise_sigmas, 3.0, 20.0, ""),
+            ("max_feed_mm_per_s", self.max_feed_mm_per_s, 0.0, 1e4, "mm/s"),
             ("safe_stop_hold_s", self.safe_stop_hold_s, 0.0, 5.0, "s"),
             ("safe_stop_ramp_s", self.safe_stop_ramp_s, 0.0, 60.0, "s"),
             ("safe_stop_retract_mm", self.safe_stop_retract_mm, 0.0, 100.0, "mm"),
