@@ -18,6 +18,7 @@ pub mod impaired;
 pub mod inproc;
 #[cfg(all(feature = "iceoryx2", feature = "zenoh"))]
 pub mod open;
+pub mod playout;
 #[cfg(feature = "zenoh")]
 pub mod zenoh;
 

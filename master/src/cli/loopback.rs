@@ -258,6 +258,20 @@ struct SlaveEnded {
     died_unix_ns: u64,
 }
 
+/// The session's `slave.playout` as `h4-slave run` options (none when it is off).
+fn playout_args(p: &h4_transport::playout::PlayoutConfig) -> Vec<String> {
+    if !p.enabled {
+        return Vec::new();
+    }
+    vec![
+        "--playout".to_string(),
+        "--playout-max-ms".to_string(),
+        p.max_ms.to_string(),
+        "--playout-quantile".to_string(),
+        p.quantile.to_string(),
+    ]
+}
+
 impl SlaveChild {
     fn spawn(
         args: &LoopbackArgs,
@@ -284,6 +298,7 @@ impl SlaveChild {
             .arg(fd_path(&passivity))
             .arg("--watchdog-ms")
             .arg(args.watchdog_ms.to_string())
+            .args(playout_args(&cfg.slave.playout))
             .arg("--parent-pid")
             .arg(std::process::id().to_string())
             .stdin(Stdio::null())

@@ -12,6 +12,7 @@ use h4_slave::plant::{
 use h4_slave::teleop::ContactHandover;
 use h4_slave::world::SlaveWorld;
 use h4_transport::impair::ImpairmentConfig;
+use h4_transport::playout::PlayoutConfig;
 use serde::{Deserialize, Serialize};
 
 use super::cutting::CutTarget;
@@ -195,6 +196,8 @@ pub struct SlaveConfig {
     pub command_timeout_ms: f64,
     /// Contact hand-over to the slave's force loop (position mode).
     pub contact: ContactHandover,
+    /// The playout (jitter) buffer on the slave's command link.
+    pub playout: PlayoutConfig,
 }
 
 impl Default for SlaveConfig {
@@ -206,6 +209,7 @@ impl Default for SlaveConfig {
             controller: ControllerParams::default(),
             command_timeout_ms: 20.0,
             contact: ContactHandover::default(),
+            playout: PlayoutConfig::default(),
         }
     }
 }
@@ -356,6 +360,7 @@ impl Section for SlaveConfig {
         self.plant.validate_at(&f("plant."))?;
         self.sensor.validate_at(&f("sensor."))?;
         self.contact.validate_at(&f("contact."))?;
+        self.playout.validate_at(&f("playout."))?;
         check_range(
             &f("command_timeout_ms"),
             self.command_timeout_ms,

@@ -16,6 +16,7 @@ use h4_slave::plant::SimArm;
 use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopParams};
 use h4_transport::impair::Impaired;
 use h4_transport::inproc::{self, InprocEnd};
+use h4_transport::playout::Playout;
 
 use super::cutting::{CutEvaluator, CutSample, CutSummary, RevolutionMean, write_outputs};
 use super::detector::{Evaluator, RunFacts, Sample};
@@ -24,7 +25,14 @@ use super::{CYCLE_NS, DT_S, HostConfig, SessionConfig, SessionError, StallSide, 
 use crate::teleop::{MasterCycle, MasterTeleop, MasterTeleopError};
 
 type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
-type SlaveEnd = Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>;
+/// The slave's end: its feedback impaired on the way out, its commands through its playout
+/// buffer on the way in.
+type SlaveEnd = Playout<
+    Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>,
+    SimClock,
+    Feedback,
+    Command,
+>;
 
 /// A session ready to run: both sides and the link.
 pub struct Session {
@@ -98,7 +106,11 @@ impl Session {
         let mut up = cfg.link;
         up.seed = rng.next_u64();
         let master_end = Impaired::new(m_end, clock.clone(), down, CYCLE_NS)?;
-        let slave_end = Impaired::new(s_end, clock.clone(), up, CYCLE_NS)?;
+        let slave_end = Playout::new(
+            Impaired::new(s_end, clock.clone(), up, CYCLE_NS)?,
+            clock.clone(),
+            cfg.slave.playout,
+        );
 
         let (arm, ctrl) = cfg
             .slave_world()
@@ -234,7 +246,9 @@ impl Session {
         ch.write_cycle(r, t_ns, (m, me), (s, &self.slave), true_force_slave_n)?;
         ch.write_cut(r, t_ns, &self.slave)?;
         ch.write_link_events(r, "command", |f| self.master_end.drain_events(f))?;
-        ch.write_link_events(r, "feedback", |f| self.slave_end.drain_events(f))
+        ch.write_link_events(r, "feedback", |f| {
+            self.slave_end.inner_mut().drain_events(f)
+        })
     }
 
     /// Runs the whole session; with a recorder every cycle of both sides and every link
@@ -345,7 +359,7 @@ impl Session {
         let wall_time_s = wall.elapsed().as_secs_f64();
         let dissipated =
             self.master.coupling().port.energy.dissipated_j + self.slave.port().energy.dissipated_j;
-        let lost = self.master_end.counters.dropped() + self.slave_end.counters.dropped();
+        let lost = self.master_end.counters.dropped() + self.slave_end.inner().counters.dropped();
         let rejected =
             self.master.gate_counters().rejected() + self.slave.gate_counters().rejected();
         let rtt = self.master.round_trip().mean_ms();

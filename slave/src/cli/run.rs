@@ -3,12 +3,14 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use h4_shared::clock::MonotonicClock;
 use h4_shared::passivity::PassivityParams;
 use h4_shared::process::LoopArgs;
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::{self, RunOptions};
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
+use h4_transport::playout::{Playout, PlayoutConfig};
 
 /// Run the slave process: the 1 kHz force loop on the simulated arm, commanded by a master
 /// over iceoryx2 or Zenoh.
@@ -39,6 +41,18 @@ pub struct RunArgs {
     /// No valid command for this long puts the arm in its safe state, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
+    /// Hold commands in a playout (jitter) buffer: each is followed at its send time + the
+    /// link's fastest delay + the 95th percentile of the recent lateness (at most
+    /// --playout-max-ms), in order and evenly spaced: for a jittery network link
+    /// (docs/remote.md). Default off.
+    #[arg(long)]
+    pub playout: bool,
+    /// The longest the playout buffer holds a command, ms (0 to 1000).
+    #[arg(long, default_value_t = 200.0, value_name = "MS")]
+    pub playout_max_ms: f64,
+    /// The share of recent commands the playout delay waits for (0.5 to 1).
+    #[arg(long, default_value_t = 0.95, value_name = "SHARE")]
+    pub playout_quantile: f64,
     /// The slave's passivity settings: a TOML file with the keys of a session file's
     /// `[passivity]` section (docs/sessions.md); default: the defaults there.
     #[arg(long, value_name = "FILE")]
@@ -86,9 +100,20 @@ impl RunArgs {
             }
             None => PassivityParams::default(),
         };
-        let link = self.transport.open_slave().map_err(|e| e.to_string())?;
-        let mut link = impaired::wrap(link, self.impair.impair.as_ref(), Direction::Feedback)
+        let playout = PlayoutConfig {
+            enabled: self.playout,
+            max_ms: self.playout_max_ms,
+            quantile: self.playout_quantile,
+        };
+        h4_shared::config::check_range("--playout-max-ms", playout.max_ms, 0.0, 1000.0, "ms")
+            .and_then(|()| {
+                h4_shared::config::check_range("--playout-quantile", playout.quantile, 0.5, 1.0, "")
+            })
             .map_err(|e| e.to_string())?;
+        let link = self.transport.open_slave().map_err(|e| e.to_string())?;
+        let link = impaired::wrap(link, self.impair.impair.as_ref(), Direction::Feedback)
+            .map_err(|e| e.to_string())?;
+        let mut link = Playout::new(link, MonotonicClock::new(), playout);
         let opts = RunOptions {
             passivity,
             arm_id: self.transport.arm_id,
