@@ -254,11 +254,14 @@ fn untuned_surfaces_and_fast_tracking_meet_targets_with_a_real_sensor() {
     );
 }
 
-/// Known limits (measured, not met; docs/slave-results.md): on aluminium at 40 N, dry
-/// friction μ = 0.3 and a 50 N/mm surface, and tracking along y at 20 mm/s, miss the
-/// whole-contact p99 in part of the matrix (the contact-normal estimate, tilted by friction
-/// at the touch and at the start of the sliding: told the true normal, y tracking meets it). Asserted here: the true force stays under the
-/// limit and the first touch keeps its overshoot and settling targets.
+/// On aluminium at 40 N: dry friction μ = 0.3 meets every target in all 48 runs since the
+/// contact-normal estimate takes the arm's deflection change (Λ ΔF) off the motion it reads
+/// (2026-12-03; before, 38 of 48 missed the whole-contact p99, up to 1.85 N): asserted.
+/// Known limits (measured, not met; docs/slave-results.md): a 50 N/mm surface (2 of 48 runs,
+/// 1.09 N) and tracking along y at 20 mm/s (20 of 48 runs, up to 1.27 N) miss the
+/// whole-contact p99 (the normal estimate, tilted by friction at the touch: told the true
+/// normal, y tracking meets it). Asserted for all: the true force stays under the limit and
+/// the first touch keeps its overshoot and settling targets.
 #[test]
 fn aluminium_friction_soft_and_fast_y_tracking_known_limits() {
     let cases: Vec<(&str, Vec<String>)> = vec![
@@ -299,6 +302,11 @@ fn aluminium_friction_soft_and_fast_y_tracking_known_limits() {
         worst[1] <= 5.0 && worst[2] <= 150.0,
         "first touch: {worst:?}"
     );
+    let friction: Vec<&String> = all
+        .iter()
+        .filter(|m| m.contains("friction_coefficient=0.3"))
+        .collect();
+    assert!(friction.is_empty(), "μ = 0.3 missed:\n{friction:?}");
 }
 
 /// Negative control of the gravity compensation: the tool turns 20° while approaching

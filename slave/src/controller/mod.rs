@@ -558,6 +558,7 @@ impl SlaveController {
             f3: cx.f3,
             c_prev_mm_per_n: c_prev,
             c_env_mm_per_n: self.estimator.c_env,
+            lambda: lambda.copied(),
             speed_mm_per_s: speed,
             contact_cycles: self.contact.contact_cycles,
         };

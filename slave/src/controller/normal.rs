@@ -4,7 +4,7 @@
 //! force's direction; at a standstill it is held (the friction force of a stuck tool says
 //! nothing about the normal), or under a steady force slowly turned to the force.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use super::params::ControllerParams;
 use super::window::{MotionWindow, WINDOW_MAX};
@@ -40,6 +40,8 @@ pub(super) struct NormalInputs {
     pub(super) c_prev_mm_per_n: f64,
     /// The environment's estimated compliance, mm/N.
     pub(super) c_env_mm_per_n: f64,
+    /// The arm's translational compliance at this pose (the model's Λ block), mm/N.
+    pub(super) lambda: Option<Matrix3<f64>>,
     /// The commanded speed along the surface, mm/s.
     pub(super) speed_mm_per_s: f64,
     /// Cycles since the touch.
@@ -75,10 +77,18 @@ impl NormalEstimate {
         // The tool sinks deeper or rises as the force changes: add back that part of the
         // displacement (compliance × force change along the normal), so what is left is
         // the motion of the contact point along the surface.
-        let d_fn_window = (f3 - window.f[oldest]).dot(&self.normal);
+        let df = f3 - window.f[oldest];
+        let d_fn_window = df.dot(&self.normal);
         let depth_change = inp.c_prev_mm_per_n * d_fn_window;
-        let disp =
-            Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2]) + self.normal * depth_change;
+        let disp_fk = Vector3::new(xf[0] - xo[0], xf[1] - xo[1], xf[2] - xo[2]);
+        // The arm gives way under the force (tip = carriages' pose + Λ f): add back the
+        // change of its deflection in every direction, not only along the normal (friction
+        // building up along the motion bends the arm sideways, and Λ couples part of that
+        // into the normal), then the surface's own give along the normal.
+        let disp = match inp.lambda {
+            Some(l) => disp_fk + l * df + self.normal * (inp.c_env_mm_per_n * d_fn_window),
+            None => disp_fk + self.normal * depth_change,
+        };
         // Without a commanded motion along the surface the displacement is trusted only
         // while the force is steady (the depth correction is then small): what is left is
         // the tool creeping along the surface under a tilted push, and removing friction
