@@ -53,6 +53,9 @@ pub struct RunOptions {
     pub shutdown_limit_s: f64,
     /// Serve the live view here (`--foxglove-ws HOST:PORT`).
     pub foxglove_ws: Option<String>,
+    /// When the arm cuts: write the machined part here at the end (`height.png`,
+    /// `part.stl`; `--out DIR`).
+    pub out_dir: Option<PathBuf>,
 }
 
 impl Default for RunOptions {
@@ -70,6 +73,7 @@ impl Default for RunOptions {
             record: None,
             shutdown_limit_s: 2.0,
             foxglove_ws: None,
+            out_dir: None,
         }
     }
 }
@@ -185,6 +189,9 @@ pub enum ServerError {
     /// `--realtime enforce` and a setting was not permitted.
     #[error("--realtime enforce: {0}")]
     Realtime(#[from] h4_shared::rt::RtError),
+    /// The part's files could not be written.
+    #[error("--out: {0}")]
+    Part(String),
 }
 
 /// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
@@ -359,6 +366,9 @@ pub fn run<L: Link<Feedback, Command>>(
     s.repairs = k.repairs;
     s.gate = *teleop.gate_counters();
     s.removed_volume_mm3 = teleop.arm().cut().map(|c| c.report().removed_mm3);
+    if let (Some(dir), Some(cut)) = (opts.out_dir.as_deref(), teleop.arm().cut()) {
+        write_part(dir, cut.stock()).map_err(ServerError::Part)?;
+    }
     s.force_error_mean_n = if s.contact_cycles > 0 {
         error_sum / s.contact_cycles as f64
     } else {
@@ -369,6 +379,14 @@ pub fn run<L: Link<Feedback, Command>>(
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
+}
+
+/// The machined part into `dir` (created if missing): `height.png` and `part.stl`.
+fn write_part(dir: &std::path::Path, stock: &crate::plant::cutting::Stock) -> Result<(), String> {
+    use crate::plant::cutting::export::{write_height_png, write_stl};
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    write_height_png(&dir.join("height.png"), stock).map_err(|e| e.to_string())?;
+    write_stl(&dir.join("part.stl"), stock).map_err(|e| e.to_string())
 }
 
 /// After the stop request: commands ignored, the watchdog trips, the safe stop ramps the

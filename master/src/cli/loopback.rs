@@ -57,6 +57,10 @@ pub struct LoopbackArgs {
     /// The slave's command watchdog, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
+    /// In a cutting session: the slave writes the machined part into DIR at the end
+    /// (`height.png`, `part.stl`; `h4-slave run --out`).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
     /// Real time for both loops: `try` (default: SCHED_FIFO and locked memory where
     /// permitted, a one-line note otherwise), `enforce` (not permitted: exit 2), `off`.
     #[arg(long, value_enum, default_value_t = RealtimeMode::Try)]
@@ -306,6 +310,9 @@ impl SlaveChild {
             .stderr(Stdio::piped());
         if let Some(p) = parts {
             cmd.arg("--record").arg(&p.slave);
+        }
+        if let Some(d) = &args.out {
+            cmd.arg("--out").arg(d);
         }
         cmd.arg("--realtime").arg(match args.realtime {
             RealtimeMode::Try => "try",

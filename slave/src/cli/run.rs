@@ -57,6 +57,11 @@ pub struct RunArgs {
     /// `[passivity]` section (docs/sessions.md); default: the defaults there.
     #[arg(long, value_name = "FILE")]
     pub passivity_config: Option<PathBuf>,
+    /// When the arm cuts (a world with `[cutting]`): write the machined part into DIR at the
+    /// end, `height.png` (height map) and `part.stl` (binary STL), as `h4-master sim --out`
+    /// does (docs/cutting.md). Created if missing; refused before the run if it cannot be.
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
     /// Stop (safe state, summary) when process PID, this process's parent, dies: set by
     /// `h4-master loopback` for the slave it starts (parent-death signal plus a watch on the
     /// parent).
@@ -84,6 +89,9 @@ impl RunArgs {
                 .map_err(|e| format!("--parent-pid {pid}: {e}"))?;
         }
         self.run.check_outputs()?;
+        if let Some(d) = &self.out {
+            std::fs::create_dir_all(d).map_err(|e| format!("--out {}: {e}", d.display()))?;
+        }
         let realtime = self.run.realtime_preflight(LABEL)?;
         let path = h4_shared::paths::default_config(
             self.config.as_deref(),
@@ -123,6 +131,7 @@ impl RunArgs {
             duration_s: self.run.duration_s,
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
+            out_dir: self.out.clone(),
             ..RunOptions::default()
         };
         let summary = server::run(&cfg, &opts, &mut link).map_err(|e| e.to_string())?;
