@@ -35,14 +35,9 @@ fn stray(corridor: bool) -> (f64, f64) {
         half_width_mm: 0.5,
     });
     let mut s = Session::new(&cfg).unwrap();
-    let mut worst: f64 = 0.0;
-    for _ in 0..8000 {
-        s.cycle().unwrap();
-        let p = s.slave.arm().true_pose();
-        if p[2] < -250.5 && p[0].abs() < 8.0 {
-            worst = worst.max(p[1].abs());
-        }
-    }
+    let worst = h4_tests::max_while_cutting(&mut s, 8000, -250.5, |p| {
+        if p[0].abs() < 8.0 { p[1].abs() } else { 0.0 }
+    });
     let stock = s.slave.arm().cut().unwrap().stock();
     let (nx, ny) = stock.dims();
     let mut cut_y: f64 = 0.0;
@@ -99,14 +94,9 @@ fn the_shipped_guided_slot_follows_its_corridor() {
             cfg.fixtures.corridor = None;
         }
         let mut s = Session::new(&cfg).unwrap();
-        let mut worst: f64 = 0.0;
-        for _ in 0..16_000 {
-            s.cycle().unwrap();
-            let p = s.slave.arm().true_pose();
-            if p[2] < -250.5 {
-                worst = worst.max(off_path_mm(&plan, [p[0], p[1]]));
-            }
-        }
+        let worst = h4_tests::max_while_cutting(&mut s, 16_000, -250.5, |p| {
+            off_path_mm(&plan, [p[0], p[1]])
+        });
         // The slot reaches the end of the second leg: a cell at (10, 4) cut 0.8 mm deep.
         let stock = s.slave.arm().cut().unwrap().stock();
         let (nx, ny) = stock.dims();

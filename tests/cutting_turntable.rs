@@ -157,14 +157,7 @@ fn radial_run(sync: bool, stray_mm: f64) -> (Stock, f64) {
         cfg.fixtures.turntable_sync = None;
     }
     let mut s = Session::new(&cfg).unwrap();
-    let mut off: f64 = 0.0;
-    for _ in 0..43_000 {
-        s.cycle().unwrap();
-        let p = s.slave.arm().true_pose();
-        if p[2] < -250.5 {
-            off = off.max(p[1].abs());
-        }
-    }
+    let off = h4_tests::max_while_cutting(&mut s, 43_000, -250.5, |p| p[1].abs());
     (s.slave.arm().cut().unwrap().stock().clone(), off)
 }
 

@@ -38,32 +38,19 @@ fn stl_volume_mm3(stl: &[u8]) -> f64 {
 #[test]
 fn loopback_cuts_the_pocket_and_the_slave_writes_the_part() {
     let _g = serial();
-    let (master, _) = binaries();
-    let scratch = Scratch::new("process-cutting");
-    let summary = scratch.path("loopback.json");
+    let scratch = Scratch::new("process-cutting-part");
     let out = scratch.path("part");
     let mut args = s(&[
-        "loopback",
         "--config",
         "config/sessions/cut-pocket.toml",
         "--duration-s",
         "6",
-        "--fifo-priority",
-        "10",
     ]);
     args.push("--out".into());
     args.push(out.display().to_string());
-    args.push("--summary".into());
-    args.push(summary.display().to_string());
-    let mut run = Running::spawn("loopback", master, &args, &scratch);
-    let _ = run.wait(90.0);
-    let v = read_json(&summary);
+    let (v, log) = loopback_summary("process-cutting", &args, 90.0);
     let removed = f(&v["slave"], "removed_volume_mm3");
-    assert!(
-        removed > 50.0,
-        "removed {removed} mm³\n{v:#}\n{}",
-        run.log()
-    );
+    assert!(removed > 50.0, "removed {removed} mm³\n{v:#}\n{log}");
     assert!(
         f(&v, "max_force_n") <= f(&v["slave"], "force_limit_n"),
         "{v:#}"

@@ -13,28 +13,18 @@ use h4_tests::procs::*;
 use serde_json::Value;
 
 fn loopback(tag: &str, playout: bool) -> Value {
-    let (master, _) = binaries();
-    let scratch = Scratch::new(tag);
-    let summary = scratch.path("loopback.json");
     let mut args = s(&[
-        "loopback",
         "--duration-s",
         "8",
-        "--fifo-priority",
-        "10",
         "--impair",
         "delay_ms=60,jitter_ms=30,seed=3",
         "--set",
     ]);
     args.push(format!("slave.playout.enabled={playout}"));
-    args.push("--summary".into());
-    args.push(summary.display().to_string());
-    let mut run = Running::spawn("loopback", master, &args, &scratch);
-    let _ = run.wait(90.0);
-    let v = read_json(&summary);
+    let (v, log) = loopback_summary(tag, &args, 90.0);
     assert!(
         f(&v, "max_force_n") <= f(&v["slave"], "force_limit_n"),
-        "{v:#}"
+        "{v:#}\n{log}"
     );
     assert!(f(&v, "energy_min_j") >= -1e-3, "{v:#}");
     assert!(u(&v["slave"]["gate"], "accepted") > 1000, "{v:#}");

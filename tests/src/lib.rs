@@ -11,6 +11,27 @@ pub mod remote_procs;
 
 pub mod bins;
 
+/// Runs `cycles` lockstep cycles of `session` and returns the largest `metric(true pose)`
+/// over the cycles whose tool tip is below `below_z_mm` (the tool in the cut); 0 if none.
+pub fn max_while_cutting(
+    session: &mut h4_master::session::Session,
+    cycles: usize,
+    below_z_mm: f64,
+    metric: impl Fn(&h4_shared::Pose) -> f64,
+) -> f64 {
+    let mut worst: f64 = 0.0;
+    for _ in 0..cycles {
+        if let Err(e) = session.cycle() {
+            panic!("session cycle: {e}");
+        }
+        let p = session.slave.arm().true_pose();
+        if p[2] < below_z_mm {
+            worst = worst.max(metric(&p));
+        }
+    }
+    worst
+}
+
 /// Checks the files `h4-master sim --out DIR` writes for a cutting session (`height.png`,
 /// `deviation.png`: PNG; `part.stl`: a binary STL whose length matches its triangle count)
 /// and removes `dir`.

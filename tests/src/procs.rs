@@ -305,6 +305,22 @@ pub fn loopback_args(duration_s: &str, extra: &[&str]) -> Vec<String> {
     a
 }
 
+/// Runs `h4-master loopback` with `args` (the subcommand itself, its `--summary` and
+/// `--fifo-priority 10` added here) in a scratch directory named `tag`, waits at most
+/// `limit_s` (the exit code is not judged: a loaded host can spoil `realtime_ok`), and
+/// returns its summary and log.
+pub fn loopback_summary(tag: &str, args: &[String], limit_s: f64) -> (Value, String) {
+    let (master, _) = binaries();
+    let scratch = Scratch::new(tag);
+    let summary = scratch.path("loopback.json");
+    let mut a = s(&["loopback", "--fifo-priority", "10", "--summary"]);
+    a.push(summary.display().to_string());
+    a.extend(args.iter().cloned());
+    let mut run = Running::spawn("loopback", master, &a, &scratch);
+    let _ = run.wait(limit_s);
+    (read_json(&summary), run.log())
+}
+
 /// Whether process `pid` exists and is not a zombie.
 pub fn alive(pid: i32) -> bool {
     match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
