@@ -259,9 +259,18 @@ fn loopback_shows_progress_and_an_interrupt_is_not_a_realtime_failure() {
         &workspace(),
         &[("H4_PROGRESS", "plain"), ("H4_PROGRESS_INTERVAL_S", "0.25")],
     );
+    // Interrupt after 2 s of loop time: one host stall of this VM (3–66 ms) in a run of a
+    // few hundred cycles alone is > 1 % of deadlines missed, a real-time miss that is not
+    // the interrupt's (CI saw 5 misses in 300 cycles).
     let t = std::time::Instant::now();
-    while !run.log().contains("| master arm 0 |") {
-        assert!(t.elapsed().as_secs() < 40, "no progress: {}", run.log());
+    let ran_s = |log: &str| -> f64 {
+        log.lines()
+            .filter(|l| l.contains("| master arm 0 |"))
+            .filter_map(|l| l.split(" s of ").next()?.rsplit(' ').next()?.parse().ok())
+            .fold(0.0, f64::max)
+    };
+    while ran_s(&run.log()) < 2.0 {
+        assert!(t.elapsed().as_secs() < 60, "no progress: {}", run.log());
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
     run.signal(libc::SIGINT);
