@@ -260,8 +260,7 @@ fn loopback_shows_progress_and_an_interrupt_is_not_a_realtime_failure() {
         &[("H4_PROGRESS", "plain"), ("H4_PROGRESS_INTERVAL_S", "0.25")],
     );
     // Interrupt after 2 s of loop time: one host stall of this VM (3–66 ms) in a run of a
-    // few hundred cycles alone is > 1 % of deadlines missed, a real-time miss that is not
-    // the interrupt's (CI saw 5 misses in 300 cycles).
+    // few hundred cycles alone is > 1 % of deadlines missed.
     let t = std::time::Instant::now();
     let ran_s = |log: &str| -> f64 {
         log.lines()
@@ -279,7 +278,18 @@ fn loopback_shows_progress_and_an_interrupt_is_not_a_realtime_failure() {
     assert_eq!(code, 130, "{log}");
     let v = read_json(&summary);
     assert_eq!(v["interrupted"], true, "{v:#}");
-    assert_eq!(v["realtime_ok"], true, "{v:#}");
+    // The interrupt is no real-time failure: either real time held, or every missed
+    // deadline was a stall of the host or the scheduler (a loaded CI machine), none the
+    // loops' own work, which the interrupt's shutdown would be.
+    let own = |side: &str| {
+        v[side]["deadline_misses_outside_stalls"]
+            .as_u64()
+            .unwrap_or(u64::MAX)
+    };
+    assert!(
+        v["realtime_ok"] == true || (own("master") == 0 && own("slave") == 0),
+        "{v:#}"
+    );
     assert!(
         v["faults"]
             .as_array()
