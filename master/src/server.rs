@@ -101,6 +101,11 @@ pub struct MasterRunSummary {
     pub max_rendered_force_n: f64,
     /// Largest change of the rendered force from one cycle to the next, N.
     pub max_rendered_force_step_n: f64,
+    /// [`Self::max_rendered_force_step_n`] between cycles that ran on time, one period apart,
+    /// N: a cycle after a missed deadline (the host stalled the loop) renders after the handle
+    /// moved for several periods under the held force, whose step is the stall's, not the
+    /// coupling's.
+    pub max_rendered_force_step_outside_stalls_n: f64,
     /// Rendered force in the last cycle, N.
     pub final_rendered_force_n: f64,
     /// Times the feedback stopped and the rendered force started fading out.
@@ -274,7 +279,13 @@ pub fn run_then<L: Link<Command, Feedback>>(
         side.device_mut().advance(period_ns);
         s.energy_min_j = s.energy_min_j.min(m.step.observed_j);
         let fade = m.step.fade;
-        let force = stats.rendered(&mut s, &m.rendered_wrench, &m.step.link_force_n, fade);
+        let force = stats.rendered(
+            &mut s,
+            &m.rendered_wrench,
+            &m.step.link_force_n,
+            fade,
+            cx.tick.missed,
+        );
         let (slave_force, slave_state) = stats.slave(&mut s, side.latest_feedback());
         link_stats.cycle(side.latest_feedback(), side.gate_counters().accepted, fade);
         stats.transparency(&m.rendered_wrench, &slave_force, fade, &mut s);
@@ -420,19 +431,23 @@ impl RenderStats {
     }
 
     /// Books the rendered wrench, the slave's part of it (`link_force_n`) and the fade of one
-    /// cycle; returns the rendered force, N.
+    /// cycle that came `missed` deadlines late; returns the rendered force, N.
     fn rendered(
         &mut self,
         s: &mut MasterRunSummary,
         rendered: &[f64; 4],
         link_force_n: &[f64; 3],
         fade: f64,
+        missed: u64,
     ) -> f64 {
         let force = norm3(rendered);
+        let step_n = (force - self.prev_force_n).abs();
         s.max_rendered_force_n = s.max_rendered_force_n.max(force);
-        s.max_rendered_force_step_n = s
-            .max_rendered_force_step_n
-            .max((force - self.prev_force_n).abs());
+        s.max_rendered_force_step_n = s.max_rendered_force_step_n.max(step_n);
+        if missed == 0 {
+            s.max_rendered_force_step_outside_stalls_n =
+                s.max_rendered_force_step_outside_stalls_n.max(step_n);
+        }
         self.prev_force_n = force;
         if fade < self.prev_fade && !self.fading_out {
             self.fading_out = true;
