@@ -1,10 +1,14 @@
 //! Cutting in the real processes: `h4-master loopback --config config/sessions/cut-pocket.toml
-//! --out DIR` runs the slave's 1 kHz loop over a cutting world (the session's `[cutting]`,
-//! `[fixtures]` and controller keys passed on in its world file) and the operator's script on
-//! the master, over iceoryx2. The slave removes material (its summary's
-//! `removed_volume_mm3`), the true force stays within the slave's limit, nothing goes below
-//! the depth floor, and at the end the slave writes the part: a PNG height map and a closed
-//! binary STL whose enclosed volume is the block's less what was removed. Nothing asserts a
+//! --out DIR --record FILE` runs the slave's 1 kHz loop over a cutting world (the session's
+//! `[cutting]`, `[fixtures]`, `cut_target` and controller keys passed on in its world file)
+//! and the operator's script on the master, over iceoryx2, for the whole session (51.5 s).
+//! The slave cuts the pocket to the targets in real time as the simulation does
+//! (surface error p99 ≤ 0.2 mm against the target, gouge ≤ 0.05 mm below the floor), the true
+//! force stays within the slave's limit, and at the end the slave judges and writes the part:
+//! the summary's cutting fields (at the top level as the simulation's, and in `slave`), a PNG
+//! height map, the deviation map, and a closed binary STL whose enclosed volume is the block's
+//! less what was removed; the merged recording carries `/slave/cut` (the cutting force, the
+//! tool in the workpiece frame, the turntable) for every slave cycle. Nothing asserts a
 //! wall-clock duration.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -36,28 +40,30 @@ fn stl_volume_mm3(stl: &[u8]) -> f64 {
 }
 
 #[test]
-fn loopback_cuts_the_pocket_and_the_slave_writes_the_part() {
+fn loopback_cuts_the_pocket_and_the_slave_judges_and_writes_the_part() {
     let _g = serial();
     let scratch = Scratch::new("process-cutting-part");
     let out = scratch.path("part");
-    let mut args = s(&[
-        "--config",
-        "config/sessions/cut-pocket.toml",
-        "--duration-s",
-        "6",
-    ]);
-    args.push("--out".into());
-    args.push(out.display().to_string());
-    let (v, log) = loopback_summary("process-cutting", &args, 90.0);
-    let removed = f(&v["slave"], "removed_volume_mm3");
-    assert!(removed > 50.0, "removed {removed} mm³\n{v:#}\n{log}");
+    let rec = scratch.path("cut.mcap");
+    let mut args = s(&["--config", "config/sessions/cut-pocket.toml"]);
+    for (k, v) in [("--out", &out), ("--record", &rec)] {
+        args.push(k.into());
+        args.push(v.display().to_string());
+    }
+    let (v, log) = loopback_summary("process-cutting", &args, 300.0);
+    assert_eq!(v["stable"], true, "{v:#}");
     assert!(
         f(&v, "max_force_n") <= f(&v["slave"], "force_limit_n"),
         "{v:#}"
     );
-    assert_eq!(v["stable"], true, "{v:#}");
-    let png = std::fs::read(out.join("height.png")).unwrap();
-    assert_eq!(&png[1..4], b"PNG");
+    // The part, judged by the slave against the session's target: the pocket (2 mm deep,
+    // 766 mm³ in the simulation) is cut, to the surface and gouge targets.
+    let removed = f(&v, "removed_volume_mm3");
+    assert_eq!(removed, f(&v["slave"], "removed_volume_mm3"));
+    assert!(removed > 600.0, "removed {removed} mm³\n{v:#}\n{log}");
+    assert!(f(&v, "surface_error_p99_mm") <= 0.2, "{v:#}");
+    assert!(f(&v, "gouge_max_mm") <= 0.05, "{v:#}");
+    assert!(f(&v, "removal_rate_mm3_per_s") > 0.0, "{v:#}");
     let stl = std::fs::read(out.join("part.stl")).unwrap();
     // The block: 150 × 150 × 30 mm of 0.25 mm cells; the STL's surface runs through the
     // cells' centres (149.75 mm square); the part is that less the removed volume, within
@@ -65,8 +71,37 @@ fn loopback_cuts_the_pocket_and_the_slave_writes_the_part() {
     let block = 149.75 * 149.75 * 30.0;
     let vol = stl_volume_mm3(&stl);
     assert!(
-        (vol - (block - removed)).abs() < 0.01 * removed.max(100.0),
+        (vol - (block - removed)).abs() < 0.01 * removed,
         "STL encloses {vol} mm³, block less removed {}",
         block - removed
     );
+    h4_tests::check_cut_outputs(&out);
+    // The recording: one `/slave/cut` record per slave cycle, the last one's removed volume
+    // the summary's (the shutdown's cycles included: the tool retracts, nothing more is cut).
+    let bytes = std::fs::read(&rec).unwrap();
+    let mut cut_records = 0_u64;
+    let mut last: Option<serde_json::Value> = None;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/slave/cut" {
+            assert_eq!(m.channel.schema.as_ref().unwrap().name, "h4.CutCycle");
+            cut_records += 1;
+            last = Some(serde_json::from_slice(&m.data).unwrap());
+        }
+    }
+    // (`cycles` counts the shutdown's cycles too.)
+    let slave_cycles = u(&v["slave"], "cycles");
+    assert!(
+        cut_records <= slave_cycles
+            && cut_records + u(&v["slave"], "recording_dropped") >= slave_cycles,
+        "{cut_records} /slave/cut records, {slave_cycles} slave cycles"
+    );
+    let last = last.unwrap();
+    let last_removed = last["removed_mm3"].as_f64().unwrap();
+    assert!((last_removed - removed).abs() < 1e-6, "{last}");
+    assert_eq!(
+        last["tool_tip_in_workpiece_mm"].as_array().unwrap().len(),
+        3
+    );
+    assert!(last["turntable_rad"].as_f64().is_some(), "{last}");
 }

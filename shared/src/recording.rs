@@ -527,19 +527,32 @@ pub const CHECKPOINT_INTERVAL: std::time::Duration = std::time::Duration::from_m
 /// through a bounded queue (no allocation, no blocking; a full queue drops the record and
 /// counts it), and the thread does the JSON encoding and the file writes. The file is
 /// crash-safe ([`Recorder::create_crash_safe`]), checkpointed every [`CHECKPOINT_INTERVAL`].
-pub struct BackgroundRecorder<T: Send + 'static> {
-    tx: Option<std::sync::mpsc::SyncSender<(u64, T)>>,
+/// A second channel of another record type `U` is optional
+/// ([`BackgroundRecorder::start_two_for`], [`BackgroundRecorder::push_second`]).
+pub struct BackgroundRecorder<T: Send + 'static, U: Send + 'static = ()> {
+    tx: Option<std::sync::mpsc::SyncSender<(u64, Either<T, U>)>>,
     handle: Option<std::thread::JoinHandle<Result<(), String>>>,
     dropped: u64,
 }
 
-impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
-    /// Starts a recorder writing one channel to `path`; with `None`, records are discarded.
-    pub fn start(
+/// A queued record of either channel.
+enum Either<T, U> {
+    First(T),
+    Second(U),
+}
+
+/// A channel's topic, schema name and JSON schema.
+struct ChannelSpec<'a> {
+    topic: &'a str,
+    schema_name: &'a str,
+    json_schema: String,
+}
+
+impl<T: Serialize + Send + 'static, U: Serialize + Send + 'static> BackgroundRecorder<T, U> {
+    fn start_channels(
         path: Option<&Path>,
-        topic: &str,
-        schema_name: &str,
-        json_schema: &str,
+        first: ChannelSpec,
+        second: Option<ChannelSpec>,
     ) -> Result<Self, RecordingError> {
         let Some(path) = path else {
             return Ok(BackgroundRecorder {
@@ -549,17 +562,26 @@ impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
             });
         };
         let mut rec = Recorder::create_crash_safe(path)?;
-        let channel = rec.add_channel(topic, schema_name, json_schema)?;
-        let (tx, rx) = std::sync::mpsc::sync_channel::<(u64, T)>(8192);
+        let first = rec.add_channel(first.topic, first.schema_name, &first.json_schema)?;
+        let second = match second {
+            Some(c) => Some(rec.add_channel(c.topic, c.schema_name, &c.json_schema)?),
+            None => None,
+        };
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(u64, Either<T, U>)>(8192);
         let handle = std::thread::spawn(move || -> Result<(), String> {
             use std::sync::mpsc::RecvTimeoutError;
             let mut next = std::time::Instant::now() + CHECKPOINT_INTERVAL;
             loop {
                 let wait = next.saturating_duration_since(std::time::Instant::now());
                 match rx.recv_timeout(wait) {
-                    Ok((time_ns, item)) => rec
-                        .write(channel, time_ns, &item)
+                    Ok((time_ns, Either::First(item))) => rec
+                        .write(first, time_ns, &item)
                         .map_err(|e| e.to_string())?,
+                    Ok((time_ns, Either::Second(item))) => {
+                        if let Some(ch) = second {
+                            rec.write(ch, time_ns, &item).map_err(|e| e.to_string())?;
+                        }
+                    }
                     Err(RecvTimeoutError::Timeout) => {}
                     Err(RecvTimeoutError::Disconnected) => break,
                 }
@@ -577,6 +599,21 @@ impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
         })
     }
 
+    /// Starts a recorder writing one channel to `path`; with `None`, records are discarded.
+    pub fn start(
+        path: Option<&Path>,
+        topic: &str,
+        schema_name: &str,
+        json_schema: &str,
+    ) -> Result<Self, RecordingError> {
+        let first = ChannelSpec {
+            topic,
+            schema_name,
+            json_schema: json_schema.to_string(),
+        };
+        Self::start_channels(path, first, None)
+    }
+
     /// [`BackgroundRecorder::start`] with the schema generated from `T`
     /// ([`json_schema_for`]).
     pub fn start_for(
@@ -591,8 +628,47 @@ impl<T: Serialize + Send + 'static> BackgroundRecorder<T> {
         Self::start(path, topic, schema_name, &schema)
     }
 
+    /// A recorder of two channels, `T`'s on `topic` and, when `second` names one
+    /// (`(topic, schema name)`), `U`'s, the schemas generated from the types; with `path`
+    /// `None`, records are discarded.
+    pub fn start_two_for(
+        path: Option<&Path>,
+        topic: &str,
+        schema_name: &str,
+        second: Option<(&str, &str)>,
+    ) -> Result<Self, RecordingError>
+    where
+        T: schemars::JsonSchema,
+        U: schemars::JsonSchema,
+    {
+        let first = ChannelSpec {
+            topic,
+            schema_name,
+            json_schema: json_schema_for::<T>(schema_name)?,
+        };
+        let second = match second {
+            Some((topic, schema_name)) => Some(ChannelSpec {
+                topic,
+                schema_name,
+                json_schema: json_schema_for::<U>(schema_name)?,
+            }),
+            None => None,
+        };
+        Self::start_channels(path, first, second)
+    }
+
     /// Queues one record stamped `time_ns`; never blocks.
     pub fn push(&mut self, time_ns: u64, item: T) {
+        self.send(time_ns, Either::First(item));
+    }
+
+    /// Queues one record of the second channel stamped `time_ns` (discarded by the writer
+    /// when the recorder has no second channel); never blocks.
+    pub fn push_second(&mut self, time_ns: u64, item: U) {
+        self.send(time_ns, Either::Second(item));
+    }
+
+    fn send(&mut self, time_ns: u64, item: Either<T, U>) {
         if let Some(tx) = &self.tx
             && tx.try_send((time_ns, item)).is_err()
         {

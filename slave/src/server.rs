@@ -13,6 +13,8 @@ use std::path::PathBuf;
 
 use h4_shared::passivity::PassivityParams;
 use h4_shared::recording::BackgroundRecorder;
+
+use crate::plant::cutting::judge::{CutEvaluator, CutSummary};
 use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
@@ -54,7 +56,7 @@ pub struct RunOptions {
     /// Serve the live view here (`--foxglove-ws HOST:PORT`).
     pub foxglove_ws: Option<String>,
     /// When the arm cuts: write the machined part here at the end (`height.png`,
-    /// `part.stl`; `--out DIR`).
+    /// `part.stl`, `deviation.png` with a `cut_target`; `--out DIR`).
     pub out_dir: Option<PathBuf>,
 }
 
@@ -122,14 +124,29 @@ pub struct SlaveRunSummary {
     pub final_state: String,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
-    /// With a `cutting` section: the volume the tool removed from the block, mm³.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub removed_volume_mm3: Option<f64>,
+    /// With a `cutting` section: the cut and the part (`removed_volume_mm3`,
+    /// `surface_error_p99_mm` and `gouge_max_mm` against the world's `cut_target` and
+    /// fixture floor, `cutting_force_dev_p99_pct`, `removal_rate_mm3_per_s`, …; the fields
+    /// of the simulation's summary, `docs/cutting.md`).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<CutSummary>,
     /// The stop: the loop kept running with commands ignored until the arm was in its safe
     /// state with the force released (or the time limit); what it reached.
     pub shutdown: ShutdownReport,
     /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
     pub realtime: h4_shared::rt::RealtimeStatus,
+}
+
+impl SlaveRunSummary {
+    /// Books the endpoint's counters and its receive gate's.
+    fn book_endpoint(&mut self, k: &crate::teleop::TeleopCounters, gate: &GateCounters) {
+        self.commands_rejected_by_controller = k.commands_rejected_by_controller;
+        self.link_errors = k.link_errors;
+        self.safe_stops = k.safe_stops;
+        self.spindle_stall_stops = k.spindle_stall_stops;
+        self.repairs = k.repairs;
+        self.gate = *gate;
+    }
 }
 
 /// How the slave left: after a stop request (signal, parent gone, duration) the loop ignores
@@ -225,6 +242,13 @@ struct CycleRecord {
     energy_observed_j: f64,
 }
 
+/// The slave's recording: `/slave/cycle` and, when the arm cuts, `/slave/cut`.
+type SlaveRecorder = BackgroundRecorder<CycleRecord, crate::teleop::CutCycle>;
+
+/// The most steady-feed samples a cutting run keeps for `cutting_force_dev_p99_pct` (one a
+/// cycle: the first 10 minutes of steady feed; 4.8 MB allocated before the loop).
+const MAX_STEADY_FEED_SAMPLES: usize = 600_000;
+
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
 }
@@ -241,29 +265,25 @@ pub fn run<L: Link<Feedback, Command>>(
     use h4_shared::config::Validate;
     cfg.validate()?;
     opts.passivity.validate_at("passivity.")?;
-    let p = cfg.surface.contact_point_mm;
-    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let (arm, ctrl) = cfg.world().build(start, cfg.seed)?;
     let period_ns = opts.period_ns.max(1);
     let dt_s = period_ns as f64 * 1e-9;
-    let mut teleop = SlaveTeleop::new(
-        TeleopParams {
-            arm_id: opts.arm_id,
-            watchdog_ms: opts.watchdog_ms,
-            restart_silence_ms: opts.restart_silence_ms,
-            passivity: opts.passivity,
-            ..TeleopParams::default()
-        },
-        ctrl,
-        arm,
-        period_ns,
-    )?;
-    let mut recorder: BackgroundRecorder<CycleRecord> = BackgroundRecorder::start_for(
+    let mut teleop = build_teleop(cfg, opts, period_ns)?;
+    // `/slave/cut` beside the cycles when the arm cuts.
+    let mut recorder: SlaveRecorder = BackgroundRecorder::start_two_for(
         opts.record.as_deref(),
         "/slave/cycle",
         "h4.SlaveProcessCycle",
+        teleop.cut_cycle().map(|_| ("/slave/cut", "h4.CutCycle")),
     )
     .map_err(|e| ServerError::Recording(e.to_string()))?;
+    // The cut's evidence: the steady-feed deviations of the run (at most
+    // `MAX_STEADY_FEED_SAMPLES`, allocated here).
+    let mut cut_ev = teleop.arm().cut().map(|c| {
+        let cycles = opts.duration_s.map_or(MAX_STEADY_FEED_SAMPLES, |d| {
+            ((d / dt_s).ceil() as usize).min(MAX_STEADY_FEED_SAMPLES)
+        });
+        CutEvaluator::new(cycles, c.tool().spindle_rpm)
+    });
     let live_server =
         h4_shared::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-slave")?;
     let mut live = h4_shared::live::topic_or_off::<CycleRecord>(
@@ -338,6 +358,10 @@ pub fn run<L: Link<Feedback, Command>>(
         live.push(cx.unix_ns, record);
         if let Some(cut) = teleop.cut_cycle() {
             live_cut.push(cx.unix_ns, cut);
+            recorder.push_second(cx.unix_ns, cut);
+        }
+        if let (Some(ev), Some(sample)) = (cut_ev.as_mut(), teleop.cut_sample(&c)) {
+            ev.push(&sample);
         }
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
@@ -359,15 +383,16 @@ pub fn run<L: Link<Feedback, Command>>(
     let k = *teleop.counters();
     s.shutdown = shut_down(&mut teleop, link, &mut rt, &mut recorder, opts);
     progress.finish();
-    s.commands_rejected_by_controller = k.commands_rejected_by_controller;
-    s.link_errors = k.link_errors;
-    s.safe_stops = k.safe_stops;
-    s.spindle_stall_stops = k.spindle_stall_stops;
-    s.repairs = k.repairs;
-    s.gate = *teleop.gate_counters();
-    s.removed_volume_mm3 = teleop.arm().cut().map(|c| c.report().removed_mm3);
-    if let (Some(dir), Some(cut)) = (opts.out_dir.as_deref(), teleop.arm().cut()) {
-        write_part(dir, cut.stock()).map_err(ServerError::Part)?;
+    s.book_endpoint(&k, teleop.gate_counters());
+    if let Some(ev) = cut_ev {
+        s.cutting = teleop
+            .finish_cut(
+                ev,
+                cfg.cut_target.as_ref(),
+                cfg.fixtures.depth_floor.map(|f| f.z_mm),
+                opts.out_dir.as_deref(),
+            )
+            .map_err(|e| ServerError::Part(e.to_string()))?;
     }
     s.force_error_mean_n = if s.contact_cycles > 0 {
         error_sum / s.contact_cycles as f64
@@ -381,12 +406,28 @@ pub fn run<L: Link<Feedback, Command>>(
     Ok(s)
 }
 
-/// The machined part into `dir` (created if missing): `height.png` and `part.stl`.
-fn write_part(dir: &std::path::Path, stock: &crate::plant::cutting::Stock) -> Result<(), String> {
-    use crate::plant::cutting::export::{write_height_png, write_stl};
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    write_height_png(&dir.join("height.png"), stock).map_err(|e| e.to_string())?;
-    write_stl(&dir.join("part.stl"), stock).map_err(|e| e.to_string())
+/// The slave's endpoint over the simulated arm of `cfg`, which starts `approach.gap_mm` above
+/// the surface's contact point.
+fn build_teleop(
+    cfg: &ExperimentConfig,
+    opts: &RunOptions,
+    period_ns: u64,
+) -> Result<SlaveTeleop<crate::plant::SimArm>, ServerError> {
+    let p = cfg.surface.contact_point_mm;
+    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
+    let (arm, ctrl) = cfg.world().build(start, cfg.seed)?;
+    Ok(SlaveTeleop::new(
+        TeleopParams {
+            arm_id: opts.arm_id,
+            watchdog_ms: opts.watchdog_ms,
+            restart_silence_ms: opts.restart_silence_ms,
+            passivity: opts.passivity,
+            ..TeleopParams::default()
+        },
+        ctrl,
+        arm,
+        period_ns,
+    )?)
 }
 
 /// After the stop request: commands ignored, the watchdog trips, the safe stop ramps the
@@ -395,7 +436,7 @@ fn shut_down<L: Link<Feedback, Command>>(
     teleop: &mut SlaveTeleop<crate::plant::SimArm>,
     link: &mut L,
     rt: &mut RtLoop,
-    recorder: &mut BackgroundRecorder<CycleRecord>,
+    recorder: &mut SlaveRecorder,
     opts: &RunOptions,
 ) -> ShutdownReport {
     let period_ns = opts.period_ns.max(1);
@@ -408,6 +449,9 @@ fn shut_down<L: Link<Feedback, Command>>(
         teleop.arm_mut().advance(period_ns);
         let force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
         recorder.push(cx.unix_ns, CycleRecord::of(&c, cx, force_n));
+        if let Some(cut) = teleop.cut_cycle() {
+            recorder.push_second(cx.unix_ns, cut);
+        }
         r.cycles += 1;
         r.final_force_n = force_n;
         r.safe = c.state != SlaveState::Active && force_n < SHUTDOWN_RELEASED_N;

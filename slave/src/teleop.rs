@@ -990,6 +990,51 @@ pub struct CutCycle {
 }
 
 impl SlaveTeleop<crate::plant::SimArm> {
+    /// The evidence of the cut in cycle `c`, for a
+    /// [`CutEvaluator`](crate::plant::cutting::judge::CutEvaluator) (None when the arm does
+    /// not cut).
+    pub fn cut_sample(&self, c: &TeleopCycle) -> Option<crate::plant::cutting::judge::CutSample> {
+        let cut = self.arm.cut()?;
+        let p = self.arm.true_pose();
+        Some(crate::plant::cutting::judge::CutSample {
+            report: cut.report(),
+            tip_mm: cut.to_workpiece([p[0], p[1], p[2]]),
+            in_contact: c.out.status == Status::Contact,
+            fixture_active: self.ctrl.fixture_activity().0,
+            setpoint_n: c.out.setpoint_n,
+        })
+    }
+
+    /// The cutting fields of a summary from the evidence `ev` gathered, judged against
+    /// `target` and the fixture floor `floor_z_mm`; with `out_dir`, the part's files there
+    /// (`height.png`, `part.stl`, `deviation.png` with a target). None when the arm does not
+    /// cut.
+    pub fn finish_cut(
+        &self,
+        ev: crate::plant::cutting::judge::CutEvaluator,
+        target: Option<&crate::plant::cutting::judge::CutTarget>,
+        floor_z_mm: Option<f64>,
+        out_dir: Option<&std::path::Path>,
+    ) -> Result<
+        Option<crate::plant::cutting::judge::CutSummary>,
+        crate::plant::cutting::export::ExportError,
+    > {
+        let Some(cut) = self.arm.cut() else {
+            return Ok(None);
+        };
+        if let Some(dir) = out_dir {
+            crate::plant::cutting::judge::write_outputs(dir, cut.stock(), cut.tool(), target)?;
+        }
+        Ok(Some(ev.finish(
+            cut.stock(),
+            cut.tool(),
+            &cut.report(),
+            target,
+            floor_z_mm,
+            self.ctrl.fixture_activity().1,
+        )))
+    }
+
     /// This cycle's cut, when the simulated arm cuts a workpiece (None otherwise).
     pub fn cut_cycle(&self) -> Option<CutCycle> {
         let cut = self.arm.cut()?;

@@ -58,7 +58,8 @@ pub struct LoopbackArgs {
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
     /// In a cutting session: the slave writes the machined part into DIR at the end
-    /// (`height.png`, `part.stl`; `h4-slave run --out`).
+    /// (`height.png`, `part.stl`, `deviation.png` against the session's `cut_target`;
+    /// `h4-slave run --out`).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Real time for both loops: `try` (default: SCHED_FIFO and locked memory where
@@ -129,6 +130,12 @@ pub struct LoopbackSummary {
     pub interrupted: bool,
     /// With `--record`: what was merged and what was lost.
     pub recording: Option<RecordingReport>,
+    /// In a cutting session: the cut and the part as the slave judged them against the
+    /// session's `cut_target` (`removed_volume_mm3`, `surface_error_p99_mm`,
+    /// `gouge_max_mm`, `cutting_force_dev_p99_pct`, `removal_rate_mm3_per_s`, …: the
+    /// simulation's fields, at the top level as there; also in `slave`).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<h4_slave::plant::cutting::judge::CutSummary>,
     /// The master process's own summary.
     pub master: MasterRunSummary,
     /// The slave process's own summary.
@@ -616,6 +623,7 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
         targets: Default::default(),
         cutting: cfg.cutting,
         fixtures: cfg.fixtures.clone(),
+        cut_target: cfg.cut_target,
     }
 }
 
@@ -780,6 +788,7 @@ fn combine(
         complete: true,
         interrupted,
         recording: None,
+        cutting: s.cutting.clone(),
         master: m,
         slave: s,
     }

@@ -20,7 +20,7 @@ use h4_slave::teleop::TeleopError;
 use crate::operator::IntentError;
 
 mod config;
-pub mod cutting;
+pub use h4_slave::plant::cutting::judge as cutting;
 mod detector;
 mod record;
 mod run;

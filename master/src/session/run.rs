@@ -18,7 +18,7 @@ use h4_transport::impair::Impaired;
 use h4_transport::inproc::{self, InprocEnd};
 use h4_transport::playout::Playout;
 
-use super::cutting::{CutEvaluator, CutSample, CutSummary, RevolutionMean, write_outputs};
+use super::cutting::{CutEvaluator, CutSummary, RevolutionMean};
 use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
 use super::{CYCLE_NS, DT_S, HostConfig, SessionConfig, SessionError, StallSide, Summary};
@@ -257,40 +257,18 @@ impl Session {
         self.run_to(recorder, None)
     }
 
-    /// The evidence of the cut this cycle, for [`CutEvaluator`].
-    fn cut_sample(&self, s: &TeleopCycle) -> Option<CutSample> {
-        let cut = self.slave.arm().cut()?;
-        let p = self.slave.arm().true_pose();
-        Some(CutSample {
-            report: cut.report(),
-            tip_mm: cut.to_workpiece([p[0], p[1], p[2]]),
-            in_contact: s.out.status == Status::Contact,
-            fixture_active: self.slave.controller().fixture_activity().0,
-            setpoint_n: s.out.setpoint_n,
-        })
-    }
-
     /// The cutting fields of the summary, and the part's files into `out_dir`.
     fn finish_cut(
         &self,
         ev: CutEvaluator,
         out_dir: Option<&Path>,
     ) -> Result<Option<CutSummary>, SessionError> {
-        let Some(cut) = self.slave.arm().cut() else {
-            return Ok(None);
-        };
-        let target = self.cfg.cut_target.as_ref();
-        if let Some(dir) = out_dir {
-            write_outputs(dir, cut.stock(), cut.tool(), target)?;
-        }
-        Ok(Some(ev.finish(
-            cut.stock(),
-            cut.tool(),
-            &cut.report(),
-            target,
+        Ok(self.slave.finish_cut(
+            ev,
+            self.cfg.cut_target.as_ref(),
             self.cfg.fixtures.depth_floor.map(|f| f.z_mm),
-            self.slave.controller().fixture_activity().1,
-        )))
+            out_dir,
+        )?)
     }
 
     /// [`Session::run`], and in a cutting session the part's files into `out_dir`
@@ -345,7 +323,7 @@ impl Session {
                 ],
             };
             ev.push(self.sample(&m, &s, &true_force_slave_n));
-            if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.cut_sample(&s)) {
+            if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.slave.cut_sample(&s)) {
                 ce.push(&cs);
             }
             if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {

@@ -58,8 +58,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE")]
     pub passivity_config: Option<PathBuf>,
     /// When the arm cuts (a world with `[cutting]`): write the machined part into DIR at the
-    /// end, `height.png` (height map) and `part.stl` (binary STL), as `h4-master sim --out`
-    /// does (docs/cutting.md). Created if missing; refused before the run if it cannot be.
+    /// end, `height.png` (height map), `part.stl` (binary STL) and, with a `cut_target`,
+    /// `deviation.png`, as `h4-master sim --out` does (docs/cutting.md). Created if missing; refused before the run if it cannot be.
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Stop (safe state, summary) when process PID, this process's parent, dies: set by

@@ -196,6 +196,11 @@ pub struct ExperimentConfig {
     /// Virtual fixtures (`docs/cutting.md`).
     #[serde(default, skip_serializing_if = "FixturesConfig::is_empty")]
     pub fixtures: FixturesConfig,
+    /// The shape a cutting arm should cut, in the workpiece frame: `h4-slave run` judges
+    /// the part against it at the end (`surface_error_p99_mm`, `gouge_max_mm`,
+    /// `deviation.png`; `docs/cutting.md`). `h4-master loopback` passes the session's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut_target: Option<crate::plant::cutting::judge::CutTarget>,
 }
 
 impl Validate for ExperimentConfig {
@@ -206,6 +211,9 @@ impl Validate for ExperimentConfig {
         self.approach.validate_at("approach.")?;
         self.summary.validate_at("summary.")?;
         self.targets.validate_at("targets.")?;
+        if let Some(t) = &self.cut_target {
+            t.validate_at("cut_target.")?;
+        }
         self.validate_across()
     }
 }

@@ -17,6 +17,7 @@
 //! Every model and its sources: `docs/cutting.md`.
 
 pub mod export;
+pub mod judge;
 mod kernel;
 mod mechanics;
 mod stock;

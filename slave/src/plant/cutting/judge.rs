@@ -4,11 +4,9 @@
 
 use std::path::Path;
 
+use super::export::{ExportError, write_deviation_png, write_height_png, write_stl};
+use super::{CutReport, Stock, Tool, ToolKind};
 use h4_shared::config::{ConfigError, Section, check_range};
-use h4_slave::plant::cutting::export::{
-    ExportError, write_deviation_png, write_height_png, write_stl,
-};
-use h4_slave::plant::cutting::{CutReport, Stock, Tool, ToolKind};
 use serde::{Deserialize, Serialize};
 
 /// The kinds of target shape.
@@ -107,19 +105,21 @@ impl CutTarget {
     }
 }
 
-/// The summary's cutting fields.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+/// The summary's cutting fields (NaN is written as null and read back as NaN).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CutSummary {
     /// Volume removed from the block, mm³.
     pub removed_volume_mm3: f64,
     /// 99th percentile of |machined − target| over the judged cells, mm (NaN without a
     /// target).
+    #[serde(deserialize_with = "nan_if_null")]
     pub surface_error_p99_mm: f64,
     /// Deepest cut below the fixture floor (`fixtures.depth_floor.z_mm`, else the target's
     /// floor), mm (0: none).
     pub gouge_max_mm: f64,
     /// 99th percentile of |mean cutting force along z − set-point| / set-point at steady
     /// feed, % (NaN: no steady feed).
+    #[serde(deserialize_with = "nan_if_null")]
     pub cutting_force_dev_p99_pct: f64,
     /// Mean removal rate while cutting, mm³/s.
     pub removal_rate_mm3_per_s: f64,
@@ -131,6 +131,11 @@ pub struct CutSummary {
     pub fixture_limited_cycles: u64,
     /// Largest true contact force during the cut, N.
     pub cutting_force_max_n: f64,
+}
+
+/// A number that JSON wrote as null (NaN, infinite) read back as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// One cycle's evidence for the cutting fields.
