@@ -74,5 +74,15 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
         "the safe state flapped: {} episodes\n{during:#?}",
         during.len()
     );
-    assert!(m.feedback_losses <= 2, "{m:#?}");
+    // The master fades out for each of the slave's safe stops it sees, and may time out
+    // once more on its own (the onset's 300 ms of silence can reach it before the slave's
+    // safe stop does). CI, 2026-12-03: a loaded start-up stalled the first commands for
+    // 0.6 s (a safe stop before the slow stretch, re-paired at once), the onset tripped
+    // once, and the master counted 3 fade-outs against the former fixed bound of 2.
+    assert!(
+        m.feedback_losses <= during.len() as u64 + 1,
+        "{} fade-outs for {} safe-state episodes: {m:#?}",
+        m.feedback_losses,
+        during.len()
+    );
 }
