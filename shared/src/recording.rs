@@ -741,6 +741,59 @@ mod tests {
         assert_eq!(required, ["force_n", "count"]);
     }
 
+    /// Topics and counts of the messages in an MCAP file.
+    fn topic_counts(path: &Path) -> std::collections::BTreeMap<String, usize> {
+        let bytes = std::fs::read(path).unwrap();
+        let mut counts = std::collections::BTreeMap::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            *counts.entry(m.unwrap().channel.topic.clone()).or_insert(0) += 1;
+        }
+        counts
+    }
+
+    /// A background recorder's second channel gets its records, in the same file; without
+    /// a second channel they are discarded.
+    #[test]
+    fn background_recorder_writes_a_second_channel_or_discards_it() {
+        let dir = std::env::temp_dir().join(format!("h4-two-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, second) in [("two.mcap", Some(("/b", "h4.B"))), ("one.mcap", None)] {
+            let path = dir.join(name);
+            let mut rec = BackgroundRecorder::<Typed, Typed>::start_two_for(
+                Some(&path),
+                "/a",
+                "h4.A",
+                second,
+            )
+            .unwrap();
+            for i in 0..30u64 {
+                let t = Typed {
+                    force_n: i as f64,
+                    count: i,
+                };
+                rec.push(i, t);
+                if i % 3 == 0 {
+                    rec.push_second(
+                        i,
+                        Typed {
+                            force_n: 0.0,
+                            count: i,
+                        },
+                    );
+                }
+            }
+            assert_eq!(rec.dropped(), 0);
+            rec.finish().unwrap();
+            let counts = topic_counts(&path);
+            let want: std::collections::BTreeMap<String, usize> = match second {
+                Some(_) => [("/a".to_string(), 30), ("/b".to_string(), 10)].into(),
+                None => [("/a".to_string(), 30)].into(),
+            };
+            assert_eq!(counts, want, "{name}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     fn record() -> Vec<u8> {
         let mut rec = Recorder::in_memory().unwrap();
         let ch = rec
