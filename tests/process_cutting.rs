@@ -105,3 +105,47 @@ fn loopback_cuts_the_pocket_and_the_slave_judges_and_writes_the_part() {
     );
     assert!(last["turntable_rad"].as_f64().is_some(), "{last}");
 }
+
+/// The turntable in the real processes: `cut-profile.toml` cuts a ring contour round the
+/// turning part in aluminium (the turntable-synchronous fixture turns the part, the operator
+/// guides radius and depth): the target, surface error p99 ≤ 0.3 mm, on the slave
+/// process's own judgement, the part's volume, and the table's angle in `/slave/cut` (a
+/// revolution and a quarter, ≈ 8.5 rad, measured and commanded).
+#[test]
+fn loopback_cuts_the_profile_on_the_turning_part() {
+    let _g = serial();
+    let scratch = Scratch::new("process-cutting-profile-files");
+    let rec = scratch.path("profile.mcap");
+    let mut args = s(&["--config", "config/sessions/cut-profile.toml"]);
+    args.push("--record".into());
+    args.push(rec.display().to_string());
+    let (v, log) = loopback_summary("process-cutting-profile", &args, 120.0);
+    assert_eq!(v["stable"], true, "{v:#}");
+    assert!(
+        f(&v, "max_force_n") <= f(&v["slave"], "force_limit_n"),
+        "{v:#}"
+    );
+    // The ring: 484 mm³ in the simulation.
+    let removed = f(&v, "removed_volume_mm3");
+    assert!(
+        (removed - 484.0).abs() < 0.1 * 484.0,
+        "removed {removed} mm³\n{v:#}\n{log}"
+    );
+    assert!(f(&v, "surface_error_p99_mm") <= 0.3, "{v:#}");
+    assert!(f(&v, "gouge_max_mm") <= 0.05, "{v:#}");
+    assert_eq!(u(&v, "spindle_stalls"), 0, "{v:#}");
+    let bytes = std::fs::read(&rec).unwrap();
+    let mut last: Option<serde_json::Value> = None;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/slave/cut" {
+            last = Some(serde_json::from_slice(&m.data).unwrap());
+        }
+    }
+    let last = last.unwrap();
+    let (table, cmd) = (
+        last["turntable_rad"].as_f64().unwrap(),
+        last["turntable_cmd_rad"].as_f64().unwrap(),
+    );
+    assert!(table > 7.0 && (table - cmd).abs() < 0.05, "{last}");
+}
