@@ -13,8 +13,6 @@ use std::path::PathBuf;
 
 use h4_shared::passivity::PassivityParams;
 use h4_shared::recording::BackgroundRecorder;
-
-use crate::plant::cutting::judge::{CutEvaluator, CutSummary};
 use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_transport::Link;
@@ -24,7 +22,8 @@ use serde::{Deserialize, Serialize};
 use crate::controller::Status;
 use crate::experiment::ExperimentConfig;
 use crate::plant::SimError;
-use crate::teleop::{SlaveTeleop, TeleopError, TeleopParams};
+use crate::plant::cutting::judge::{CutEvaluator, CutSummary};
+use crate::teleop::{CutCycle, SlaveTeleop, TeleopCounters, TeleopError, TeleopParams};
 
 /// How the loop runs.
 #[derive(Clone, Debug)]
@@ -139,7 +138,7 @@ pub struct SlaveRunSummary {
 
 impl SlaveRunSummary {
     /// Books the endpoint's counters and its receive gate's.
-    fn book_endpoint(&mut self, k: &crate::teleop::TeleopCounters, gate: &GateCounters) {
+    fn book_endpoint(&mut self, k: &TeleopCounters, gate: &GateCounters) {
         self.commands_rejected_by_controller = k.commands_rejected_by_controller;
         self.link_errors = k.link_errors;
         self.safe_stops = k.safe_stops;
@@ -243,7 +242,7 @@ struct CycleRecord {
 }
 
 /// The slave's recording: `/slave/cycle` and, when the arm cuts, `/slave/cut`.
-type SlaveRecorder = BackgroundRecorder<CycleRecord, crate::teleop::CutCycle>;
+type SlaveRecorder = BackgroundRecorder<CycleRecord, CutCycle>;
 
 /// The most steady-feed samples a cutting run keeps for `cutting_force_dev_p99_pct` (one a
 /// cycle: the first 10 minutes of steady feed; 4.8 MB allocated before the loop).
@@ -294,7 +293,7 @@ pub fn run<L: Link<Feedback, Command>>(
     );
     // The cut, when the arm cuts a workpiece (the arm file's `[cutting]`).
     let mut live_cut = match teleop.cut_cycle() {
-        Some(_) => h4_shared::live::topic_or_off::<crate::teleop::CutCycle>(
+        Some(_) => h4_shared::live::topic_or_off::<CutCycle>(
             live_server.as_ref(),
             "/slave/cut",
             "h4.CutCycle",

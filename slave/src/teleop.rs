@@ -35,6 +35,8 @@ use serde::Serialize;
 
 use crate::arm::ArmDriver;
 use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
+use crate::plant::cutting::export::ExportError;
+use crate::plant::cutting::judge::{CutEvaluator, CutSample, CutSummary, CutTarget, write_outputs};
 
 /// Settings of the endpoint.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -991,12 +993,12 @@ pub struct CutCycle {
 
 impl SlaveTeleop<crate::plant::SimArm> {
     /// The evidence of the cut in cycle `c`, for a
-    /// [`CutEvaluator`](crate::plant::cutting::judge::CutEvaluator) (None when the arm does
+    /// [`CutEvaluator`] (None when the arm does
     /// not cut).
-    pub fn cut_sample(&self, c: &TeleopCycle) -> Option<crate::plant::cutting::judge::CutSample> {
+    pub fn cut_sample(&self, c: &TeleopCycle) -> Option<CutSample> {
         let cut = self.arm.cut()?;
         let p = self.arm.true_pose();
-        Some(crate::plant::cutting::judge::CutSample {
+        Some(CutSample {
             report: cut.report(),
             tip_mm: cut.to_workpiece([p[0], p[1], p[2]]),
             in_contact: c.out.status == Status::Contact,
@@ -1011,19 +1013,16 @@ impl SlaveTeleop<crate::plant::SimArm> {
     /// cut.
     pub fn finish_cut(
         &self,
-        ev: crate::plant::cutting::judge::CutEvaluator,
-        target: Option<&crate::plant::cutting::judge::CutTarget>,
+        ev: CutEvaluator,
+        target: Option<&CutTarget>,
         floor_z_mm: Option<f64>,
         out_dir: Option<&std::path::Path>,
-    ) -> Result<
-        Option<crate::plant::cutting::judge::CutSummary>,
-        crate::plant::cutting::export::ExportError,
-    > {
+    ) -> Result<Option<CutSummary>, ExportError> {
         let Some(cut) = self.arm.cut() else {
             return Ok(None);
         };
         if let Some(dir) = out_dir {
-            crate::plant::cutting::judge::write_outputs(dir, cut.stock(), cut.tool(), target)?;
+            write_outputs(dir, cut.stock(), cut.tool(), target)?;
         }
         Ok(Some(ev.finish(
             cut.stock(),
