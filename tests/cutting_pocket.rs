@@ -130,15 +130,7 @@ fn the_part_files_and_the_recording_carry_the_cut() {
     let s = session::run_with_outputs(&cfg, Some(&mut rec), Some(&dir)).unwrap();
     let bytes = rec.finish_into_bytes().unwrap();
     h4_tests::check_cut_outputs(&dir);
-    let mut last: Option<serde_json::Value> = None;
-    let mut count = 0;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        if m.channel.topic == "/slave/cut" {
-            count += 1;
-            last = Some(serde_json::from_slice(&m.data).unwrap());
-        }
-    }
+    let (count, last) = h4_tests::cut_records(&bytes);
     assert_eq!(count, 6000);
     let last = last.unwrap();
     let removed = last["removed_mm3"].as_f64().unwrap();

@@ -85,14 +85,7 @@ fn the_profile_session_cuts_the_ring_and_writes_the_part() {
     );
     h4_tests::check_cut_outputs(&dir);
     let bytes = rec.finish_into_bytes().unwrap();
-    let mut last: Option<serde_json::Value> = None;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        if m.channel.topic == "/slave/cut" {
-            last = Some(serde_json::from_slice(&m.data).unwrap());
-        }
-    }
-    let last = last.unwrap();
+    let last = h4_tests::cut_records(&bytes).1.unwrap();
     let angle = last["turntable_rad"].as_f64().unwrap();
     let cmd = last["turntable_cmd_rad"].as_f64().unwrap();
     // 17 s at 0.5 rad/s after a 0.25 s ramp (the safe stop never held it).

@@ -78,17 +78,8 @@ fn loopback_cuts_the_pocket_and_the_slave_judges_and_writes_the_part() {
     h4_tests::check_cut_outputs(&out);
     // The recording: one `/slave/cut` record per slave cycle, the last one's removed volume
     // the summary's (the shutdown's cycles included: the tool retracts, nothing more is cut).
-    let bytes = std::fs::read(&rec).unwrap();
-    let mut cut_records = 0_u64;
-    let mut last: Option<serde_json::Value> = None;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        if m.channel.topic == "/slave/cut" {
-            assert_eq!(m.channel.schema.as_ref().unwrap().name, "h4.CutCycle");
-            cut_records += 1;
-            last = Some(serde_json::from_slice(&m.data).unwrap());
-        }
-    }
+    let (cut_records, last) = h4_tests::cut_records(&std::fs::read(&rec).unwrap());
+    let cut_records = cut_records as u64;
     // (`cycles` counts the shutdown's cycles too.)
     let slave_cycles = u(&v["slave"], "cycles");
     assert!(
@@ -134,15 +125,9 @@ fn loopback_cuts_the_profile_on_the_turning_part() {
     assert!(f(&v, "surface_error_p99_mm") <= 0.3, "{v:#}");
     assert!(f(&v, "gouge_max_mm") <= 0.05, "{v:#}");
     assert_eq!(u(&v, "spindle_stalls"), 0, "{v:#}");
-    let bytes = std::fs::read(&rec).unwrap();
-    let mut last: Option<serde_json::Value> = None;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        if m.channel.topic == "/slave/cut" {
-            last = Some(serde_json::from_slice(&m.data).unwrap());
-        }
-    }
-    let last = last.unwrap();
+    let last = h4_tests::cut_records(&std::fs::read(&rec).unwrap())
+        .1
+        .unwrap();
     let (table, cmd) = (
         last["turntable_rad"].as_f64().unwrap(),
         last["turntable_cmd_rad"].as_f64().unwrap(),

@@ -32,6 +32,25 @@ pub fn max_while_cutting(
     worst
 }
 
+/// The `/slave/cut` records of an MCAP recording (`h4.CutCycle`): how many, and the last one
+/// decoded (None: none).
+pub fn cut_records(mcap_bytes: &[u8]) -> (usize, Option<serde_json::Value>) {
+    let mut count = 0;
+    let mut last = None;
+    let stream = mcap::MessageStream::new(mcap_bytes).unwrap_or_else(|e| panic!("MCAP: {e}"));
+    for m in stream {
+        let m = m.unwrap_or_else(|e| panic!("MCAP message: {e}"));
+        if m.channel.topic == "/slave/cut" {
+            let schema = m.channel.schema.as_ref().map(|s| s.name.as_str());
+            assert_eq!(schema, Some("h4.CutCycle"));
+            count += 1;
+            let record = serde_json::from_slice(&m.data);
+            last = Some(record.unwrap_or_else(|e| panic!("/slave/cut record: {e}")));
+        }
+    }
+    (count, last)
+}
+
 /// Checks the files `h4-master sim --out DIR` writes for a cutting session (`height.png`,
 /// `deviation.png`: PNG; `part.stl`: a binary STL whose length matches its triangle count)
 /// and removes `dir`.
