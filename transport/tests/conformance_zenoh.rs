@@ -10,7 +10,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use ::zenoh::Wait;
-use common::suite::{Transport, WATCHDOG, command, connect, recv_until};
+use common::suite::{Transport, WATCHDOG, command, connect, deliver, deliver_to};
 use h4_shared::wire::{Command, WireMessage};
 use h4_transport::Link;
 use h4_transport::zenoh::{MasterZenohLink, SlaveZenohLink, ZenohConfig, ZenohMode, key_expr};
@@ -133,21 +133,25 @@ fn undecodable_payloads_are_counted_never_delivered() {
     version[2..4].copy_from_slice(&99u16.to_le_bytes());
     let short = good[..good.len() - 1].to_vec();
     let garbage = vec![0xA5u8; Command::WIRE_SIZE];
+    // One at a time, each refused before the next (see `deliver`).
     for bad in [nan, version, short, garbage] {
-        publisher.put(bad).wait().unwrap();
-    }
-    publisher.put(good).wait().unwrap();
-    let got = recv_until(&mut slave, "the valid command", |c| c.seq == 50);
-    assert_eq!(got, command(3, 50));
-    let deadline = Instant::now() + WATCHDOG;
-    while slave.undecodable() < 4 {
-        assert!(
-            Instant::now() < deadline,
-            "watchdog: {}",
-            slave.undecodable()
+        let before = slave.undecodable();
+        deliver(
+            "a bad payload",
+            || publisher.put(bad.clone()).wait().unwrap(),
+            || {
+                assert_eq!(slave.try_recv().unwrap(), None, "a bad payload delivered");
+                slave.undecodable() > before
+            },
         );
-        std::thread::sleep(Duration::from_millis(1));
     }
+    let got = deliver_to(
+        "the valid command",
+        || publisher.put(good.clone()).wait().unwrap(),
+        &mut slave,
+        |c| c.seq == 50,
+    );
+    assert_eq!(got, command(3, 50));
     assert_eq!(slave.undecodable(), 4);
     let by_reason = slave.decode_rejects();
     assert_eq!((by_reason.undecodable, by_reason.wrong_version), (3, 1));
@@ -165,8 +169,12 @@ fn client_mode_end_talks_to_a_listening_peer() {
     };
     let mut master = MasterZenohLink::open(5, &client).unwrap();
     connect(&mut master, &mut slave, 5);
-    master.publish(&command(5, 77)).unwrap();
-    let got = recv_until(&mut slave, "command 77", |c| c.seq == 77);
+    let got = deliver_to(
+        "command 77",
+        || master.publish(&command(5, 77)).unwrap(),
+        &mut slave,
+        |c| c.seq == 77,
+    );
     assert_eq!(got, command(5, 77));
 }
 
