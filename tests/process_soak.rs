@@ -4,13 +4,15 @@
 //! open file descriptors and shared-memory mappings constant after the first 10 s; deadline
 //! misses of both loops inside host stalls but for at most 1 in 10 000 cycles
 //! (`deadline_misses_outside_stalls`: a miss after a cycle that used a whole period of the loop
-//! thread's CPU; see the test for why not 0 on this VM).
+//! thread's CPU; see the test for why not 0 on this VM). `H4_SOAK_WITNESS_US=1000` also runs
+//! an outside witness of host stalls (`h4_tests::stalls`) and reports which misses it explains.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::time::{Duration, Instant};
 
 use h4_tests::procs::*;
+use h4_tests::stalls::StallWitness;
 
 /// Growth of resident memory allowed after the warm-up, KiB.
 const MAX_RSS_GROWTH_KIB: u64 = 1024;
@@ -101,6 +103,11 @@ fn a_long_loopback_keeps_memory_descriptors_and_deadlines() {
     let rec = scratch.path("soak.mcap");
     let (sp, rp) = (summary.display().to_string(), rec.display().to_string());
     let args = loopback_args(&soak_s.to_string(), &["--summary", &sp, "--record", &rp]);
+    // The stall witness only on request: it costs the loops deadlines (tests/src/stalls.rs).
+    let witness = std::env::var("H4_SOAK_WITNESS_US")
+        .ok()
+        .and_then(|us| us.parse().ok())
+        .map(|us| StallWitness::start(Duration::from_micros(us)));
     let mut lb = Running::spawn("loopback", master, &args, &scratch);
     let slave = KillOnDrop(child_of(lb.pid(), 30.0));
     let start = Instant::now();
@@ -118,6 +125,7 @@ fn a_long_loopback_keeps_memory_descriptors_and_deadlines() {
         std::thread::sleep(Duration::from_secs(1));
     }
     let _ = lb.wait_status(120.0);
+    let stalls = witness.map(StallWitness::stop);
     // The last second may catch the stop (recording merged, summaries written).
     ms.pop();
     ss.pop();
@@ -152,4 +160,35 @@ fn a_long_loopback_keeps_memory_descriptors_and_deadlines() {
         );
     }
     assert!(u(&v, "cycles") as f64 > 0.9 * soak_s * 1000.0, "{v:#}");
+    for who in ["master", "slave"] {
+        let spans = miss_spans(&v[who]);
+        assert!(
+            spans.len() as u64 <= u(&v[who], "deadline_misses"),
+            "{who}: more miss spans than misses: {v:#}"
+        );
+        assert!(
+            spans.iter().all(|s| s[1] >= s[0] + 1_000_000),
+            "{who}: a miss span shorter than a period: {spans:?}"
+        );
+        let Some(stalls) = &stalls else { continue };
+        let unexplained = stalls.unexplained(&spans);
+        eprintln!(
+            "soak {who}: {} misses, {} unexplained by the {} stalls the witness saw (longest {:.1} ms, trustworthy {}): {unexplained:?}",
+            spans.len(),
+            unexplained.len(),
+            stalls.count(),
+            stalls.longest_ms(),
+            stalls.trustworthy()
+        );
+    }
+}
+
+/// A process summary's `deadline_miss_spans_ns`.
+fn miss_spans(v: &serde_json::Value) -> Vec<[u64; 2]> {
+    v["deadline_miss_spans_ns"]
+        .as_array()
+        .expect("deadline_miss_spans_ns")
+        .iter()
+        .map(|p| [p[0].as_u64().expect("ns"), p[1].as_u64().expect("ns")])
+        .collect()
 }

@@ -159,6 +159,31 @@ pub struct Pacer {
     pub max_body_cpu_ns: u64,
     /// The loop thread's CPU time at the last wake-up, ns.
     woke_cpu_ns: u64,
+    /// When each of the first [`MISS_SPANS_MAX`] misses happened, on `CLOCK_MONOTONIC`:
+    /// `[deadline_ns, woke_ns]` (the stretch the loop should have run but did not), so that
+    /// an outside witness of host stalls can be matched against them.
+    miss_spans_ns: [[u64; 2]; MISS_SPANS_MAX],
+    miss_spans_len: usize,
+    /// `CLOCK_MONOTONIC` at `origin`, ns: turns an `Instant` into a system-wide time.
+    origin_mono_ns: u64,
+    origin: Instant,
+}
+
+/// Misses whose times a [`Pacer`] keeps (the later ones are only counted).
+pub const MISS_SPANS_MAX: usize = 256;
+
+/// `CLOCK_MONOTONIC` now, ns: the same clock in every process of the host (what `Instant`
+/// reads on Linux), so times from two processes and a test can be compared.
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointer to a live timespec; the clock id is a constant.
+    if unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) } != 0 {
+        return 0;
+    }
+    u64::try_from(ts.tv_sec).unwrap_or(0) * 1_000_000_000 + u64::try_from(ts.tv_nsec).unwrap_or(0)
 }
 
 /// CPU time the calling thread has used, ns (0 if unknown).
@@ -192,7 +217,24 @@ impl Pacer {
             misses_outside_stalls: 0,
             max_body_cpu_ns: 0,
             woke_cpu_ns: thread_cpu_ns(),
+            miss_spans_ns: [[0; 2]; MISS_SPANS_MAX],
+            miss_spans_len: 0,
+            origin_mono_ns: monotonic_ns(),
+            origin: Instant::now(),
         }
+    }
+
+    /// `t` on `CLOCK_MONOTONIC`, ns.
+    fn mono_ns(&self, t: Instant) -> u64 {
+        let since = t.saturating_duration_since(self.origin).as_nanos();
+        self.origin_mono_ns
+            .saturating_add(u64::try_from(since).unwrap_or(u64::MAX))
+    }
+
+    /// The times of the first [`MISS_SPANS_MAX`] misses, `[deadline_ns, woke_ns]` on
+    /// `CLOCK_MONOTONIC` ([`monotonic_ns`]).
+    pub fn miss_spans_ns(&self) -> &[[u64; 2]] {
+        &self.miss_spans_ns[..self.miss_spans_len]
     }
 
     /// The period.
@@ -224,6 +266,10 @@ impl Pacer {
         if missed > 0 && body_cpu_ns >= period_ns {
             self.misses_outside_stalls += missed;
         }
+        if missed > 0 && self.miss_spans_len < MISS_SPANS_MAX {
+            self.miss_spans_ns[self.miss_spans_len] = [self.mono_ns(deadline), self.mono_ns(woke)];
+            self.miss_spans_len += 1;
+        }
         self.max_body_cpu_ns = self.max_body_cpu_ns.max(body_cpu_ns);
         self.woke_cpu_ns = thread_cpu_ns();
         self.lateness.record(late_ns);
@@ -242,7 +288,7 @@ impl Pacer {
 /// What a process's 1 kHz loop reports when it stops: its timing and its cost. Both process
 /// summaries (`h4-slave run`, `h4-master run`) carry it flattened, so the JSON fields are the
 /// same in both.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct LoopReport {
     /// Loop cycles run.
@@ -253,6 +299,10 @@ pub struct LoopReport {
     /// thread's CPU time (the loop's own work alone overran); the rest happened while the host
     /// or the scheduler did not run the loop thread (its work would have fitted).
     pub deadline_misses_outside_stalls: u64,
+    /// When the misses happened (the first 256): `[deadline_ns, woke_ns]` on the host's
+    /// `CLOCK_MONOTONIC`, the stretch the loop should have run and did not; an outside
+    /// witness of host stalls (a test's high-priority sentinel threads) is matched against it.
+    pub deadline_miss_spans_ns: Vec<[u64; 2]>,
     /// Largest CPU time of the loop thread in one cycle's body (the per-cycle work, without
     /// the pacer's wait), µs.
     pub max_cycle_cpu_us: f64,
@@ -283,6 +333,7 @@ impl LoopReport {
             cycles,
             deadline_misses: pacer.misses,
             deadline_misses_outside_stalls: pacer.misses_outside_stalls,
+            deadline_miss_spans_ns: pacer.miss_spans_ns().to_vec(),
             max_cycle_cpu_us: us(pacer.max_body_cpu_ns),
             lateness_p50_us: us(h.quantile(0.5)),
             lateness_p99_us: us(h.quantile(0.99)),
@@ -790,5 +841,21 @@ mod tests {
         assert_eq!(p.misses, late.missed + first.missed);
         let next = p.wait();
         assert_eq!(next.cycle, late.cycle + late.missed + 1);
+        // Each miss's span is on the host's monotonic clock, a whole period or more long,
+        // and inside the time the test ran.
+        let before = monotonic_ns();
+        let spans = p.miss_spans_ns().to_vec();
+        assert_eq!(
+            spans.len() as u64,
+            u64::from(first.missed > 0) + 1 + u64::from(next.missed > 0)
+        );
+        let span = spans[usize::from(first.missed > 0)];
+        assert!(span[1] >= span[0] + late.missed * 1_000_000, "{spans:?}");
+        assert!(
+            span[1] <= before && span[0] + 10_000_000_000 > before,
+            "{spans:?} at {before}"
+        );
+        let report = LoopReport::new(3, &p, 0.01);
+        assert_eq!(report.deadline_miss_spans_ns, spans);
     }
 }

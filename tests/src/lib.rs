@@ -8,6 +8,7 @@ pub mod procs;
 pub mod record;
 pub mod relay;
 pub mod remote_procs;
+pub mod stalls;
 
 pub mod bins;
 
