@@ -5,7 +5,7 @@
 //!
 //! `h4-master matrix` runs it as a command (progress, tables, a heat map per wall);
 //! `tests/delay_matrix.rs` asserts on it. Both build their cells with [`Case`] and run them
-//! with [`run_all`].
+//! with [`Matrix::run_all`].
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

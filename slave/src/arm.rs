@@ -8,7 +8,7 @@ use serde::Serialize;
 /// One reading of the arm's sensors.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct ArmReading {
-    /// Time of the reading, ns (the simulated clock for [`SimArm`]).
+    /// Time of the reading, ns (the simulated clock for [`SimArm`](crate::plant::SimArm)).
     pub time_ns: u64,
     /// Actuator positions from the encoders, mm (carriage positions: they do not see the
     /// structure's deflection).

@@ -901,7 +901,7 @@ pub fn report(recording: &Path, opts: &ReportOptions) -> Result<ReportOutput, Re
 pub struct ReportArgs {
     /// The recording (MCAP) of an experiment, a session or the processes.
     pub recording: PathBuf,
-    /// Output folder [default: `<recording>-report` beside the recording].
+    /// Output folder (default: `<recording>-report` beside the recording).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Half-width of the band drawn around the force set-point, N.

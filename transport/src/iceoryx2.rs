@@ -136,7 +136,7 @@ where
 
 /// Publishers per service: one master publishes commands, one slave feedback. A second
 /// process of the same kind on the same prefix and arm is refused when it creates its
-/// publisher (monitors only subscribe: [`monitor`]).
+/// publisher (monitors only subscribe: [`feedback_monitor`]).
 pub const MAX_PUBLISHERS: usize = 1;
 
 static QUIET: Once = Once::new();

@@ -27,17 +27,17 @@
 //! One [`SlaveController::step`] is the sequence of the controller's concerns, each a module
 //! with its own state:
 //! 1. the inputs are checked, the encoders' forward kinematics taken; the first cycles tare
-//!    the force sensor ([`tare`]);
-//! 2. this cycle's measurements: the arm's compliance at the measured pose ([`arm_model`]),
-//!    the filtered position and force pushed into the motion window ([`window`]);
-//! 3. a safe stop overrides the command ([`safe_stop`]); the command is checked against
-//!    the limits ([`guards`]);
-//! 4. Hold holds, Position follows the trajectory ([`position`]), ForceGuided approaches
-//!    and touches ([`contact`]), then in contact: the contact normal ([`normal`]), the
-//!    tracking direction ([`tracking`]), the gain schedule ([`gain_schedule`]), the
-//!    set-point prefilter and the environment-stiffness estimate ([`estimator`]), the
-//!    deflection compensation ([`deflection`]), the force law ([`force_law`]) with the
-//!    oscillation guard, the input shaping of the motion into the surface ([`shaping`]),
+//!    the force sensor (`tare`);
+//! 2. this cycle's measurements: the arm's compliance at the measured pose (`arm_model`),
+//!    the filtered position and force pushed into the motion window (`window`);
+//! 3. a safe stop overrides the command (`safe_stop`); the command is checked against
+//!    the limits (`guards`);
+//! 4. Hold holds, Position follows the trajectory (`position`), ForceGuided approaches
+//!    and touches (`contact`), then in contact: the contact normal (`normal`), the
+//!    tracking direction (`tracking`), the gain schedule (`gain_schedule`), the
+//!    set-point prefilter and the environment-stiffness estimate (`estimator`), the
+//!    deflection compensation (`deflection`), the force law (`force_law`) with the
+//!    oscillation guard, the input shaping of the motion into the surface (`shaping`),
 //!    the motion along the surface, the force guards, the contact loss;
 //! 5. the next commanded pose is checked against the workspace and committed.
 

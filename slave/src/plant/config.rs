@@ -10,7 +10,7 @@ pub struct PlantConfig {
     /// Plant actuator stiffness = the controller's assumed stiffness × this (0.1 to 10).
     pub stiffness_scale: f64,
     /// Extra relative deviation of each actuator's stiffness (−0.5 to 0.5): actuator i has
-    /// assumed_i × stiffness_scale × (1 + stiffness_spread[i]).
+    /// assumed_i × stiffness_scale × (1 + stiffness_spread\[i\]).
     pub stiffness_spread: [f64; 4],
     /// Damping ratio of each actuator's structural spring (0 to 1).
     pub structural_damping_ratio: f64,

@@ -5,19 +5,19 @@
 //! four actuator position commands; so does the simulation. What the simulation models
 //! (every number and its reasoning is in `docs/slave-simulation.md`):
 //!
-//! * four prismatic carriages ([`servo`]), each with mass, Coulomb and viscous friction and a saturated
+//! * four prismatic carriages (`servo`), each with mass, Coulomb and viscous friction and a saturated
 //!   motor force, under a 20 kHz PID position servo whose set-point is the 1 ms command;
 //! * a finite structural stiffness (and a little damping) between each carriage and the
 //!   platform, so the platform sits at `FK(q + f/k)`, deflecting under load as `Λ(x) F`
-//!   predicts; the platform with its tool has mass and rotational inertia ([`kernel`]);
-//! * penetration-based contact with an unknown [`Surface`] ([`surface`]) (plane, cylinder or sphere;
+//!   predicts; the platform with its tool has mass and rotational inertia (`kernel`);
+//! * penetration-based contact with an unknown [`Surface`] (`surface`) (plane, cylinder or sphere;
 //!   Kelvin–Voigt spring–damper with regularised Coulomb friction);
 //! * a six-axis force/torque sensor between the platform and the tool, reporting
 //!   `[Fx, Fy, Fz, My]` in its own frame (which turns with θ about y): the contact wrench
 //!   plus the payload's weight and inertia (`payload_mass_kg` at `payload_com_mm`, gravity
 //!   `gravity_mm_per_s2` along the machine's vertical axis, the platform's acceleration
 //!   over each sample period), with Gaussian noise, a drifting bias, quantisation and a
-//!   second-order Butterworth low-pass filter ([`sensor`]);
+//!   second-order Butterworth low-pass filter (`sensor`);
 //! * a read-to-command latency: a command takes effect `command_latency_s` after it is
 //!   written (one 1 ms period by default, as in the paper's dSpace loop).
 //!

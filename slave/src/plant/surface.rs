@@ -81,7 +81,7 @@ pub enum SurfaceShape {
     },
 }
 
-/// A body the tool can touch: shape and material. [`SimArm::set_surface`] swaps it at
+/// A body the tool can touch: shape and material. [`SimArm::set_surface`](crate::plant::SimArm::set_surface) swaps it at
 /// run time.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Surface {

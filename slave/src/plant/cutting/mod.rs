@@ -1,11 +1,11 @@
 //! Cutting: a workpiece that is really cut.
 //!
-//! * [`stock`]: the block as a height field, lowered where the tool's swept volume goes below
+//! * `stock`: the block as a height field, lowered where the tool's swept volume goes below
 //!   it ([`Stock::sweep`], once per 1 ms update, along the tool tip's path since the last);
-//! * [`tool`]: ball-end and flat end mills;
-//! * [`mechanics`]: the mechanistic cutting force on the tool's envelope elements that touch
+//! * `tool`: ball-end and flat end mills;
+//! * `mechanics`: the mechanistic cutting force on the tool's envelope elements that touch
 //!   the stock, rippling as the teeth pass;
-//! * [`turntable`]: the rotary table the workpiece turns on, with its own servo; the stock
+//! * `turntable`: the rotary table the workpiece turns on, with its own servo; the stock
 //!   lives in the workpiece frame, which turns with the table's true angle.
 //!
 //! [`CutState`] ties them to the simulated arm: every millisecond it sweeps the stock along
@@ -253,7 +253,7 @@ impl CutState {
     /// The 1 ms update: sweeps the stock along the tip's path since the last update (the
     /// spindle turning), measures the removal rate and the spindle's torque, stalls the
     /// spindle if the cut needs more than it has (it restarts once the tool is
-    /// [`RESTART_CLEARANCE_MM`] clear of the stock), and gathers the engagement at `tip_mm`
+    /// `RESTART_CLEARANCE_MM` clear of the stock), and gathers the engagement at `tip_mm`
     /// (base frame; the cut works with it in the workpiece frame). Allocates nothing.
     pub fn update(&mut self, tip_base_mm: [f64; 3]) {
         let tip_mm = self.to_workpiece(tip_base_mm);

@@ -159,7 +159,7 @@ impl Stock {
     /// straight line from `from_tip_mm` (swept by the previous call) to `to_tip_mm`
     /// (workpiece frame), never below the block's bottom; returns the volume removed, mm³.
     /// Samples the segment at most half a cell apart after its start (at most
-    /// [`SWEEP_SAMPLES_MAX`] samples). Allocates nothing.
+    /// `SWEEP_SAMPLES_MAX` samples). Allocates nothing.
     pub fn sweep(&mut self, tool: &Tool, from_tip_mm: [f64; 3], to_tip_mm: [f64; 3]) -> f64 {
         let d = [
             to_tip_mm[0] - from_tip_mm[0],
