@@ -8,8 +8,9 @@
 //! must then stay paired through the slow stretch (late but steady commands) and through the
 //! return to normal (the relay keeps order: no gap there). Flapping would be a trip every
 //! time the late stream hiccups. Allowed: that one trip at the onset plus one for a host
-//! stall (this VM stalls for 3–66 ms a few times a minute); the trip when the run ends is
-//! not counted.
+//! stall (this VM stalls for 3–66 ms a few times a minute); the trip when the run ends and
+//! the episodes of a loaded start-up before the slow stretch (CI, 2026-12-03: the first
+//! commands stalled 0.6 s twice in three runs) are not counted.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -45,7 +46,12 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
         master_args,
     };
     let mut pair = Pair::start_on(&hosts, &spec, &scratch).unwrap();
+    let started = std::time::Instant::now();
     std::thread::sleep(Duration::from_millis(2000));
+    // When the slow stretch starts on the slave's clock, at the latest (the slave's clock
+    // started before `start_on` returned): a re-paired episode that began before it is the
+    // start-up's, not the slow link's.
+    let slow_from_s = started.elapsed().as_secs_f64() - 0.2;
     relay.set(ImpairmentConfig {
         delay_ms: 300.0,
         ..ImpairmentConfig::default()
@@ -64,7 +70,11 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
     assert!(m.round_trip_max_us >= 600_000.0, "{m:#?}");
     let cycles = record::slave_cycles(&pair.slave_record).unwrap();
     let episodes = record::safe_episodes(&cycles);
-    let during: Vec<_> = episodes.iter().filter(|e| e.repaired_s.is_some()).collect();
+    let repaired: Vec<_> = episodes.iter().filter(|e| e.repaired_s.is_some()).collect();
+    let during: Vec<_> = repaired
+        .iter()
+        .filter(|e| e.entry_s >= slow_from_s)
+        .collect();
     println!(
         "safe stops {}, repairs {}, safe-state episodes that re-paired: {during:#?}\nall: {episodes:#?}\nmaster: {m:#?}",
         s.safe_stops, s.repairs
@@ -80,9 +90,9 @@ fn a_link_300_ms_late_for_5_s_neither_flaps_nor_generates_energy() {
     // 0.6 s (a safe stop before the slow stretch, re-paired at once), the onset tripped
     // once, and the master counted 3 fade-outs against the former fixed bound of 2.
     assert!(
-        m.feedback_losses <= during.len() as u64 + 1,
+        m.feedback_losses <= repaired.len() as u64 + 1,
         "{} fade-outs for {} safe-state episodes: {m:#?}",
         m.feedback_losses,
-        during.len()
+        repaired.len()
     );
 }
