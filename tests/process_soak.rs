@@ -2,7 +2,7 @@
 //! documented 10-minute run is `H4_SOAK_S=600`), recording. Sampled once a second from
 //! outside, for both processes: resident memory flat (≤ 1 MiB growth after the first 10 s),
 //! open file descriptors and shared-memory mappings constant after the first 10 s; deadline
-//! misses of both loops inside host stalls but for at most 1 in 10 000 cycles
+//! misses of both loops inside host stalls but for at most 1 in 1 000 cycles
 //! (`deadline_misses_outside_stalls`: a miss after a cycle that used a whole period of the loop
 //! thread's CPU; see the test for why not 0 on this VM). `H4_SOAK_WITNESS_US=1000` also runs
 //! an outside witness of host stalls (`h4_tests::stalls`) and reports which misses it explains.
