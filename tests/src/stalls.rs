@@ -11,7 +11,7 @@
 //! the same clock, `deadline_miss_spans_ns`) is explained by a stall when a sentinel's gap
 //! covers it.
 //!
-//! Measured with it (docs/processes.md, "Deadline misses and host stalls"): the witness is
+//! Measured with it (docs/processes.md, "Soak", "An outside witness of the stalls"): it is
 //! not free. Woken every 250 µs the sentinels multiplied the loops' misses by ~18; every
 //! millisecond they see the stalls of ≥ 1.5 ms only, and 20 % of the loops' misses (mostly
 //! 1.0–1.5 ms late) fall outside those. So `tests/process_soak.rs` runs it only on request
