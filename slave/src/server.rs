@@ -79,6 +79,9 @@ impl Default for RunOptions {
     }
 }
 
+/// How many safe-stop start times a slave run's summary keeps.
+pub const SAFE_STOP_TIMES_MAX: usize = 64;
+
 /// What a slave run reports when it stops.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(default)]
@@ -103,6 +106,10 @@ pub struct SlaveRunSummary {
     /// The loop's lateness in that cycle, ms: the part of the entry silence that is the host
     /// not running the slave's loop.
     pub safe_stop_entry_lateness_ms: f64,
+    /// When the safe stops started (the first [`SAFE_STOP_TIMES_MAX`]), ns on the host's
+    /// `CLOCK_MONOTONIC`: the clock of both processes' `deadline_miss_spans_ns`, so a trip can
+    /// be matched against a stall of either loop.
+    pub safe_stop_times_ns: Vec<u64>,
     /// Times a master was paired after a safe stop.
     pub repairs: u64,
     /// Largest true contact force of the simulated arm, N.
@@ -317,6 +324,8 @@ pub fn run<L: Link<Feedback, Command>>(
         RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
     let mut s = SlaveRunSummary {
         force_limit_n: cfg.controller.force_limit_n,
+        // Allocated whole before the loop: recording a trip allocates nothing.
+        safe_stop_times_ns: Vec::with_capacity(SAFE_STOP_TIMES_MAX),
         realtime,
         ..SlaveRunSummary::default()
     };
@@ -332,6 +341,9 @@ pub fn run<L: Link<Feedback, Command>>(
         s.energy_min_j = s.energy_min_j.min(c.port.observed_j);
         state = c.state;
         if c.tripped {
+            if s.safe_stop_times_ns.len() < SAFE_STOP_TIMES_MAX {
+                s.safe_stop_times_ns.push(h4_shared::rt::monotonic_ns());
+            }
             // The trip whose silence most exceeds the loop's own lateness is the one reported.
             let silence_ms = teleop.silence_ns(now).unwrap_or(0) as f64 / 1e6;
             let lateness_ms = cx.tick.lateness_ns as f64 / 1e6;
