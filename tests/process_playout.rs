@@ -15,7 +15,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use h4_shared::rt::LoopReport;
 use h4_tests::procs::*;
+use h4_tests::stalls::{explains_trip, long_stalls};
 use serde_json::Value;
 
 fn loopback(tag: &str, playout: bool) -> Value {
@@ -45,23 +47,15 @@ const STALL_REACH_MS: f64 = 250.0;
 
 /// The slave's safe stops that no stall of either loop explains.
 fn trips_outside_stalls(v: &Value) -> Vec<u64> {
-    let spans: Vec<(u64, u64)> = ["master", "slave"]
-        .iter()
-        .flat_map(|side| v[side]["deadline_miss_spans_ns"].as_array().cloned())
-        .flatten()
-        .filter_map(|s| Some((s[0].as_u64()?, s[1].as_u64()?)))
-        .filter(|(a, b)| b.saturating_sub(*a) as f64 >= STALL_MS * 1e6)
-        .collect();
+    let report = |side: &str| serde_json::from_value::<LoopReport>(v[side].clone()).unwrap();
+    let (m, s) = (report("master"), report("slave"));
+    let stalls = long_stalls(None, &[&m, &s], STALL_MS);
     let times = v["slave"]["safe_stop_times_ns"].as_array().unwrap();
     assert_eq!(times.len() as u64, u(&v["slave"], "safe_stops"), "{v:#}");
     times
         .iter()
         .map(|t| t.as_u64().unwrap())
-        .filter(|&t| {
-            !spans
-                .iter()
-                .any(|&(a, b)| a <= t && t as f64 <= b as f64 + STALL_REACH_MS * 1e6)
-        })
+        .filter(|&t| !explains_trip(&stalls, t, STALL_REACH_MS))
         .collect()
 }
 

@@ -16,6 +16,7 @@ pub trait Clock {
 pub struct MonotonicClock {
     origin: Instant,
     origin_unix_ns: u64,
+    origin_monotonic_ns: u64,
 }
 
 impl MonotonicClock {
@@ -24,9 +25,13 @@ impl MonotonicClock {
         let origin_unix_ns = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
+        let origin = Instant::now();
+        // `Instant` reads CLOCK_MONOTONIC on Linux: the read right after it is the same
+        // origin within the call's cost.
         MonotonicClock {
-            origin: Instant::now(),
+            origin,
             origin_unix_ns,
+            origin_monotonic_ns: crate::rt::monotonic_ns(),
         }
     }
 
@@ -35,6 +40,12 @@ impl MonotonicClock {
     /// Later steps of the system clock do not affect it.
     pub fn unix_ns(&self, ns: u64) -> u64 {
         self.origin_unix_ns.saturating_add(ns)
+    }
+
+    /// The origin on the host's `CLOCK_MONOTONIC`, ns: the clock every process of the host
+    /// shares, so this clock's times can be matched with another process's.
+    pub fn origin_monotonic_ns(&self) -> u64 {
+        self.origin_monotonic_ns
     }
 
     /// The instant that is `ns` after the origin.

@@ -300,6 +300,10 @@ pub struct LoopReport {
     /// `CLOCK_MONOTONIC`, the stretch the loop should have run and did not; an outside
     /// witness of host stalls (a test's high-priority sentinel threads) is matched against it.
     pub deadline_miss_spans_ns: Vec<[u64; 2]>,
+    /// The loop clock's zero (the process's recordings' `time_ns` 0) on the host's
+    /// `CLOCK_MONOTONIC`, ns: a recorded cycle's time plus this is comparable with the spans
+    /// above and with the other process's.
+    pub clock_origin_monotonic_ns: u64,
     /// Largest CPU time of the loop thread in one cycle's body (the per-cycle work, without
     /// the pacer's wait), µs.
     pub max_cycle_cpu_us: f64,
@@ -337,6 +341,8 @@ impl LoopReport {
                 spans.extend_from_slice(pacer.miss_spans_ns());
                 spans
             },
+            // The pacer has no clock origin: `RtLoop::report` sets it.
+            clock_origin_monotonic_ns: 0,
             max_cycle_cpu_us: us(pacer.max_body_cpu_ns),
             lateness_p50_us: us(h.quantile(0.5)),
             lateness_p99_us: us(h.quantile(0.99)),
@@ -514,7 +520,10 @@ impl RtLoop {
     /// The loop's report now: cycles, misses, lateness, CPU and run time.
     pub fn report(&self) -> LoopReport {
         use crate::clock::Clock;
-        LoopReport::new(self.cycles, &self.pacer, self.clock.now_ns() as f64 / 1e9)
+        LoopReport {
+            clock_origin_monotonic_ns: self.clock.origin_monotonic_ns(),
+            ..LoopReport::new(self.cycles, &self.pacer, self.clock.now_ns() as f64 / 1e9)
+        }
     }
 }
 

@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use h4_shared::rt::monotonic_ns;
+use h4_shared::rt::{LoopReport, monotonic_ns};
 
 /// A gap between two wake-ups longer than the sentinel's period plus this is recorded as a
 /// stall, ns.
@@ -188,4 +188,28 @@ mod tests {
         assert_eq!(s.unexplained(&[[200 * ms, 202 * ms]]).len(), 1);
         assert!((s.longest_ms() - 10.0).abs() < 1e-9);
     }
+}
+
+/// The stalls at least `min_ms` long, `[from_ns, to_ns]` on `CLOCK_MONOTONIC`: the witness's
+/// gaps (any CPU; none without a witness) and the loops' own missed-deadline spans (a loop
+/// that did not run for that long is stalled, whoever froze it).
+pub fn long_stalls(witness: Option<&Stalls>, loops: &[&LoopReport], min_ms: f64) -> Vec<[u64; 2]> {
+    let min_ns = (min_ms * 1e6) as u64;
+    witness
+        .into_iter()
+        .flat_map(|w| w.sentinels.iter().flat_map(|s| s.gaps_ns.iter()))
+        .chain(loops.iter().flat_map(|l| l.deadline_miss_spans_ns.iter()))
+        .filter(|g| g[1].saturating_sub(g[0]) >= min_ns)
+        .copied()
+        .collect()
+}
+
+/// Whether a trip at `t_ns` (`CLOCK_MONOTONIC`) can be one of `stalls`' consequences: a stall
+/// began at or before it and ended at most `reach_ms` before it (the time a stall's silence
+/// takes to reach the tripping side: the link's delay and the watchdog).
+pub fn explains_trip(stalls: &[[u64; 2]], t_ns: u64, reach_ms: f64) -> bool {
+    let reach_ns = (reach_ms * 1e6) as u64;
+    stalls
+        .iter()
+        .any(|g| g[0] <= t_ns && t_ns <= g[1].saturating_add(reach_ns))
 }
