@@ -159,6 +159,30 @@ fn sentinel(cpu: usize, period: Duration, stop: &AtomicBool) -> Sentinel {
     }
 }
 
+/// The stalls at least `min_ms` long, `[from_ns, to_ns]` on `CLOCK_MONOTONIC`: the witness's
+/// gaps (any CPU; none without a witness) and the loops' own missed-deadline spans (a loop
+/// that did not run for that long is stalled, whoever froze it).
+pub fn long_stalls(witness: Option<&Stalls>, loops: &[&LoopReport], min_ms: f64) -> Vec<[u64; 2]> {
+    let min_ns = (min_ms * 1e6) as u64;
+    witness
+        .into_iter()
+        .flat_map(|w| w.sentinels.iter().flat_map(|s| s.gaps_ns.iter()))
+        .chain(loops.iter().flat_map(|l| l.deadline_miss_spans_ns.iter()))
+        .filter(|g| g[1].saturating_sub(g[0]) >= min_ns)
+        .copied()
+        .collect()
+}
+
+/// Whether a trip at `t_ns` (`CLOCK_MONOTONIC`) can be one of `stalls`' consequences: a stall
+/// began at or before it and ended at most `reach_ms` before it (the time a stall's silence
+/// takes to reach the tripping side: the link's delay and the watchdog).
+pub fn explains_trip(stalls: &[[u64; 2]], t_ns: u64, reach_ms: f64) -> bool {
+    let reach_ns = (reach_ms * 1e6) as u64;
+    stalls
+        .iter()
+        .any(|g| g[0] <= t_ns && t_ns <= g[1].saturating_add(reach_ns))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -188,28 +212,24 @@ mod tests {
         assert_eq!(s.unexplained(&[[200 * ms, 202 * ms]]).len(), 1);
         assert!((s.longest_ms() - 10.0).abs() < 1e-9);
     }
-}
 
-/// The stalls at least `min_ms` long, `[from_ns, to_ns]` on `CLOCK_MONOTONIC`: the witness's
-/// gaps (any CPU; none without a witness) and the loops' own missed-deadline spans (a loop
-/// that did not run for that long is stalled, whoever froze it).
-pub fn long_stalls(witness: Option<&Stalls>, loops: &[&LoopReport], min_ms: f64) -> Vec<[u64; 2]> {
-    let min_ns = (min_ms * 1e6) as u64;
-    witness
-        .into_iter()
-        .flat_map(|w| w.sentinels.iter().flat_map(|s| s.gaps_ns.iter()))
-        .chain(loops.iter().flat_map(|l| l.deadline_miss_spans_ns.iter()))
-        .filter(|g| g[1].saturating_sub(g[0]) >= min_ns)
-        .copied()
-        .collect()
-}
-
-/// Whether a trip at `t_ns` (`CLOCK_MONOTONIC`) can be one of `stalls`' consequences: a stall
-/// began at or before it and ended at most `reach_ms` before it (the time a stall's silence
-/// takes to reach the tripping side: the link's delay and the watchdog).
-pub fn explains_trip(stalls: &[[u64; 2]], t_ns: u64, reach_ms: f64) -> bool {
-    let reach_ns = (reach_ms * 1e6) as u64;
-    stalls
-        .iter()
-        .any(|g| g[0] <= t_ns && t_ns <= g[1].saturating_add(reach_ns))
+    #[test]
+    fn long_stalls_join_witness_and_loops_and_reach_a_later_trip() {
+        let ms = 1_000_000;
+        let w = stalls(&[[100 * ms, 103 * ms], [200 * ms, 212 * ms]]);
+        let l = LoopReport {
+            deadline_miss_spans_ns: vec![[300 * ms, 309 * ms], [400 * ms, 401 * ms]],
+            ..LoopReport::default()
+        };
+        let long = long_stalls(Some(&w), &[&l], 8.0);
+        assert_eq!(long, vec![[200 * ms, 212 * ms], [300 * ms, 309 * ms]]);
+        assert_eq!(long_stalls(None, &[&l], 8.0), vec![[300 * ms, 309 * ms]]);
+        // A trip during a stall or within the reach after it; not before it, not later.
+        assert!(explains_trip(&long, 205 * ms, 50.0));
+        assert!(explains_trip(&long, 262 * ms, 50.0));
+        assert!(!explains_trip(&long, 263 * ms, 50.0));
+        assert!(!explains_trip(&long, 199 * ms, 50.0));
+        // The short stall at 100 ms explains nothing.
+        assert!(!explains_trip(&long, 101 * ms, 50.0));
+    }
 }
