@@ -341,17 +341,9 @@ pub fn run<L: Link<Feedback, Command>>(
         s.energy_min_j = s.energy_min_j.min(c.port.observed_j);
         state = c.state;
         if c.tripped {
-            if s.safe_stop_times_ns.len() < SAFE_STOP_TIMES_MAX {
-                s.safe_stop_times_ns.push(h4_shared::rt::monotonic_ns());
-            }
-            // The trip whose silence most exceeds the loop's own lateness is the one reported.
             let silence_ms = teleop.silence_ns(now).unwrap_or(0) as f64 / 1e6;
             let lateness_ms = cx.tick.lateness_ns as f64 / 1e6;
-            if silence_ms - lateness_ms > worst_excess_ms {
-                worst_excess_ms = silence_ms - lateness_ms;
-                s.safe_stop_entry_silence_ms = silence_ms;
-                s.safe_stop_entry_lateness_ms = lateness_ms;
-            }
+            s.book_trip(silence_ms, lateness_ms, &mut worst_excess_ms);
         }
         teleop.arm_mut().advance(period_ns);
 
@@ -415,6 +407,23 @@ pub fn run<L: Link<Feedback, Command>>(
     s.recording_dropped = recorder.dropped();
     recorder.finish().map_err(ServerError::Recording)?;
     Ok(s)
+}
+
+impl SlaveRunSummary {
+    /// Books a watchdog trip now: its time (the first [`SAFE_STOP_TIMES_MAX`]), and its entry
+    /// silence and the loop's lateness when the silence exceeds the lateness by more than
+    /// every trip's before (`worst_excess_ms`): that trip is the one reported. Allocates
+    /// nothing (the times' capacity is allocated before the loop).
+    fn book_trip(&mut self, silence_ms: f64, lateness_ms: f64, worst_excess_ms: &mut f64) {
+        if self.safe_stop_times_ns.len() < SAFE_STOP_TIMES_MAX {
+            self.safe_stop_times_ns.push(h4_shared::rt::monotonic_ns());
+        }
+        if silence_ms - lateness_ms > *worst_excess_ms {
+            *worst_excess_ms = silence_ms - lateness_ms;
+            self.safe_stop_entry_silence_ms = silence_ms;
+            self.safe_stop_entry_lateness_ms = lateness_ms;
+        }
+    }
 }
 
 /// The slave's endpoint over the simulated arm of `cfg`, which starts `approach.gap_mm` above
