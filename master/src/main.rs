@@ -27,8 +27,8 @@ enum Command {
     /// on the simulated clock, with progress; writes the per-cell table (CSV, JSON,
     /// markdown) and a heat map per wall (PNG).
     Matrix(cli::matrix::MatrixArgs),
-    /// Write the slave's world and passivity files of a session, for
-    /// `h4-slave run --config WORLD --passivity-config PASSIVITY`.
+    /// Write the slave's world, passivity and contact hand-over files of a session, for
+    /// `h4-slave run --config WORLD --passivity-config PASSIVITY --contact-config CONTACT`.
     SlaveConfig(cli::loopback::SlaveConfigArgs),
     /// Draws a recording (MCAP) of a session, the processes or an experiment: PNG figures
     /// (rendered vs slave force, passivity observers, the link's round trip and losses; force

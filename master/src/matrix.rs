@@ -153,6 +153,9 @@ pub struct Case {
     pub handover: bool,
     /// The session's seed.
     pub seed: u64,
+    /// The round trip the slave is told (`slave.contact.round_trip_ms`), as a share of the
+    /// cell's: 1 the nominal one (shipped), 0 not told.
+    pub round_trip_told: f64,
 }
 
 impl Case {
@@ -168,6 +171,7 @@ impl Case {
             model: false,
             handover: true,
             seed: 4,
+            round_trip_told: 1.0,
         }
     }
 
@@ -180,6 +184,12 @@ impl Case {
             format!("passivity.enabled={}", self.passivity),
             format!("coupling.model={}", self.model),
             format!("slave.contact.enabled={}", self.handover),
+            // The deployment tells the slave its link's round trip (the hand-over spring
+            // softens over it); a cell's is its nominal one.
+            format!(
+                "slave.contact.round_trip_ms={}",
+                self.rtt_ms * self.round_trip_told
+            ),
             format!("scale.force={}", self.force_scale),
             format!(
                 "environment.stiffness_n_per_mm={}",
@@ -212,7 +222,11 @@ impl Case {
             on(self.passivity),
             on(self.model),
             on(self.handover),
-        )
+        ) + &if self.round_trip_told == 1.0 {
+            String::new()
+        } else {
+            format!(", round trip told ×{}", self.round_trip_told)
+        }
     }
 }
 

@@ -43,8 +43,10 @@ pub struct Plausibility {
 pub fn slave_contact_stiffness_n_per_mm(cfg: &SessionConfig) -> (f64, String) {
     if cfg.slave.contact.enabled {
         return (
-            cfg.slave.contact.stiffness_n_per_mm,
-            "the slave's hand-over spring, slave.contact.stiffness_n_per_mm".into(),
+            cfg.slave.contact.effective_stiffness_n_per_mm(),
+            "the slave's hand-over spring, slave.contact.stiffness_n_per_mm (softened over \
+             slave.contact.round_trip_ms)"
+                .into(),
         );
     }
     let wall = cfg

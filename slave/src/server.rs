@@ -41,6 +41,8 @@ pub struct RunOptions {
     pub restart_silence_ms: f64,
     /// The slave's passivity port.
     pub passivity: PassivityParams,
+    /// The contact hand-over (a session's `[slave.contact]`).
+    pub contact: crate::teleop::ContactHandover,
     /// Real-time settings (SCHED_FIFO, locked memory; `--realtime`): default off.
     pub realtime: h4_shared::rt::RealtimePlan,
     /// Progress on stderr: default off.
@@ -68,6 +70,7 @@ impl Default for RunOptions {
             watchdog_ms: 20.0,
             restart_silence_ms: 100.0,
             passivity: PassivityParams::default(),
+            contact: crate::teleop::ContactHandover::default(),
             realtime: h4_shared::rt::RealtimePlan::off(),
             progress: h4_shared::progress::ProgressConfig::off(),
             duration_s: None,
@@ -271,6 +274,7 @@ pub fn run<L: Link<Feedback, Command>>(
     use h4_shared::config::Validate;
     cfg.validate()?;
     opts.passivity.validate_at("passivity.")?;
+    opts.contact.validate_at("contact.")?;
     let period_ns = opts.period_ns.max(1);
     let dt_s = period_ns as f64 * 1e-9;
     let mut teleop = build_teleop(cfg, opts, period_ns)?;
@@ -442,6 +446,7 @@ fn build_teleop(
             watchdog_ms: opts.watchdog_ms,
             restart_silence_ms: opts.restart_silence_ms,
             passivity: opts.passivity,
+            contact: opts.contact,
             ..TeleopParams::default()
         },
         ctrl,

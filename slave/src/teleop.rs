@@ -66,6 +66,14 @@ pub struct TeleopParams {
 /// contact normal; along the surface the arm follows the command's velocity. The
 /// set-point never exceeds `force_share` of the controller's force limit. When the command
 /// lies `release_mm` out of the surface the arm goes back to position control.
+///
+/// Over a long link the spring is delayed by the round trip `T` on its way to the operator's
+/// hand and back, and the hand's damping cannot grow past what the handle's mass allows; the
+/// delayed spring then holds only while `K·T` stays below about
+/// `stiffness_delay_n_s_per_mm` (measured: docs/sessions.md, "The hand-over spring against
+/// the round trip"). The slave cannot measure `T` (only the master sees the round trip), so
+/// the deployment tells it, `round_trip_ms` (0: not told), and the spring softens to
+/// `min(stiffness_n_per_mm, stiffness_delay_n_s_per_mm / T)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ContactHandover {
@@ -81,6 +89,13 @@ pub struct ContactHandover {
     pub release_mm: f64,
     /// Largest set-point, as a share of the controller's force limit.
     pub force_share: f64,
+    /// The link's round trip as the deployment knows it (the master's measured round trip,
+    /// `round_trip_p50_us` in its summary), ms; 0: not told, the spring stays
+    /// `stiffness_n_per_mm`.
+    pub round_trip_ms: f64,
+    /// The largest spring × round trip, N·s/mm: the spring softens to this over the told
+    /// round trip.
+    pub stiffness_delay_n_s_per_mm: f64,
 }
 
 impl Default for ContactHandover {
@@ -91,6 +106,8 @@ impl Default for ContactHandover {
             hold_min_n: 1.0,
             release_mm: 0.3,
             force_share: 0.8,
+            round_trip_ms: 0.0,
+            stiffness_delay_n_s_per_mm: 0.5,
         }
     }
 }
@@ -126,7 +143,33 @@ impl ContactHandover {
             0.05,
             1.0,
             "",
+        )?;
+        check_range(
+            &format!("{prefix}round_trip_ms"),
+            self.round_trip_ms,
+            0.0,
+            60_000.0,
+            "ms",
+        )?;
+        check_range(
+            &format!("{prefix}stiffness_delay_n_s_per_mm"),
+            self.stiffness_delay_n_s_per_mm,
+            0.01,
+            1e3,
+            "N·s/mm",
         )
+    }
+
+    /// The virtual spring in effect, N/mm: `stiffness_n_per_mm`, softened over a told round
+    /// trip to `stiffness_delay_n_s_per_mm / T`.
+    pub fn effective_stiffness_n_per_mm(&self) -> f64 {
+        let t_s = self.round_trip_ms / 1000.0;
+        if t_s > 0.0 {
+            self.stiffness_n_per_mm
+                .min(self.stiffness_delay_n_s_per_mm / t_s)
+        } else {
+            self.stiffness_n_per_mm
+        }
     }
 }
 
@@ -1063,7 +1106,7 @@ const SURFACE_MARGIN_MM: f64 = 1.0;
 /// position beyond the contact's start point (released over `release_mm` outside it), N.
 fn handover_setpoint_n(c: &ContactHandover, depth_mm: f64) -> f64 {
     if depth_mm >= 0.0 {
-        c.hold_min_n + c.stiffness_n_per_mm * depth_mm
+        c.hold_min_n + c.effective_stiffness_n_per_mm() * depth_mm
     } else {
         c.hold_min_n * (1.0 + depth_mm / c.release_mm.max(1e-6)).max(0.0)
     }
@@ -1096,6 +1139,27 @@ mod tests {
     use h4_transport::inproc::{self, InprocEnd};
 
     const PERIOD_NS: u64 = 1_000_000;
+
+    /// The hand-over spring softens over a told round trip to K·T = 0.5 N·s/mm, never
+    /// stiffens, and stays as set when not told; the set-point follows the spring in effect.
+    #[test]
+    fn a_told_round_trip_softens_the_hand_over_spring() {
+        let mut c = ContactHandover::default();
+        assert_eq!(c.effective_stiffness_n_per_mm(), 5.0);
+        for (rtt_ms, k) in [(10.0, 5.0), (100.0, 5.0), (500.0, 1.0), (2000.0, 0.25)] {
+            c.round_trip_ms = rtt_ms;
+            assert!(
+                (c.effective_stiffness_n_per_mm() - k).abs() < 1e-12,
+                "{rtt_ms} ms"
+            );
+        }
+        assert!((handover_setpoint_n(&c, 4.0) - (c.hold_min_n + 1.0)).abs() < 1e-12);
+        assert!(c.validate_at("").is_ok());
+        c.round_trip_ms = -1.0;
+        assert!(c.validate_at("contact.").is_err());
+        c.round_trip_ms = f64::NAN;
+        assert!(c.validate_at("contact.").is_err());
+    }
 
     fn endpoint(passivity: bool) -> SlaveTeleop<SimArm> {
         let (p, ctrl, arm) = parts(passivity);

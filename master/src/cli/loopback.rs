@@ -245,8 +245,8 @@ impl LoopbackArgs {
 }
 
 /// The slave child: stdout (its summary) and stderr (its log) read by two threads, a watcher
-/// that stops the master when the slave exits. No temporary files: the slave's world and
-/// passivity files are handed over as memory files.
+/// that stops the master when the slave exits. No temporary files: the slave's world,
+/// passivity and contact files are handed over as memory files.
 struct SlaveChild {
     pid: i32,
     child: Arc<Mutex<Child>>,
@@ -299,6 +299,10 @@ impl SlaveChild {
             "passivity.toml",
             &toml::to_string(&cfg.passivity).map_err(|e| e.to_string())?,
         )?;
+        let contact = memory_file(
+            "contact.toml",
+            &toml::to_string(&cfg.slave.contact).map_err(|e| e.to_string())?,
+        )?;
         let mut cmd = std::process::Command::new(slave_bin);
         cmd.arg("run")
             .arg("--config")
@@ -307,6 +311,8 @@ impl SlaveChild {
             .args(args.impair.to_args())
             .arg("--passivity-config")
             .arg(fd_path(&passivity))
+            .arg("--contact-config")
+            .arg(fd_path(&contact))
             .arg("--watchdog-ms")
             .arg(args.watchdog_ms.to_string())
             .args(playout_args(&cfg.slave.playout))
@@ -340,7 +346,7 @@ impl SlaveChild {
         let mut child = cmd
             .spawn()
             .map_err(|e| format!("cannot start {}: {e}", slave_bin.display()))?;
-        drop((world, passivity));
+        drop((world, passivity, contact));
         let pid = i32::try_from(child.id()).map_err(|e| e.to_string())?;
         let stdout = read_all(child.stdout.take());
         let stderr = read_all(child.stderr.take());
@@ -553,20 +559,28 @@ fn stop_child(child: &mut Child) -> Result<(), String> {
     Err("the slave process did not stop within 10 s of SIGTERM; killed".into())
 }
 
-/// Writes the files `h4-slave run --config WORLD --passivity-config PASSIVITY` needs to
-/// simulate the slave side of a session.
+/// Writes the files `h4-slave run --config WORLD --passivity-config PASSIVITY
+/// [--contact-config CONTACT]` needs to simulate the slave side of a session.
 pub fn write_slave_config(
     cfg: &SessionConfig,
     world: &Path,
     passivity: &Path,
+    contact: Option<&Path>,
 ) -> Result<(), String> {
-    let text = toml::to_string(&slave_world(cfg)).map_err(|e| e.to_string())?;
-    std::fs::write(world, text).map_err(|e| format!("{}: {e}", world.display()))?;
-    let text = toml::to_string(&cfg.passivity).map_err(|e| e.to_string())?;
-    std::fs::write(passivity, text).map_err(|e| format!("{}: {e}", passivity.display()))
+    let write = |path: &Path, text: Result<String, toml::ser::Error>| {
+        let text = text.map_err(|e| e.to_string())?;
+        std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))
+    };
+    write(world, toml::to_string(&slave_world(cfg)))?;
+    write(passivity, toml::to_string(&cfg.passivity))?;
+    match contact {
+        Some(c) => write(c, toml::to_string(&cfg.slave.contact)),
+        None => Ok(()),
+    }
 }
 
-/// Write the slave's world and passivity files of a session, for `h4-slave run`.
+/// Write the slave's world, passivity and contact hand-over files of a session, for
+/// `h4-slave run`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct SlaveConfigArgs {
     /// The session file.
@@ -580,6 +594,10 @@ pub struct SlaveConfigArgs {
     /// Where to write the passivity settings (for `h4-slave run --passivity-config`).
     #[arg(long, default_value = "slave-passivity.toml")]
     pub passivity: PathBuf,
+    /// Where to write the contact hand-over's settings (for `h4-slave run
+    /// --contact-config`; none without it).
+    #[arg(long)]
+    pub contact: Option<PathBuf>,
 }
 
 impl SlaveConfigArgs {
@@ -587,7 +605,7 @@ impl SlaveConfigArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         let cfg = session::load(&self.session, &self.set)
             .map_err(|e| format!("{}: {e}", self.session.display()))?;
-        write_slave_config(&cfg, &self.world, &self.passivity)?;
+        write_slave_config(&cfg, &self.world, &self.passivity, self.contact.as_deref())?;
         Ok(ExitCode::SUCCESS)
     }
 }

@@ -8,6 +8,7 @@ use h4_shared::passivity::PassivityParams;
 use h4_shared::process::LoopArgs;
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::{self, RunOptions};
+use h4_slave::teleop::ContactHandover;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 use h4_transport::playout::{Playout, PlayoutConfig};
@@ -57,6 +58,15 @@ pub struct RunArgs {
     /// `[passivity]` section (docs/sessions.md); default: the defaults there.
     #[arg(long, value_name = "FILE")]
     pub passivity_config: Option<PathBuf>,
+    /// The contact hand-over's settings: a TOML file with the keys of a session file's
+    /// `[slave.contact]` section (docs/sessions.md); default: the defaults there.
+    #[arg(long, value_name = "FILE")]
+    pub contact_config: Option<PathBuf>,
+    /// The link's round trip, ms, as the deployment knows it (the master's measured round
+    /// trip, `round_trip_p50_us` in its summary): the hand-over's spring softens over it
+    /// (`slave.contact.round_trip_ms`, docs/sessions.md); overrides the contact file's.
+    #[arg(long, value_name = "MS")]
+    pub round_trip_ms: Option<f64>,
     /// When the arm cuts (a world with `[cutting]`): write the machined part into DIR at the
     /// end, `height.png` (height map), `part.stl` (binary STL) and, with a `cut_target`,
     /// `deviation.png`, as `h4-master sim --out` does (docs/cutting.md). Created if missing; refused before the run if it cannot be.
@@ -67,6 +77,17 @@ pub struct RunArgs {
     /// parent).
     #[arg(long, value_name = "PID")]
     pub parent_pid: Option<u32>,
+}
+
+/// A `--contact-config` file: the keys of a session's `[slave.contact]` section.
+#[derive(serde::Deserialize)]
+#[serde(transparent)]
+struct ContactFile(ContactHandover);
+
+impl h4_shared::config::Validate for ContactFile {
+    fn validate(&self) -> Result<(), h4_shared::config::ConfigError> {
+        self.0.validate_at("")
+    }
 }
 
 /// A `--passivity-config` file: the keys of a session's `[passivity]` section.
@@ -122,8 +143,22 @@ impl RunArgs {
         let link = impaired::wrap(link, self.impair.impair.as_ref(), Direction::Feedback)
             .map_err(|e| e.to_string())?;
         let mut link = Playout::new(link, MonotonicClock::new(), playout);
+        let mut contact = match &self.contact_config {
+            Some(p) => {
+                h4_shared::config::load::<ContactFile>(p, &[])
+                    .map_err(|e| e.to_string())?
+                    .0
+            }
+            None => ContactHandover::default(),
+        };
+        if let Some(ms) = self.round_trip_ms {
+            h4_shared::config::check_range("--round-trip-ms", ms, 0.0, 60_000.0, "ms")
+                .map_err(|e| e.to_string())?;
+            contact.round_trip_ms = ms;
+        }
         let opts = RunOptions {
             passivity,
+            contact,
             arm_id: self.transport.arm_id,
             watchdog_ms: self.watchdog_ms,
             realtime,
