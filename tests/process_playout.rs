@@ -15,9 +15,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use h4_shared::rt::LoopReport;
 use h4_tests::procs::*;
-use h4_tests::stalls::{explains_trip, long_stalls};
+use h4_tests::stalls::trips_outside_stalls;
 use serde_json::Value;
 
 fn loopback(tag: &str, playout: bool) -> Value {
@@ -45,27 +44,13 @@ const STALL_MS: f64 = 8.0;
 /// How long after a stall's end a trip can still be its consequence, ms.
 const STALL_REACH_MS: f64 = 250.0;
 
-/// The slave's safe stops that no stall of either loop explains.
-fn trips_outside_stalls(v: &Value) -> Vec<u64> {
-    let report = |side: &str| serde_json::from_value::<LoopReport>(v[side].clone()).unwrap();
-    let (m, s) = (report("master"), report("slave"));
-    let stalls = long_stalls(None, &[&m, &s], STALL_MS);
-    let times = v["slave"]["safe_stop_times_ns"].as_array().unwrap();
-    assert_eq!(times.len() as u64, u(&v["slave"], "safe_stops"), "{v:#}");
-    times
-        .iter()
-        .map(|t| t.as_u64().unwrap())
-        .filter(|&t| !explains_trip(&stalls, t, STALL_REACH_MS))
-        .collect()
-}
-
 #[test]
 fn the_playout_buffer_keeps_a_jittery_link_from_tripping_the_watchdog() {
     let _g = serial();
     let with = loopback("playout-on", true);
     let without = loopback("playout-off", false);
     let stops = |v: &Value| u(&v["slave"], "safe_stops");
-    let unexplained = trips_outside_stalls(&with);
+    let unexplained = trips_outside_stalls(&with, STALL_MS, STALL_REACH_MS);
     assert!(
         unexplained.len() <= 1,
         "with the buffer, trips outside host stalls at {unexplained:?}: {with:#}"

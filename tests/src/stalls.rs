@@ -183,6 +183,34 @@ pub fn explains_trip(stalls: &[[u64; 2]], t_ns: u64, reach_ms: f64) -> bool {
         .any(|g| g[0] <= t_ns && t_ns <= g[1].saturating_add(reach_ns))
 }
 
+/// A loopback summary's (`h4-master loopback --summary`) slave safe stops that no stall of
+/// either loop explains: the stalls at least `min_ms` long in the `master` and `slave`
+/// `deadline_miss_spans_ns`, each reaching `reach_ms` past its end
+/// ([`explains_trip`]); the slave's `safe_stop_times_ns` (`CLOCK_MONOTONIC`).
+///
+/// # Panics
+/// When the summary has not one trip time per safe stop (a test helper).
+pub fn trips_outside_stalls(v: &serde_json::Value, min_ms: f64, reach_ms: f64) -> Vec<u64> {
+    // A summary without the fields explains nothing (and fails the count below).
+    let report =
+        |side: &str| serde_json::from_value::<LoopReport>(v[side].clone()).unwrap_or_default();
+    let (m, s) = (report("master"), report("slave"));
+    let stalls = long_stalls(None, &[&m, &s], min_ms);
+    let times: Vec<u64> = v["slave"]["safe_stop_times_ns"]
+        .as_array()
+        .map(|a| a.iter().filter_map(serde_json::Value::as_u64).collect())
+        .unwrap_or_default();
+    assert_eq!(
+        Some(times.len() as u64),
+        v["slave"]["safe_stops"].as_u64(),
+        "a trip time per safe stop: {v:#}"
+    );
+    times
+        .into_iter()
+        .filter(|&t| !explains_trip(&stalls, t, reach_ms))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
