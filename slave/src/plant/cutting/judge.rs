@@ -259,7 +259,9 @@ impl CutEvaluator {
         self.speed_ring[i] = speed;
         let removed = s.report.removed_mm3 - self.last_removed_mm3;
         self.last_removed_mm3 = s.report.removed_mm3;
-        let cutting = removed > 0.0;
+        // The removal rate holds over the removal update's interval (the stock is swept
+        // every quarter cell of travel, not every cycle).
+        let cutting = s.report.removal_rate_mm3_per_s > 0.0;
         if cutting {
             self.cutting_cycles += 1;
             self.removed_while_cutting_mm3 += removed;

@@ -106,10 +106,65 @@ impl Default for Engagement {
     }
 }
 
+/// What one gather needs of the tool and the cut, computed once.
+struct Geometry {
+    r: f64,
+    r2: f64,
+    inv_r: f64,
+    cell: f64,
+    cell2: f64,
+    ball: bool,
+    /// The rim's height above the tip, mm.
+    rim_lift: f64,
+    /// The flutes' length above the tip, mm.
+    flute_mm: f64,
+    /// Stock below this touches nothing, mm.
+    below_tip: f64,
+    /// `1 / 2πn`, s (0 with the spindle stopped).
+    per_rev: f64,
+    k: CuttingCoefficients,
+}
+
+impl Geometry {
+    fn new(
+        stock: &Stock,
+        tool: &Tool,
+        k: &CuttingCoefficients,
+        tip_mm: [f64; 3],
+        rev_per_s: f64,
+    ) -> Self {
+        let r = tool.radius_mm;
+        let cell = stock.cell_mm();
+        Geometry {
+            r,
+            r2: r * r,
+            inv_r: 1.0 / r,
+            cell,
+            cell2: cell * cell,
+            ball: tool.kind == super::ToolKind::Ball,
+            rim_lift: tool.lift_mm(r * r),
+            flute_mm: tool.flute_length_mm,
+            below_tip: tip_mm[2] - TOUCH_MM,
+            per_rev: if rev_per_s > 0.0 {
+                1.0 / (2.0 * std::f64::consts::PI * rev_per_s)
+            } else {
+                0.0
+            },
+            k: *k,
+        }
+    }
+}
+
 impl Engagement {
     /// Gathers the envelope elements of `tool`, tip at `tip_mm` (workpiece frame), that
     /// touch `stock`, for cutting coefficients `k` at spindle speed `rev_per_s` (> 0 for any
     /// force; 0 still measures the penetration). Allocates nothing.
+    ///
+    /// One pass over the cells within the tool's radius and one cell: a cell below the
+    /// tool's lower surface (cut deeper by an earlier position) is told apart without a
+    /// square root (`√(r² − ρ²) < tip + r − h − touch` squared); only touching elements
+    /// pay for their geometry. The clearance of those cells is measured in a second pass
+    /// only when nothing touches (it cannot raise the penetration otherwise).
     pub fn gather(
         &mut self,
         stock: &Stock,
@@ -123,88 +178,174 @@ impl Engagement {
         self.penetration_mm = f64::NEG_INFINITY;
         self.lateral_mm = 0.0;
         self.lateral_dir = [0.0; 2];
-        let r = tool.radius_mm;
-        let cell = stock.cell_mm();
-        let rim_lift = tool.lift_mm(r * r);
-        let top = tip_mm[2] + tool.flute_length_mm;
-        let per_rev = if rev_per_s > 0.0 {
-            1.0 / (2.0 * std::f64::consts::PI * rev_per_s)
-        } else {
-            0.0
-        };
-        stock.for_cells_near(tip_mm[0], tip_mm[1], r + cell, |ix, iy, dx, dy| {
-            let h = stock.height_at(ix, iy);
-            let rho2 = dx * dx + dy * dy;
-            let inside = rho2 <= r * r;
-            // Stock below the tip touches nothing (the lower surface is nowhere lower).
-            if h < tip_mm[2] - TOUCH_MM {
+        let g = Geometry::new(stock, tool, k, tip_mm, rev_per_s);
+        let mut below_surface = false;
+        for (iy, dy, x0, x1) in stock.chords(tip_mm[0], tip_mm[1], g.r + g.cell) {
+            for (j, &h32) in stock.row_mm(iy, x0, x1).iter().enumerate() {
+                let h = f64::from(h32);
+                let dx = stock.dx_mm(x0 + j, tip_mm[0]);
+                let rho2 = dx * dx + dy * dy;
+                let inside = rho2 <= g.r2;
+                // Stock below the tip touches nothing (the lower surface is nowhere lower).
+                if h < g.below_tip {
+                    if inside {
+                        self.penetration_mm = self.penetration_mm.max(h - tip_mm[2]);
+                    }
+                    continue;
+                }
                 if inside {
-                    self.penetration_mm = self.penetration_mm.max(h - tip_mm[2]);
-                }
-                return;
-            }
-            let rho = rho2.sqrt();
-            let (n, area, r_cut) = if inside {
-                let env = tip_mm[2] + tool.lift_mm(rho2);
-                // Stock inside the tool leaves it the shallower way: up, or sideways out of
-                // the radius.
-                let sideways = r - rho;
-                if h - env > sideways && rho > 0.0 {
-                    if sideways > self.lateral_mm {
-                        self.lateral_mm = sideways;
-                        self.lateral_dir = [-dx / rho, -dy / rho];
+                    let w2 = (g.r2 - rho2).max(0.0);
+                    if g.ball {
+                        // Below the lower surface by more than the touch: h − env < −touch,
+                        // env = tip + r − √(r² − ρ²).
+                        let q = tip_mm[2] + g.r - TOUCH_MM - h;
+                        if q > 0.0 && w2 < q * q {
+                            below_surface = true;
+                            continue;
+                        }
                     }
+                    self.inside_cell(&g, tip_mm[2], h, dx, dy, rho2, w2);
                 } else {
-                    self.penetration_mm = self.penetration_mm.max(h - env);
-                }
-                if (h - env).abs() > TOUCH_MM && h < env {
-                    return;
-                }
-                if h - env > TOUCH_MM {
-                    // Stock inside the tool (a stalled spindle): rubbing, not cutting.
-                    return;
-                }
-                match tool.kind {
-                    super::ToolKind::Flat => ([0.0, 0.0, -1.0], cell * cell, rho),
-                    super::ToolKind::Ball => {
-                        let w = (r * r - rho2).max(0.0).sqrt().max(0.2 * r);
-                        ([dx / r, dy / r, -w / r], cell * cell * r / w, rho)
-                    }
-                }
-            } else {
-                // The wall beside the tool: stock above the rim's lower edge.
-                let e = h.min(top) - (tip_mm[2] + rim_lift);
-                if e <= 0.0 || rho <= 0.0 {
-                    return;
-                }
-                ([dx / rho, dy / rho, 0.0], e * cell, r)
-            };
-            self.elements += 1;
-            let kappa = area * per_rev / r_cut.max(R_MIN_FRACTION * r);
-            // The edge moves clockwise seen from above: t̂ = (dy, −dx, 0)/ρ.
-            let t = if rho > 0.0 {
-                [dy / rho, -dx / rho, 0.0]
-            } else {
-                [0.0; 3]
-            };
-            let wall = n[2].abs() < 0.5;
-            let ka = if wall { k.k_ac_n_per_mm2 } else { 0.0 };
-            let dir = [
-                k.k_rc_n_per_mm2 * n[0] + k.k_tc_n_per_mm2 * t[0],
-                k.k_rc_n_per_mm2 * n[1] + k.k_tc_n_per_mm2 * t[1],
-                k.k_rc_n_per_mm2 * n[2] - ka,
-            ];
-            let idx = ((azimuth_rev(dx, dy) * BINS as f64) as usize).min(BINS - 1);
-            let bin = &mut self.bins[usize::from(!wall)][idx];
-            for (row, d) in bin.b.iter_mut().zip(dir) {
-                for (c, nc) in row.iter_mut().zip(n) {
-                    *c += kappa * d * nc;
+                    self.wall_cell(&g, tip_mm[2], h, dx, dy, rho2);
                 }
             }
-            for (s, nc) in bin.n.iter_mut().zip(n) {
-                *s += area * nc;
+        }
+        if below_surface && self.penetration_mm < -TOUCH_MM {
+            self.clearance_below_surface(stock, &g, tip_mm);
+        }
+    }
+
+    /// A cell inside the tool's radius at or above its lower surface (less the touch):
+    /// rubbing (stock inside a tool that does not cut), or an element of the envelope.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn inside_cell(
+        &mut self,
+        g: &Geometry,
+        tip_z: f64,
+        h: f64,
+        dx: f64,
+        dy: f64,
+        rho2: f64,
+        w2: f64,
+    ) {
+        let s = w2.sqrt();
+        let env = if g.ball { tip_z + (g.r - s) } else { tip_z };
+        let rho = rho2.sqrt();
+        // Stock inside the tool leaves it the shallower way: up, or sideways out of the
+        // radius.
+        let sideways = g.r - rho;
+        if h - env > sideways && rho > 0.0 {
+            if sideways > self.lateral_mm {
+                self.lateral_mm = sideways;
+                self.lateral_dir = [-dx / rho, -dy / rho];
             }
-        });
+        } else {
+            self.penetration_mm = self.penetration_mm.max(h - env);
+        }
+        if (h - env).abs() > TOUCH_MM {
+            // Below the surface, or stock inside the tool (a stalled spindle): rubbing, not
+            // cutting.
+            return;
+        }
+        let (n, area) = if g.ball {
+            let w = s.max(R_MIN_FRACTION * g.r);
+            let inv_w = 1.0 / w;
+            (
+                [dx * g.inv_r, dy * g.inv_r, -w * g.inv_r],
+                g.cell2 * g.r * inv_w,
+            )
+        } else {
+            ([0.0, 0.0, -1.0], g.cell2)
+        };
+        self.element(g, dx, dy, rho, n, area, rho);
+    }
+
+    /// A cell outside the tool's radius: the wall beside the tool, stock above the rim's
+    /// lower edge.
+    #[inline]
+    fn wall_cell(&mut self, g: &Geometry, tip_z: f64, h: f64, dx: f64, dy: f64, rho2: f64) {
+        let e = h.min(tip_z + g.flute_mm) - (tip_z + g.rim_lift);
+        if e <= 0.0 || rho2 <= 0.0 {
+            return;
+        }
+        let rho = rho2.sqrt();
+        let inv_rho = 1.0 / rho;
+        self.element(
+            g,
+            dx,
+            dy,
+            rho,
+            [dx * inv_rho, dy * inv_rho, 0.0],
+            e * g.cell,
+            g.r,
+        );
+    }
+
+    /// Books one envelope element: normal `n` (into the stock), area `area` (mm²), at
+    /// cutting radius `r_cut`, azimuth of (`dx`, `dy`); a steep one (`|n_z| < 0.5`) in the
+    /// walls' layer, with the axial force.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn element(
+        &mut self,
+        g: &Geometry,
+        dx: f64,
+        dy: f64,
+        rho: f64,
+        n: [f64; 3],
+        area: f64,
+        r_cut: f64,
+    ) {
+        self.elements += 1;
+        let wall = n[2].abs() < 0.5;
+        let kappa = area * g.per_rev / r_cut.max(R_MIN_FRACTION * g.r);
+        // The edge moves clockwise seen from above: t̂ = (dy, −dx, 0)/ρ.
+        let t = if rho > 0.0 {
+            let inv_rho = 1.0 / rho;
+            [dy * inv_rho, -dx * inv_rho]
+        } else {
+            [0.0; 2]
+        };
+        let ka = if wall { g.k.k_ac_n_per_mm2 } else { 0.0 };
+        let (krc, ktc) = (g.k.k_rc_n_per_mm2, g.k.k_tc_n_per_mm2);
+        let dir = [
+            kappa * (krc * n[0] + ktc * t[0]),
+            kappa * (krc * n[1] + ktc * t[1]),
+            kappa * (krc * n[2] - ka),
+        ];
+        let idx = ((azimuth_rev(dx, dy) * BINS as f64) as usize).min(BINS - 1);
+        let bin = &mut self.bins[usize::from(!wall)][idx];
+        for (row, d) in bin.b.iter_mut().zip(dir) {
+            for (c, nc) in row.iter_mut().zip(n) {
+                *c += d * nc;
+            }
+        }
+        for (s, nc) in bin.n.iter_mut().zip(n) {
+            *s += area * nc;
+        }
+    }
+
+    /// The clearance of the cells below the ball's lower surface, which the pass skipped
+    /// (the same test): the penetration when nothing touched.
+    fn clearance_below_surface(&mut self, stock: &Stock, g: &Geometry, tip_mm: [f64; 3]) {
+        for (iy, dy, x0, x1) in stock.chords(tip_mm[0], tip_mm[1], g.r) {
+            for (j, &h32) in stock.row_mm(iy, x0, x1).iter().enumerate() {
+                let h = f64::from(h32);
+                if h < g.below_tip {
+                    continue;
+                }
+                let dx = stock.dx_mm(x0 + j, tip_mm[0]);
+                let rho2 = dx * dx + dy * dy;
+                let w2 = (g.r2 - rho2).max(0.0);
+                let q = tip_mm[2] + g.r - TOUCH_MM - h;
+                if rho2 > g.r2 || q <= 0.0 || w2 >= q * q {
+                    continue;
+                }
+                let env = tip_mm[2] + (g.r - w2.sqrt());
+                self.penetration_mm = self.penetration_mm.max(h - env);
+            }
+        }
     }
 
     /// The velocity-to-force matrix in effect with the teeth at `phase_rev` (the first
@@ -215,7 +356,7 @@ impl Engagement {
         let mut m = [[0.0f64; 3]; 3];
         let scale = BINS as f64 / f64::from(flutes.max(1));
         for j in 0..flutes {
-            let a = (phase_rev + f64::from(j) / f64::from(flutes)).rem_euclid(1.0);
+            let a = wrap_rev(phase_rev + f64::from(j) / f64::from(flutes));
             let idx = ((a * BINS as f64) as usize).min(BINS - 1);
             for layer in &self.bins {
                 let bin = &layer[idx];
@@ -248,6 +389,15 @@ impl Engagement {
         }
         m
     }
+}
+
+/// `a` wrapped into [0, 1] revolutions (`a − ⌊a⌋`; 1 only by rounding, which the bins'
+/// index clamps), for the phases of the teeth (|a| well below 2⁵³), without a libm call (the
+/// baseline x86-64 has no rounding instruction).
+#[inline]
+fn wrap_rev(a: f64) -> f64 {
+    let f = a - (a as i64) as f64;
+    if f < 0.0 { f + 1.0 } else { f }
 }
 
 /// The azimuth of (`x`, `y`) in revolutions, 0 to 1 (a polynomial arctangent, within
@@ -423,6 +573,203 @@ mod tests {
             "pushed up by {}",
             e.penetration_mm
         );
+    }
+
+    /// The cells within `reach` of (`x`, `y`), the way the first gather walked them.
+    fn for_cells_near<F: FnMut(usize, usize, f64, f64)>(
+        stock: &Stock,
+        x: f64,
+        y: f64,
+        reach: f64,
+        mut f: F,
+    ) {
+        let (nx, ny) = stock.dims();
+        let c0 = stock.cell_centre_mm(0, 0);
+        let cell = stock.cell_mm();
+        let range = |c: f64, c0: f64, n: usize| {
+            let lo = (((c - reach - c0) / cell).floor() - 1.0).max(0.0) as usize;
+            let hi = ((((c + reach - c0) / cell).ceil() + 1.0).max(0.0) as usize).min(n - 1);
+            lo..=hi
+        };
+        for iy in range(y, c0[1], ny) {
+            for ix in range(x, c0[0], nx) {
+                let c = stock.cell_centre_mm(ix, iy);
+                let (dx, dy) = (c[0] - x, c[1] - y);
+                if dx * dx + dy * dy <= reach * reach {
+                    f(ix, iy, dx, dy);
+                }
+            }
+        }
+    }
+
+    /// The first gather, kept as the reference the one-pass gather is checked against.
+    impl Engagement {
+        fn gather_reference(
+            &mut self,
+            stock: &Stock,
+            tool: &Tool,
+            k: &CuttingCoefficients,
+            tip_mm: [f64; 3],
+            rev_per_s: f64,
+        ) {
+            self.bins = [[Bin::default(); BINS]; LAYERS];
+            self.elements = 0;
+            self.penetration_mm = f64::NEG_INFINITY;
+            self.lateral_mm = 0.0;
+            self.lateral_dir = [0.0; 2];
+            let r = tool.radius_mm;
+            let cell = stock.cell_mm();
+            let rim_lift = tool.lift_mm(r * r);
+            let top = tip_mm[2] + tool.flute_length_mm;
+            let per_rev = if rev_per_s > 0.0 {
+                1.0 / (2.0 * std::f64::consts::PI * rev_per_s)
+            } else {
+                0.0
+            };
+            for_cells_near(stock, tip_mm[0], tip_mm[1], r + cell, |ix, iy, dx, dy| {
+                let h = stock.height_at(ix, iy);
+                let rho2 = dx * dx + dy * dy;
+                let inside = rho2 <= r * r;
+                // Stock below the tip touches nothing (the lower surface is nowhere lower).
+                if h < tip_mm[2] - TOUCH_MM {
+                    if inside {
+                        self.penetration_mm = self.penetration_mm.max(h - tip_mm[2]);
+                    }
+                    return;
+                }
+                let rho = rho2.sqrt();
+                let (n, area, r_cut) = if inside {
+                    let env = tip_mm[2] + tool.lift_mm(rho2);
+                    // Stock inside the tool leaves it the shallower way: up, or sideways out of
+                    // the radius.
+                    let sideways = r - rho;
+                    if h - env > sideways && rho > 0.0 {
+                        if sideways > self.lateral_mm {
+                            self.lateral_mm = sideways;
+                            self.lateral_dir = [-dx / rho, -dy / rho];
+                        }
+                    } else {
+                        self.penetration_mm = self.penetration_mm.max(h - env);
+                    }
+                    if (h - env).abs() > TOUCH_MM && h < env {
+                        return;
+                    }
+                    if h - env > TOUCH_MM {
+                        // Stock inside the tool (a stalled spindle): rubbing, not cutting.
+                        return;
+                    }
+                    match tool.kind {
+                        ToolKind::Flat => ([0.0, 0.0, -1.0], cell * cell, rho),
+                        ToolKind::Ball => {
+                            let w = (r * r - rho2).max(0.0).sqrt().max(0.2 * r);
+                            ([dx / r, dy / r, -w / r], cell * cell * r / w, rho)
+                        }
+                    }
+                } else {
+                    // The wall beside the tool: stock above the rim's lower edge.
+                    let e = h.min(top) - (tip_mm[2] + rim_lift);
+                    if e <= 0.0 || rho <= 0.0 {
+                        return;
+                    }
+                    ([dx / rho, dy / rho, 0.0], e * cell, r)
+                };
+                self.elements += 1;
+                let kappa = area * per_rev / r_cut.max(R_MIN_FRACTION * r);
+                // The edge moves clockwise seen from above: t̂ = (dy, −dx, 0)/ρ.
+                let t = if rho > 0.0 {
+                    [dy / rho, -dx / rho, 0.0]
+                } else {
+                    [0.0; 3]
+                };
+                let wall = n[2].abs() < 0.5;
+                let ka = if wall { k.k_ac_n_per_mm2 } else { 0.0 };
+                let dir = [
+                    k.k_rc_n_per_mm2 * n[0] + k.k_tc_n_per_mm2 * t[0],
+                    k.k_rc_n_per_mm2 * n[1] + k.k_tc_n_per_mm2 * t[1],
+                    k.k_rc_n_per_mm2 * n[2] - ka,
+                ];
+                let idx = ((azimuth_rev(dx, dy) * BINS as f64) as usize).min(BINS - 1);
+                let bin = &mut self.bins[usize::from(!wall)][idx];
+                for (row, d) in bin.b.iter_mut().zip(dir) {
+                    for (c, nc) in row.iter_mut().zip(n) {
+                        *c += kappa * d * nc;
+                    }
+                }
+                for (s, nc) in bin.n.iter_mut().zip(n) {
+                    *s += area * nc;
+                }
+            });
+        }
+    }
+
+    /// The one-pass gather books the same elements, bins, penetration and sideways contact
+    /// as the reference on cut slots, ramps, plunges and dwell positions of both tools, the
+    /// spindle turning or stopped, tool clear above the cut, touching, inside the stock.
+    #[test]
+    fn the_one_pass_gather_matches_the_reference() {
+        let mut rng = h4_shared::rng::Rng::new(7);
+        let mut checked = 0;
+        for kind in [ToolKind::Ball, ToolKind::Flat] {
+            for depth in [0.5, 1.5, 3.5] {
+                let (mut s, t, tip) = cut_slot(kind, depth);
+                // A ramp and a plunge beside the slot, so the stock has slopes and holes.
+                s.sweep(&t, [-5.0, 6.0, 0.5], [5.0, 6.0, -depth]);
+                s.sweep(&t, [3.0, -7.0, 0.5], [3.0, -7.0, -depth]);
+                let k = CuttingCoefficients::of(MaterialPreset::Aluminium);
+                for i in 0..400 {
+                    let p = if i == 0 {
+                        tip
+                    } else {
+                        [
+                            -12.0 + 20.0 * rng.uniform(),
+                            -10.0 + 20.0 * rng.uniform(),
+                            -depth - 0.3 + (depth + 1.0) * rng.uniform(),
+                        ]
+                    };
+                    let n = if i % 5 == 0 {
+                        0.0
+                    } else {
+                        t.spindle_rev_per_s()
+                    };
+                    let (mut a, mut b) = (Engagement::default(), Engagement::default());
+                    a.gather(&s, &t, &k, p, n);
+                    b.gather_reference(&s, &t, &k, p, n);
+                    assert_eq!(a.elements, b.elements, "{kind:?} at {p:?}");
+                    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * (1.0 + y.abs());
+                    assert!(
+                        close(a.penetration_mm, b.penetration_mm)
+                            || a.penetration_mm == b.penetration_mm,
+                        "{kind:?} at {p:?}: {} vs {}",
+                        a.penetration_mm,
+                        b.penetration_mm
+                    );
+                    assert!(close(a.lateral_mm, b.lateral_mm), "{kind:?} at {p:?}");
+                    for (la, lb) in a.bins.iter().zip(&b.bins) {
+                        for (ba, bb) in la.iter().zip(lb) {
+                            for (ra, rb) in ba.b.iter().zip(&bb.b) {
+                                for (x, y) in ra.iter().zip(rb) {
+                                    assert!(close(*x, *y), "{kind:?} at {p:?}: {x} vs {y}");
+                                }
+                            }
+                            for (x, y) in ba.n.iter().zip(&bb.n) {
+                                assert!(close(*x, *y), "{kind:?} at {p:?}: {x} vs {y}");
+                            }
+                        }
+                    }
+                    checked += usize::from(b.elements > 0);
+                }
+            }
+        }
+        assert!(checked > 300, "only {checked} positions touched the stock");
+    }
+
+    #[test]
+    fn wrap_rev_is_rem_euclid() {
+        for k in -4000..4000 {
+            let a = f64::from(k) * 0.00731 + 1e-9;
+            assert!((wrap_rev(a) - a.rem_euclid(1.0)).abs() < 1e-12, "{a}");
+        }
+        assert!(wrap_rev(f64::NAN).is_nan());
     }
 
     #[test]

@@ -1,16 +1,17 @@
 //! Cutting: a workpiece that is really cut.
 //!
 //! * `stock`: the block as a height field, lowered where the tool's swept volume goes below
-//!   it ([`Stock::sweep`], once per 1 ms update, along the tool tip's path since the last);
+//!   it ([`Stock::sweep`], at each removal update, along the tool tip's path since the last);
 //! * `tool`: ball-end and flat end mills;
 //! * `mechanics`: the mechanistic cutting force on the tool's envelope elements that touch
 //!   the stock, rippling as the teeth pass;
 //! * `turntable`: the rotary table the workpiece turns on, with its own servo; the stock
 //!   lives in the workpiece frame, which turns with the table's true angle.
 //!
-//! [`CutState`] ties them to the simulated arm: every millisecond it sweeps the stock along
-//! the tip's path, measures the removal rate and the spindle's torque (a cut that needs
-//! more than the spindle has stalls it), and gathers the engagement the next millisecond's
+//! [`CutState`] ties them to the simulated arm: at each removal update (every millisecond
+//! while rubbing or not engaged, every quarter cell of travel while cutting) it sweeps the
+//! stock along the tip's path, measures the removal rate and the spindle's torque (a cut
+//! that needs more than the spindle has stalls it), and gathers the engagement the next
 //! servo periods cut with. With the spindle turning, the stock resists the tool only through
 //! the cutting force (the tool goes where the chips let it); stopped or stalled, the tool
 //! rubs on the stock with the surface's contact stiffness, damping and friction.
@@ -37,6 +38,12 @@ use super::MaterialPreset;
 /// A stalled spindle restarts once the tool's lower surface is this far clear of the stock,
 /// mm (a drive that has tripped is restarted with the tool retracted, not in the cut).
 const RESTART_CLEARANCE_MM: f64 = 0.5;
+/// While the tool cuts, the removal update runs once the tip has moved this many cells
+/// relative to the stock since the last one (a ball's scallop between two such positions is
+/// under a micrometre).
+const REMOVAL_UPDATE_TRAVEL_CELLS: f64 = 0.25;
+/// ... and at least this often while cutting, s.
+const REMOVAL_UPDATE_MAX_S: f64 = 0.05;
 
 /// The workpiece and the tool (`cutting.*` in a slave world or a session file).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -134,9 +141,9 @@ impl Section for CuttingConfig {
 pub struct CutReport {
     /// Total volume removed, mm³.
     pub removed_mm3: f64,
-    /// Removal rate over the last update, mm³/s.
+    /// Removal rate over the last removal update's interval, mm³/s.
     pub removal_rate_mm3_per_s: f64,
-    /// The spindle's torque over the last update, N·mm.
+    /// The spindle's torque over the last removal update's interval, N·mm.
     pub spindle_torque_n_mm: f64,
     /// The spindle has stalled (the tool rubs until it is pulled clear).
     pub stalled: bool,
@@ -155,13 +162,15 @@ pub struct CutState {
     tool: Tool,
     coeff: CuttingCoefficients,
     engagement: Engagement,
-    /// The tip at the last update, workpiece frame, mm.
+    /// The tip at the last removal update, workpiece frame, mm.
     last_tip_mm: [f64; 3],
     /// The first tooth's azimuth at the last update, revolutions.
     phase_rev: f64,
     /// Time since the last update, s (advanced by the servo periods).
     since_update_s: f64,
-    /// The tip at the last update (the reference of the rubbing penetrations), mm.
+    /// Time since the last removal update, s.
+    since_removal_s: f64,
+    /// The tip at the last removal update (the reference of the rubbing penetrations), mm.
     rub_tip0_mm: [f64; 3],
     /// The contact force summed over the servo periods since the last update, base frame,
     /// N·s.
@@ -195,6 +204,7 @@ impl CutState {
             last_tip_mm: tip_mm,
             phase_rev: 0.0,
             since_update_s: 0.0,
+            since_removal_s: 0.0,
             rub_tip0_mm: tip_mm,
             force_impulse_n_s: [0.0; 3],
             report: CutReport::default(),
@@ -250,20 +260,24 @@ impl CutState {
         }
     }
 
-    /// The 1 ms update: sweeps the stock along the tip's path since the last update (the
-    /// spindle turning), measures the removal rate and the spindle's torque, stalls the
+    /// The 1 ms update. Books the last millisecond's mean force, then, when the removal
+    /// update is due, sweeps the stock along the tip's path since the last one (the spindle
+    /// turning), measures the removal rate and the spindle's torque over it, stalls the
     /// spindle if the cut needs more than it has (it restarts once the tool is
     /// `RESTART_CLEARANCE_MM` clear of the stock), and gathers the engagement at `tip_mm`
-    /// (base frame; the cut works with it in the workpiece frame). Allocates nothing.
+    /// (base frame; the cut works with it in the workpiece frame) that the servo periods
+    /// cut with until the next one. Due: every millisecond while the spindle is stopped or
+    /// stalled (the tool rubs: an elastic contact) and while nothing is engaged (a first
+    /// touch is met within the millisecond); engaged and cutting, once the tip has moved a
+    /// quarter of a cell relative to the stock since the last one, and at least every
+    /// `REMOVAL_UPDATE_MAX_S`. The cutting force is `−B v` with the tool's present
+    /// velocity: an engagement a fraction of a cell old differs from the present one only
+    /// where the engaged region changes shape (in steady feed it keeps its shape relative
+    /// to the tool). Allocates nothing.
     pub fn update(&mut self, tip_base_mm: [f64; 3]) {
         let tip_mm = self.to_workpiece(tip_base_mm);
         let dt = self.since_update_s;
         let n = self.rev_per_s();
-        let removed = if n > 0.0 {
-            self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm)
-        } else {
-            0.0
-        };
         self.phase_rev = (self.phase_rev - n * dt).rem_euclid(1.0);
         self.since_update_s = 0.0;
         if dt > 0.0 {
@@ -276,6 +290,31 @@ impl CutState {
                 *m = i / dt;
             }
             self.force_impulse_n_s = [0.0; 3];
+        }
+        self.since_removal_s += dt;
+        let moved2: f64 = (0..3)
+            .map(|i| (tip_mm[i] - self.last_tip_mm[i]).powi(2))
+            .sum();
+        let step = REMOVAL_UPDATE_TRAVEL_CELLS * self.stock.cell_mm();
+        let due = n <= 0.0
+            || self.engagement.elements == 0
+            || !(moved2 <= step * step)
+            || self.since_removal_s >= REMOVAL_UPDATE_MAX_S;
+        if due {
+            self.removal_update(tip_mm, n);
+        }
+    }
+
+    /// Sweeps, measures and gathers at `tip_mm` (workpiece frame), spindle at `n` rev/s.
+    fn removal_update(&mut self, tip_mm: [f64; 3], n: f64) {
+        let removed = if n > 0.0 {
+            self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm)
+        } else {
+            0.0
+        };
+        let dt = self.since_removal_s;
+        self.since_removal_s = 0.0;
+        if dt > 0.0 {
             let rate = removed / dt;
             self.report.removal_rate_mm3_per_s = rate;
             self.report.spindle_torque_n_mm = if n > 0.0 {

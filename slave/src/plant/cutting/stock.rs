@@ -1,7 +1,7 @@
 //! The workpiece as a height field: one top height per square cell, lowered only where the
 //! tool's swept volume goes below it.
 
-use super::tool::Tool;
+use super::tool::{Tool, ToolKind};
 
 /// Most samples along one update's swept segment (a longer move is sampled more coarsely).
 const SWEEP_SAMPLES_MAX: usize = 64;
@@ -116,43 +116,37 @@ impl Stock {
         self.removed_mm3
     }
 
-    /// The range of cell indices (inclusive) whose centres may lie within `reach_mm` of the
-    /// point (`x`, `y`) on one axis; `None` when it misses the block.
-    fn span(&self, c: f64, corner: f64, n: usize, reach_mm: f64) -> Option<(usize, usize)> {
-        let lo = ((c - reach_mm - corner) / self.cell_mm - 0.5)
-            .ceil()
-            .max(0.0);
-        let hi = ((c + reach_mm - corner) / self.cell_mm - 0.5)
-            .floor()
-            .min(n as f64 - 1.0);
-        (lo <= hi && hi >= 0.0).then_some((lo as usize, hi as usize))
-    }
-
-    /// Calls `f(ix, iy, dx, dy)` for every cell whose centre lies within `reach_mm` of the
-    /// workpiece-frame point (`x`, `y`) (offsets of the cell centre from it, mm).
-    pub fn for_cells_near<F: FnMut(usize, usize, f64, f64)>(
+    /// The cells whose centres lie within `reach_mm` of the workpiece-frame point (`x`, `y`),
+    /// row by row: `(iy, dy, x0, x1)`, the row, its centre's offset from the point (mm) and
+    /// the inclusive range of `ix` on it (the disc's chord). Allocates nothing.
+    pub fn chords(
         &self,
         x: f64,
         y: f64,
         reach_mm: f64,
-        mut f: F,
-    ) {
-        let (Some((x0, x1)), Some((y0, y1))) = (
-            self.span(x, self.corner_mm[0], self.nx, reach_mm),
-            self.span(y, self.corner_mm[1], self.ny, reach_mm),
-        ) else {
-            return;
-        };
-        let r2 = reach_mm * reach_mm;
-        for iy in y0..=y1 {
-            let dy = self.corner_mm[1] + (iy as f64 + 0.5) * self.cell_mm - y;
-            for ix in x0..=x1 {
-                let dx = self.corner_mm[0] + (ix as f64 + 0.5) * self.cell_mm - x;
-                if dx * dx + dy * dy <= r2 {
-                    f(ix, iy, dx, dy);
-                }
-            }
+    ) -> impl Iterator<Item = (usize, f64, usize, usize)> + use<> {
+        self.grid().chords(x, y, reach_mm)
+    }
+
+    fn grid(&self) -> Grid {
+        Grid {
+            corner_mm: self.corner_mm,
+            cell_mm: self.cell_mm,
+            nx: self.nx,
+            ny: self.ny,
         }
+    }
+
+    /// The x offset of the centre of column `ix` from `x`, mm.
+    #[inline]
+    pub fn dx_mm(&self, ix: usize, x: f64) -> f64 {
+        self.corner_mm[0] + (ix as f64 + 0.5) * self.cell_mm - x
+    }
+
+    /// The top heights of row `iy`, columns `x0..=x1`, mm.
+    #[inline]
+    pub fn row_mm(&self, iy: usize, x0: usize, x1: usize) -> &[f32] {
+        &self.height_mm[iy * self.nx + x0..=iy * self.nx + x1]
     }
 
     /// Lowers every cell the tool's swept volume goes below, for the tool's tip moving in a
@@ -173,7 +167,10 @@ impl Stock {
         let steps = ((len / (0.5 * self.cell_mm)).ceil() as usize).clamp(1, SWEEP_SAMPLES_MAX);
         let mut removed_cells_mm = 0.0;
         let r = tool.radius_mm;
+        let r2 = r * r;
+        let ball = tool.kind == ToolKind::Ball;
         let floor = self.bottom_mm as f32;
+        let grid = self.grid();
         // The segment's start is the last update's end, swept then.
         for s in 1..=steps {
             let t = s as f64 / steps as f64;
@@ -186,25 +183,29 @@ impl Stock {
             if p[2] >= self.top_mm {
                 continue;
             }
-            let nx = self.nx;
-            let (x0, x1, y0, y1) = match (
-                self.span(p[0], self.corner_mm[0], self.nx, r),
-                self.span(p[1], self.corner_mm[1], self.ny, r),
-            ) {
-                (Some((x0, x1)), Some((y0, y1))) => (x0, x1, y0, y1),
-                _ => continue,
-            };
-            for iy in y0..=y1 {
-                let dy = self.corner_mm[1] + (iy as f64 + 0.5) * self.cell_mm - p[1];
-                let row = &mut self.height_mm[iy * nx..(iy + 1) * nx];
-                for (ix, h) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
-                    let dx = self.corner_mm[0] + (ix as f64 + 0.5) * self.cell_mm - p[0];
-                    let rho2 = dx * dx + dy * dy;
+            let pz = p[2] as f32;
+            for (iy, dy, x0, x1) in grid.chords(p[0], p[1], r) {
+                let row = &mut self.height_mm[iy * grid.nx + x0..=iy * grid.nx + x1];
+                for (j, h) in row.iter_mut().enumerate() {
                     // The tool's lower surface is nowhere below its tip.
-                    if rho2 > r * r || f64::from(*h) <= p[2] {
+                    if *h <= pz {
                         continue;
                     }
-                    let env = ((p[2] + tool.lift_mm(rho2)) as f32).max(floor);
+                    let dx = grid.dx_mm(x0 + j, p[0]);
+                    let rho2 = dx * dx + dy * dy;
+                    let env = if ball {
+                        // Lower only where the ball's surface is below the top:
+                        // √(r² − ρ²) > tip + r − h, tested without the root.
+                        let q = p[2] + r - f64::from(*h);
+                        let w2 = (r2 - rho2).max(0.0);
+                        if q >= 0.0 && w2 <= q * q {
+                            continue;
+                        }
+                        p[2] + (r - w2.sqrt())
+                    } else {
+                        p[2]
+                    };
+                    let env = (env as f32).max(floor);
                     if env < *h {
                         removed_cells_mm += f64::from(*h - env);
                         *h = env;
@@ -215,6 +216,58 @@ impl Stock {
         let v = removed_cells_mm * self.cell_mm * self.cell_mm;
         self.removed_mm3 += v;
         v
+    }
+}
+
+/// The grid's geometry (a copy, so a sweep can walk it while it lowers the heights).
+#[derive(Clone, Copy, Debug)]
+struct Grid {
+    corner_mm: [f64; 2],
+    cell_mm: f64,
+    nx: usize,
+    ny: usize,
+}
+
+impl Grid {
+    /// The range of cell indices (inclusive) whose centres lie within `reach_mm` of `c` on
+    /// one axis; `None` when it misses the block.
+    fn span(&self, c: f64, corner: f64, n: usize, reach_mm: f64) -> Option<(usize, usize)> {
+        let lo = ((c - reach_mm - corner) / self.cell_mm - 0.5)
+            .ceil()
+            .max(0.0);
+        let hi = ((c + reach_mm - corner) / self.cell_mm - 0.5)
+            .floor()
+            .min(n as f64 - 1.0);
+        (lo <= hi && hi >= 0.0).then_some((lo as usize, hi as usize))
+    }
+
+    #[inline]
+    fn dx_mm(&self, ix: usize, x: f64) -> f64 {
+        self.corner_mm[0] + (ix as f64 + 0.5) * self.cell_mm - x
+    }
+
+    fn chords(
+        self,
+        x: f64,
+        y: f64,
+        reach_mm: f64,
+    ) -> impl Iterator<Item = (usize, f64, usize, usize)> {
+        let rows = if reach_mm.is_finite() && x.is_finite() && y.is_finite() {
+            self.span(y, self.corner_mm[1], self.ny, reach_mm)
+        } else {
+            None
+        };
+        let (y0, y1) = rows.map_or((1, 0), |r| r);
+        let r2 = reach_mm * reach_mm;
+        (y0..=y1).filter_map(move |iy| {
+            let dy = self.corner_mm[1] + (iy as f64 + 0.5) * self.cell_mm - y;
+            let half = r2 - dy * dy;
+            if half < 0.0 {
+                return None;
+            }
+            let (x0, x1) = self.span(x, self.corner_mm[0], self.nx, half.sqrt())?;
+            Some((iy, dy, x0, x1))
+        })
     }
 }
 
@@ -315,5 +368,117 @@ mod tests {
         assert_eq!(s.sweep(&t, [f64::NAN, 0.0, -1.0], [0.0, 0.0, -1.0]), 0.0);
         assert!(Stock::new([0.0; 3], [0.0, 1.0], 1.0, 0.25).is_none());
         assert!(Stock::new([0.0; 3], [1e6, 1e6], 1.0, 0.01).is_none());
+    }
+
+    /// The cell range of the first sweep.
+    fn span(s: &Stock, c: f64, corner: f64, n: usize, reach_mm: f64) -> Option<(usize, usize)> {
+        s.grid().span(c, corner, n, reach_mm)
+    }
+
+    /// The first sweep, kept as the reference the chord-wise one is checked against.
+    impl Stock {
+        fn sweep_reference(
+            &mut self,
+            tool: &Tool,
+            from_tip_mm: [f64; 3],
+            to_tip_mm: [f64; 3],
+        ) -> f64 {
+            let d = [
+                to_tip_mm[0] - from_tip_mm[0],
+                to_tip_mm[1] - from_tip_mm[1],
+                to_tip_mm[2] - from_tip_mm[2],
+            ];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if !len.is_finite() {
+                return 0.0;
+            }
+            let steps = ((len / (0.5 * self.cell_mm)).ceil() as usize).clamp(1, SWEEP_SAMPLES_MAX);
+            let mut removed_cells_mm = 0.0;
+            let r = tool.radius_mm;
+            let floor = self.bottom_mm as f32;
+            // The segment's start is the last update's end, swept then.
+            for s in 1..=steps {
+                let t = s as f64 / steps as f64;
+                let p = [
+                    from_tip_mm[0] + t * d[0],
+                    from_tip_mm[1] + t * d[1],
+                    from_tip_mm[2] + t * d[2],
+                ];
+                // Nothing to cut when the tool is wholly above the block's top here.
+                if p[2] >= self.top_mm {
+                    continue;
+                }
+                let nx = self.nx;
+                let (x0, x1, y0, y1) = match (
+                    span(self, p[0], self.corner_mm[0], self.nx, r),
+                    span(self, p[1], self.corner_mm[1], self.ny, r),
+                ) {
+                    (Some((x0, x1)), Some((y0, y1))) => (x0, x1, y0, y1),
+                    _ => continue,
+                };
+                for iy in y0..=y1 {
+                    let dy = self.corner_mm[1] + (iy as f64 + 0.5) * self.cell_mm - p[1];
+                    let row = &mut self.height_mm[iy * nx..(iy + 1) * nx];
+                    for (ix, h) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
+                        let dx = self.corner_mm[0] + (ix as f64 + 0.5) * self.cell_mm - p[0];
+                        let rho2 = dx * dx + dy * dy;
+                        // The tool's lower surface is nowhere below its tip.
+                        if rho2 > r * r || f64::from(*h) <= p[2] {
+                            continue;
+                        }
+                        let env = ((p[2] + tool.lift_mm(rho2)) as f32).max(floor);
+                        if env < *h {
+                            removed_cells_mm += f64::from(*h - env);
+                            *h = env;
+                        }
+                    }
+                }
+            }
+            let v = removed_cells_mm * self.cell_mm * self.cell_mm;
+            self.removed_mm3 += v;
+            v
+        }
+    }
+
+    /// The chord-wise sweep without square roots for the cells it leaves leaves the same
+    /// heights and removes the same volume as the reference, for both tools along random
+    /// segments (plunges, ramps, long moves, moves above the block).
+    #[test]
+    fn the_chordwise_sweep_matches_the_reference() {
+        let mut rng = h4_shared::rng::Rng::new(11);
+        for kind in [ToolKind::Ball, ToolKind::Flat] {
+            let t = tool(kind, 2.5);
+            let mut a = Stock::new([0.0, 0.0, 0.0], [40.0, 30.0], 10.0, 0.25).unwrap();
+            let mut b = a.clone();
+            let mut from = [0.0, 0.0, 1.0];
+            let mut removed = 0.0;
+            for i in 0..600 {
+                let to = if i % 7 == 0 {
+                    [
+                        rng.uniform_in(-22.0, 22.0),
+                        rng.uniform_in(-17.0, 17.0),
+                        0.5,
+                    ]
+                } else {
+                    [
+                        from[0] + rng.uniform_in(-1.5, 1.5),
+                        from[1] + rng.uniform_in(-1.5, 1.5),
+                        rng.uniform_in(-4.0, 0.2),
+                    ]
+                };
+                let va = a.sweep(&t, from, to);
+                let vb = b.sweep_reference(&t, from, to);
+                assert!(
+                    (va - vb).abs() <= 1e-6 * (1.0 + vb.abs()),
+                    "{kind:?} {i}: {va} vs {vb}"
+                );
+                removed += vb;
+                from = to;
+            }
+            assert!(removed > 100.0, "{kind:?}: only {removed} mm³ cut");
+            for (ha, hb) in a.heights_mm().iter().zip(b.heights_mm()) {
+                assert!((ha - hb).abs() <= 1e-5, "{kind:?}: {ha} vs {hb}");
+            }
+        }
     }
 }
