@@ -4,7 +4,6 @@
 use nalgebra::Vector4;
 
 use super::CutState;
-use super::mechanics::solve_damped;
 use crate::plant::SimArm;
 use crate::plant::kernel::Substep;
 
@@ -44,8 +43,9 @@ impl CutState {
                 return [0.0; 3];
             }
             let phase = self.phase_rev - n * self.since_update_s - self.table_rev;
-            let m = self.engagement.matrix(phase, self.tool.flutes, vs);
-            let v = solve_damped(&m, dt_over_m, vs);
+            let (m, v) = self
+                .engagement
+                .solve(phase, self.tool.flutes, vs, dt_over_m);
             let f = [
                 -(m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2]),
                 -(m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2]),

@@ -92,6 +92,20 @@ pub struct Engagement {
     pub lateral_mm: f64,
     /// The direction that sideways contact pushes the tool, unit (x, y).
     pub lateral_dir: [f64; 2],
+    /// The last servo period's solve, reused while the same bins act.
+    solved: Solved,
+}
+
+/// One solve of [`Engagement::solve`]: which bins acted, the matrix they make, and the
+/// adjugate and determinant of `I + c M`.
+#[derive(Clone, Copy, Debug, Default)]
+struct Solved {
+    /// The teeth's bins and which of their layers acted (0: none cached).
+    key: u64,
+    c: f64,
+    m: [[f64; 3]; 3],
+    adj: [[f64; 3]; 3],
+    det: f64,
 }
 
 impl Default for Engagement {
@@ -102,6 +116,7 @@ impl Default for Engagement {
             penetration_mm: f64::NEG_INFINITY,
             lateral_mm: 0.0,
             lateral_dir: [0.0; 2],
+            solved: Solved::default(),
         }
     }
 }
@@ -178,6 +193,7 @@ impl Engagement {
         self.penetration_mm = f64::NEG_INFINITY;
         self.lateral_mm = 0.0;
         self.lateral_dir = [0.0; 2];
+        self.solved.key = 0;
         let g = Geometry::new(stock, tool, k, tip_mm, rev_per_s);
         let mut below_surface = false;
         for (iy, dy, x0, x1) in stock.chords(tip_mm[0], tip_mm[1], g.r + g.cell) {
@@ -348,6 +364,72 @@ impl Engagement {
         }
     }
 
+    /// One servo period of the cut: the velocity-to-force matrix `M` in effect (as
+    /// [`Engagement::matrix`]) and the velocity `x` that solves `(I + c M) x = v` (backward
+    /// Euler of a tool of mass `1/c·dt` against the force `−M x`; `v` unchanged when the
+    /// system is singular). The teeth stay in one bin for several servo periods: while the
+    /// same bins act, the matrix and the system's adjugate are reused.
+    #[inline]
+    pub fn solve(
+        &mut self,
+        phase_rev: f64,
+        flutes: u32,
+        v_mm_per_s: &[f64; 3],
+        c: f64,
+    ) -> ([[f64; 3]; 3], [f64; 3]) {
+        let flutes = flutes.clamp(1, 8);
+        let mut key = 1u64;
+        let mut idx = [0usize; 8];
+        for (j, ix) in idx.iter_mut().enumerate().take(flutes as usize) {
+            let a = wrap_rev(phase_rev + j as f64 / f64::from(flutes));
+            *ix = ((a * BINS as f64) as usize).min(BINS - 1);
+            key = (key << 7) | *ix as u64;
+            for (l, layer) in self.bins.iter().enumerate() {
+                let n = &layer[*ix].n;
+                let into = n[0] * v_mm_per_s[0] + n[1] * v_mm_per_s[1] + n[2] * v_mm_per_s[2];
+                if into > 0.0 {
+                    key |= 1 << (5 + l);
+                }
+            }
+        }
+        if key != self.solved.key || c != self.solved.c {
+            let scale = BINS as f64 / f64::from(flutes);
+            let mut m = [[0.0f64; 3]; 3];
+            for (j, ix) in idx.iter().enumerate().take(flutes as usize) {
+                let bits = key >> (7 * (flutes as usize - 1 - j));
+                for (l, layer) in self.bins.iter().enumerate() {
+                    if bits & (1 << (5 + l)) == 0 {
+                        continue;
+                    }
+                    for (mr, br) in m.iter_mut().zip(&layer[*ix].b) {
+                        for (mc, bc) in mr.iter_mut().zip(br) {
+                            *mc += scale * bc;
+                        }
+                    }
+                }
+            }
+            let (adj, det) = adjugate_damped(&m, c);
+            self.solved = Solved {
+                key,
+                c,
+                m,
+                adj,
+                det,
+            };
+        }
+        let sv = &self.solved;
+        if sv.det.is_nan() || sv.det.abs() <= 1e-12 {
+            return (sv.m, *v_mm_per_s);
+        }
+        let x = [0, 1, 2].map(|i| {
+            (sv.adj[i][0] * v_mm_per_s[0]
+                + sv.adj[i][1] * v_mm_per_s[1]
+                + sv.adj[i][2] * v_mm_per_s[2])
+                / sv.det
+        });
+        (sv.m, x)
+    }
+
     /// The velocity-to-force matrix in effect with the teeth at `phase_rev` (the first
     /// tooth's azimuth, revolutions) for `flutes` teeth, each bin only while `v_mm_per_s`
     /// moves into it: the force on the tool is `−B v`.
@@ -373,6 +455,21 @@ impl Engagement {
             }
         }
         m
+    }
+
+    /// The rate at which the engaged envelope moving at `v_mm_per_s` (relative to the stock)
+    /// removes material, mm³/s: `Σ u dA` over the bins it moves into (the chip area's
+    /// source, so the spindle's torque is `K_tc` times it over `2πn`).
+    pub fn removal_rate_mm3_per_s(&self, v_mm_per_s: &[f64; 3]) -> f64 {
+        let mut q = 0.0;
+        for layer in &self.bins {
+            for bin in layer {
+                let u =
+                    bin.n[0] * v_mm_per_s[0] + bin.n[1] * v_mm_per_s[1] + bin.n[2] * v_mm_per_s[2];
+                q += u.max(0.0);
+            }
+        }
+        q
     }
 
     /// The mean (over a revolution) velocity-to-force matrix, every bin engaged.
@@ -429,10 +526,39 @@ fn azimuth_rev(x: f64, y: f64) -> f64 {
     (ang / (2.0 * std::f64::consts::PI)).min(1.0 - 1e-12)
 }
 
+/// The adjugate and the determinant of `I + c M` (`x = adj v / det` solves it).
+fn adjugate_damped(m: &[[f64; 3]; 3], c: f64) -> ([[f64; 3]; 3], f64) {
+    let a = [
+        [1.0 + c * m[0][0], c * m[0][1], c * m[0][2]],
+        [c * m[1][0], 1.0 + c * m[1][1], c * m[1][2]],
+        [c * m[2][0], c * m[2][1], 1.0 + c * m[2][2]],
+    ];
+    let adj = [
+        [
+            a[1][1] * a[2][2] - a[1][2] * a[2][1],
+            a[0][2] * a[2][1] - a[0][1] * a[2][2],
+            a[0][1] * a[1][2] - a[0][2] * a[1][1],
+        ],
+        [
+            a[1][2] * a[2][0] - a[1][0] * a[2][2],
+            a[0][0] * a[2][2] - a[0][2] * a[2][0],
+            a[0][2] * a[1][0] - a[0][0] * a[1][2],
+        ],
+        [
+            a[1][0] * a[2][1] - a[1][1] * a[2][0],
+            a[0][1] * a[2][0] - a[0][0] * a[2][1],
+            a[0][0] * a[1][1] - a[0][1] * a[1][0],
+        ],
+    ];
+    let det = a[0][0] * adj[0][0] + a[0][1] * adj[1][0] + a[0][2] * adj[2][0];
+    (adj, det)
+}
+
 /// Solves `(I + c M) x = v` for `x` (backward Euler of a tool of mass `1/c·dt` against the
-/// force `−M x`); `v` unchanged when the system is singular.
-#[inline]
-pub fn solve_damped(m: &[[f64; 3]; 3], c: f64, v: &[f64; 3]) -> [f64; 3] {
+/// force `−M x`); `v` unchanged when the system is singular. The reference of
+/// [`Engagement::solve`].
+#[cfg(test)]
+fn solve_damped(m: &[[f64; 3]; 3], c: f64, v: &[f64; 3]) -> [f64; 3] {
     let a = [
         [1.0 + c * m[0][0], c * m[0][1], c * m[0][2]],
         [c * m[1][0], 1.0 + c * m[1][1], c * m[1][2]],
@@ -783,6 +909,36 @@ mod tests {
             let d = (got - want).abs().min(1.0 - (got - want).abs());
             assert!(d < 2e-5, "{a}: {got} vs {want}");
         }
+    }
+
+    /// The cached solve gives the matrix and the velocity of `matrix` + `solve_damped`
+    /// through a revolution of the teeth, the velocity turning, for 1 to 4 flutes.
+    #[test]
+    fn the_cached_solve_matches_matrix_and_solve_damped() {
+        let (s, t, tip) = cut_slot(ToolKind::Ball, 1.5);
+        let k = CuttingCoefficients::of(MaterialPreset::Aluminium);
+        let mut e = Engagement::default();
+        e.gather(&s, &t, &k, tip, t.spindle_rev_per_s());
+        let mut hits = 0;
+        for flutes in 1..=4 {
+            for i in 0..2000 {
+                let a = i as f64 * 0.003;
+                let v = [10.0 * a.cos(), 10.0 * a.sin(), -2.0 + 4.0 * (0.7 * a).sin()];
+                let phase = i as f64 / 613.0;
+                let key_before = e.solved.key;
+                let (m, x) = e.solve(phase, flutes, &v, 0.02);
+                hits += usize::from(e.solved.key == key_before);
+                let m_ref = e.matrix(phase, flutes, &v);
+                let x_ref = solve_damped(&m_ref, 0.02, &v);
+                for r in 0..3 {
+                    assert!((x[r] - x_ref[r]).abs() < 1e-9 * (1.0 + x_ref[r].abs()));
+                    for c in 0..3 {
+                        assert!((m[r][c] - m_ref[r][c]).abs() < 1e-12 * (1.0 + m_ref[r][c].abs()));
+                    }
+                }
+            }
+        }
+        assert!(hits > 1000, "the cache was reused {hits} times");
     }
 
     #[test]

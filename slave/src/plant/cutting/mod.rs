@@ -42,6 +42,9 @@ const RESTART_CLEARANCE_MM: f64 = 0.5;
 /// relative to the stock since the last one (a ball's scallop between two such positions is
 /// under a micrometre).
 const REMOVAL_UPDATE_TRAVEL_CELLS: f64 = 0.25;
+/// While the cut takes more than this fraction of the spindle's torque the removal update
+/// runs every millisecond (a stall is met at the millisecond).
+const NEAR_STALL_TORQUE_FRACTION: f64 = 0.5;
 /// ... and at least this often while cutting, s.
 const REMOVAL_UPDATE_MAX_S: f64 = 0.05;
 
@@ -141,9 +144,9 @@ impl Section for CuttingConfig {
 pub struct CutReport {
     /// Total volume removed, mm³.
     pub removed_mm3: f64,
-    /// Removal rate over the last removal update's interval, mm³/s.
+    /// Removal rate of the engaged envelope at the last millisecond's velocity, mm³/s.
     pub removal_rate_mm3_per_s: f64,
-    /// The spindle's torque over the last removal update's interval, N·mm.
+    /// The spindle's torque that removal takes, N·mm.
     pub spindle_torque_n_mm: f64,
     /// The spindle has stalled (the tool rubs until it is pulled clear).
     pub stalled: bool,
@@ -170,6 +173,8 @@ pub struct CutState {
     since_update_s: f64,
     /// Time since the last removal update, s.
     since_removal_s: f64,
+    /// The tip at the last 1 ms update, workpiece frame, mm.
+    ms_tip_mm: [f64; 3],
     /// The tip at the last removal update (the reference of the rubbing penetrations), mm.
     rub_tip0_mm: [f64; 3],
     /// The contact force summed over the servo periods since the last update, base frame,
@@ -205,6 +210,7 @@ impl CutState {
             phase_rev: 0.0,
             since_update_s: 0.0,
             since_removal_s: 0.0,
+            ms_tip_mm: tip_mm,
             rub_tip0_mm: tip_mm,
             force_impulse_n_s: [0.0; 3],
             report: CutReport::default(),
@@ -260,15 +266,17 @@ impl CutState {
         }
     }
 
-    /// The 1 ms update. Books the last millisecond's mean force, then, when the removal
-    /// update is due, sweeps the stock along the tip's path since the last one (the spindle
-    /// turning), measures the removal rate and the spindle's torque over it, stalls the
-    /// spindle if the cut needs more than it has (it restarts once the tool is
-    /// `RESTART_CLEARANCE_MM` clear of the stock), and gathers the engagement at `tip_mm`
-    /// (base frame; the cut works with it in the workpiece frame) that the servo periods
-    /// cut with until the next one. Due: every millisecond while the spindle is stopped or
-    /// stalled (the tool rubs: an elastic contact) and while nothing is engaged (a first
-    /// touch is met within the millisecond); engaged and cutting, once the tip has moved a
+    /// The 1 ms update. Books the last millisecond's mean force; when the removal update is
+    /// due, sweeps the stock along the tip's path since the last one (the spindle turning)
+    /// and gathers the engagement at `tip_mm` (base frame; the cut works with it in the
+    /// workpiece frame) that the servo periods cut with until the next one; then measures
+    /// the removal rate of the engaged envelope at the last millisecond's velocity relative
+    /// to the stock and the spindle's torque it takes, and stalls the spindle if the cut
+    /// needs more than it has (it restarts once the tool is `RESTART_CLEARANCE_MM` clear of
+    /// the stock). Due: every millisecond while the spindle is stopped or stalled (the tool
+    /// rubs: an elastic contact), while nothing is engaged (a first touch is met within the
+    /// millisecond) and while the cut takes more than half the spindle's torque (a stall is
+    /// met within the millisecond); otherwise, engaged and cutting, once the tip has moved a
     /// quarter of a cell relative to the stock since the last one, and at least every
     /// `REMOVAL_UPDATE_MAX_S`. The cutting force is `−B v` with the tool's present
     /// velocity: an engagement a fraction of a cell old differs from the present one only
@@ -280,6 +288,7 @@ impl CutState {
         let n = self.rev_per_s();
         self.phase_rev = (self.phase_rev - n * dt).rem_euclid(1.0);
         self.since_update_s = 0.0;
+        let mut v_mm_per_s = [0.0; 3];
         if dt > 0.0 {
             for (m, i) in self
                 .report
@@ -290,7 +299,11 @@ impl CutState {
                 *m = i / dt;
             }
             self.force_impulse_n_s = [0.0; 3];
+            for (v, (a, b)) in v_mm_per_s.iter_mut().zip(tip_mm.iter().zip(self.ms_tip_mm)) {
+                *v = (a - b) / dt;
+            }
         }
+        self.ms_tip_mm = tip_mm;
         self.since_removal_s += dt;
         let moved2: f64 = (0..3)
             .map(|i| (tip_mm[i] - self.last_tip_mm[i]).powi(2))
@@ -298,45 +311,42 @@ impl CutState {
         let step = REMOVAL_UPDATE_TRAVEL_CELLS * self.stock.cell_mm();
         let due = n <= 0.0
             || self.engagement.elements == 0
-            || !(moved2 <= step * step)
-            || self.since_removal_s >= REMOVAL_UPDATE_MAX_S;
+            || moved2 > step * step
+            || moved2.is_nan()
+            || self.since_removal_s >= REMOVAL_UPDATE_MAX_S
+            || self.report.spindle_torque_n_mm
+                > NEAR_STALL_TORQUE_FRACTION * self.tool.max_torque_n_mm;
         if due {
-            self.removal_update(tip_mm, n);
+            if n > 0.0 {
+                self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm);
+            }
+            self.since_removal_s = 0.0;
+            self.last_tip_mm = tip_mm;
+            self.rub_tip0_mm = tip_mm;
+            self.engagement
+                .gather(&self.stock, &self.tool, &self.coeff, tip_mm, n);
         }
-    }
-
-    /// Sweeps, measures and gathers at `tip_mm` (workpiece frame), spindle at `n` rev/s.
-    fn removal_update(&mut self, tip_mm: [f64; 3], n: f64) {
-        let removed = if n > 0.0 {
-            self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm)
+        self.report.removed_mm3 = self.stock.removed_mm3();
+        let rate = if n > 0.0 && v_mm_per_s.iter().all(|v| v.is_finite()) {
+            self.engagement.removal_rate_mm3_per_s(&v_mm_per_s)
         } else {
             0.0
         };
-        let dt = self.since_removal_s;
-        self.since_removal_s = 0.0;
-        if dt > 0.0 {
-            let rate = removed / dt;
-            self.report.removal_rate_mm3_per_s = rate;
-            self.report.spindle_torque_n_mm = if n > 0.0 {
-                self.coeff.k_tc_n_per_mm2 * rate / (2.0 * std::f64::consts::PI * n)
-            } else {
-                0.0
-            };
-        }
-        self.report.removed_mm3 = self.stock.removed_mm3();
+        self.report.removal_rate_mm3_per_s = rate;
+        self.report.spindle_torque_n_mm = if n > 0.0 {
+            self.coeff.k_tc_n_per_mm2 * rate / (2.0 * std::f64::consts::PI * n)
+        } else {
+            0.0
+        };
         if self.report.spindle_torque_n_mm > self.tool.max_torque_n_mm && !self.report.stalled {
             self.report.stalled = true;
             self.report.stalls += 1;
+            // A stalled spindle rubs from this millisecond on.
+            self.engagement
+                .gather(&self.stock, &self.tool, &self.coeff, tip_mm, 0.0);
+            self.last_tip_mm = tip_mm;
+            self.rub_tip0_mm = tip_mm;
         }
-        self.last_tip_mm = tip_mm;
-        self.rub_tip0_mm = tip_mm;
-        self.engagement.gather(
-            &self.stock,
-            &self.tool,
-            &self.coeff,
-            tip_mm,
-            self.rev_per_s(),
-        );
         if self.report.stalled
             && self.engagement.penetration_mm <= -RESTART_CLEARANCE_MM
             && self.engagement.lateral_mm <= 0.0
