@@ -121,7 +121,7 @@ impl CutState {
         let [ax, ay] = table.config().axis_mm;
         let tip_wp = table.to_workpiece(*tip_mm);
         self.table_rev = th / (2.0 * std::f64::consts::PI);
-        let (s, c) = th.sin_cos();
+        let (s, c) = table.sin_cos();
         // The stock's velocity under the tip, base frame.
         let u = [-om * (tip_mm[1] - ay), om * (tip_mm[0] - ax), 0.0];
         let into_wp = |v: &[f64; 3]| {

@@ -231,6 +231,14 @@ impl Engagement {
         }
     }
 
+    /// Whether the tool with its tip at `tip_mm` is clear of the whole block: its lower
+    /// surface more than the touch above the block's top, which no cell rises above (the
+    /// stock is only ever lowered), so a [`Engagement::gather`] there would engage nothing.
+    #[inline]
+    pub fn clear_of_block(stock: &Stock, tip_mm: [f64; 3]) -> bool {
+        tip_mm[2] - TOUCH_MM > stock.top_mm()
+    }
+
     /// A cell inside the tool's radius at or above its lower surface (less the touch):
     /// rubbing (stock inside a tool that does not cut), or an element of the envelope.
     #[allow(clippy::too_many_arguments)]
@@ -831,6 +839,38 @@ mod tests {
     /// The one-pass gather books the same elements, bins, penetration and sideways contact
     /// as the reference on cut slots, ramps, plunges and dwell positions of both tools, the
     /// spindle turning or stopped, tool clear above the cut, touching, inside the stock.
+    /// A tool clear of the block by `clear_of_block` engages nothing anywhere over a cut
+    /// stock, and one just under the block's top over uncut stock engages something.
+    #[test]
+    fn a_tool_clear_of_the_block_engages_nothing() {
+        let mut rng = h4_shared::rng::Rng::new(11);
+        for kind in [ToolKind::Ball, ToolKind::Flat] {
+            let (mut s, t, _) = cut_slot(kind, 1.5);
+            s.sweep(&t, [-5.0, 6.0, 0.5], [5.0, 6.0, -1.5]);
+            let k = CuttingCoefficients::of(MaterialPreset::Aluminium);
+            let n = t.spindle_rev_per_s();
+            let mut e = Engagement::default();
+            let mut clear = 0;
+            for _ in 0..300 {
+                let p = [
+                    -14.0 + 24.0 * rng.uniform(),
+                    -12.0 + 24.0 * rng.uniform(),
+                    s.top_mm() + 0.01 * rng.uniform() - 0.003,
+                ];
+                e.gather(&s, &t, &k, p, n);
+                if Engagement::clear_of_block(&s, p) {
+                    clear += 1;
+                    assert_eq!(e.elements, 0, "{kind:?} at {p:?}");
+                }
+            }
+            assert!(clear > 100, "{clear} positions clear");
+            let p = [20.0, -10.0, s.top_mm() - 0.001];
+            assert!(!Engagement::clear_of_block(&s, p));
+            e.gather(&s, &t, &k, p, n);
+            assert!(e.elements > 0, "{kind:?} touching uncut stock engages");
+        }
+    }
+
     #[test]
     fn the_one_pass_gather_matches_the_reference() {
         let mut rng = h4_shared::rng::Rng::new(7);

@@ -275,7 +275,7 @@ impl CutState {
     /// needs more than it has (it restarts once the tool is `RESTART_CLEARANCE_MM` clear of
     /// the stock). Due: every millisecond while the spindle is stopped or stalled (the tool
     /// rubs: an elastic contact), while nothing is engaged (a first touch is met within the
-    /// millisecond) and while the cut takes more than half the spindle's torque (a stall is
+    /// millisecond; not while the tool is clear of the whole block, where none can be) and while the cut takes more than half the spindle's torque (a stall is
     /// met within the millisecond); otherwise, engaged and cutting, once the tip has moved a
     /// quarter of a cell relative to the stock since the last one, and at least every
     /// `REMOVAL_UPDATE_MAX_S`. The cutting force is `−B v` with the tool's present
@@ -309,13 +309,22 @@ impl CutState {
             .map(|i| (tip_mm[i] - self.last_tip_mm[i]).powi(2))
             .sum();
         let step = REMOVAL_UPDATE_TRAVEL_CELLS * self.stock.cell_mm();
-        let due = n <= 0.0
-            || self.engagement.elements == 0
-            || moved2 > step * step
-            || moved2.is_nan()
-            || self.since_removal_s >= REMOVAL_UPDATE_MAX_S
-            || self.report.spindle_torque_n_mm
-                > NEAR_STALL_TORQUE_FRACTION * self.tool.max_torque_n_mm;
+        let clear = n > 0.0
+            && self.engagement.elements == 0
+            && Engagement::clear_of_block(&self.stock, tip_mm);
+        if clear {
+            // Above the whole block nothing is cut or engaged: the sweep starts here.
+            self.last_tip_mm = tip_mm;
+            self.since_removal_s = 0.0;
+        }
+        let due = !clear
+            && (n <= 0.0
+                || self.engagement.elements == 0
+                || moved2 > step * step
+                || moved2.is_nan()
+                || self.since_removal_s >= REMOVAL_UPDATE_MAX_S
+                || self.report.spindle_torque_n_mm
+                    > NEAR_STALL_TORQUE_FRACTION * self.tool.max_torque_n_mm);
         if due {
             if n > 0.0 {
                 self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm);
