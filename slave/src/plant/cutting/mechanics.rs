@@ -372,9 +372,9 @@ impl Engagement {
         }
     }
 
-    /// One servo period of the cut: the velocity-to-force matrix `M` in effect (as
-    /// [`Engagement::matrix`]) and the velocity `x` that solves `(I + c M) x = v` (backward
-    /// Euler of a tool of mass `1/c·dt` against the force `−M x`; `v` unchanged when the
+    /// One servo period of the cut: the velocity-to-force matrix `M` in effect (as the test
+    /// reference `Engagement::matrix`) and the velocity `x` that solves `(I + c M) x = v`
+    /// (backward Euler of a tool of mass `1/c·dt` against the force `−M x`; `v` unchanged when the
     /// system is singular). The teeth stay in one bin for several servo periods: while the
     /// same bins act, the matrix and the system's adjugate are reused.
     #[inline]
@@ -440,8 +440,9 @@ impl Engagement {
 
     /// The velocity-to-force matrix in effect with the teeth at `phase_rev` (the first
     /// tooth's azimuth, revolutions) for `flutes` teeth, each bin only while `v_mm_per_s`
-    /// moves into it: the force on the tool is `−B v`.
-    #[inline]
+    /// moves into it: the force on the tool is `−B v`. The reference of
+    /// [`Engagement::solve`]'s matrix.
+    #[cfg(test)]
     pub fn matrix(&self, phase_rev: f64, flutes: u32, v_mm_per_s: &[f64; 3]) -> [[f64; 3]; 3] {
         let mut m = [[0.0f64; 3]; 3];
         let scale = BINS as f64 / f64::from(flutes.max(1));
@@ -836,9 +837,6 @@ mod tests {
         }
     }
 
-    /// The one-pass gather books the same elements, bins, penetration and sideways contact
-    /// as the reference on cut slots, ramps, plunges and dwell positions of both tools, the
-    /// spindle turning or stopped, tool clear above the cut, touching, inside the stock.
     /// A tool clear of the block by `clear_of_block` engages nothing anywhere over a cut
     /// stock, and one just under the block's top over uncut stock engages something.
     #[test]
@@ -871,6 +869,9 @@ mod tests {
         }
     }
 
+    /// The one-pass gather books the same elements, bins, penetration and sideways contact
+    /// as the reference on cut slots, ramps, plunges and dwell positions of both tools, the
+    /// spindle turning or stopped, tool clear above the cut, touching, inside the stock.
     #[test]
     fn the_one_pass_gather_matches_the_reference() {
         let mut rng = h4_shared::rng::Rng::new(7);

@@ -275,9 +275,10 @@ impl CutState {
     /// needs more than it has (it restarts once the tool is `RESTART_CLEARANCE_MM` clear of
     /// the stock). Due: every millisecond while the spindle is stopped or stalled (the tool
     /// rubs: an elastic contact), while nothing is engaged (a first touch is met within the
-    /// millisecond; not while the tool is clear of the whole block, where none can be) and while the cut takes more than half the spindle's torque (a stall is
-    /// met within the millisecond); otherwise, engaged and cutting, once the tip has moved a
-    /// quarter of a cell relative to the stock since the last one, and at least every
+    /// millisecond; not while the tool is clear of the whole block, where none can be) and
+    /// while the cut takes more than half the spindle's torque (a stall is met within the
+    /// millisecond); otherwise, engaged and cutting, once the tip has moved a quarter of a
+    /// cell relative to the stock since the last one, and at least every
     /// `REMOVAL_UPDATE_MAX_S`. The cutting force is `−B v` with the tool's present
     /// velocity: an engagement a fraction of a cell old differs from the present one only
     /// where the engaged region changes shape (in steady feed it keeps its shape relative

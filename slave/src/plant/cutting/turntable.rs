@@ -246,7 +246,7 @@ mod tests {
     const DT: f64 = 50e-6;
 
     /// The sine and cosine kept through the steps match the angle's own: ramps at full
-    /// speed, reversals, a stop at a limit and a large step, 400 000 periods.
+    /// speed up to an angle limit and back, 400 000 periods.
     #[test]
     fn the_kept_sin_cos_is_the_angles() {
         let mut t = table(10.0, 3.0, 50.0, [-10.0, 10.0]);
