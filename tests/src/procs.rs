@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command as Proc, Stdio};
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use h4_shared::wire::{Command, Feedback};
@@ -20,7 +20,7 @@ pub fn serial() -> std::sync::MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-pub use crate::bins::{binaries, workspace};
+pub use crate::bins::{binaries, profile_dir, workspace};
 
 /// A scratch directory and iceoryx2 prefix of this test.
 pub struct Scratch {
@@ -383,6 +383,74 @@ pub fn unix_now_ns() -> u64 {
         .map_or(0, |d| d.as_nanos() as u64)
 }
 
+/// A Python interpreter that imports the public MCAP reader: `H4_TEST_PYTHON` if set, else
+/// `python3` when it has `mcap`, else a virtual environment in `target/` made once with
+/// `tests/python-requirements.txt` (pinned versions, from PyPI), so the test command works on a
+/// fresh machine. A Python that cannot be had is a test failure that says why.
+pub fn python_with_mcap() -> &'static Path {
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON.get_or_init(|| {
+        let imports_mcap = |python: &Path| {
+            Proc::new(python)
+                .args(["-c", "import mcap.reader, zstandard, lz4"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+        };
+        if let Some(python) = std::env::var_os("H4_TEST_PYTHON") {
+            return PathBuf::from(python);
+        }
+        let system = PathBuf::from("python3");
+        if imports_mcap(&system) {
+            return system;
+        }
+        let venv = profile_dir()
+            .parent()
+            .expect("target dir")
+            .join("python-mcap");
+        let python = venv.join("bin").join("python3");
+        if !imports_mcap(&python) {
+            let _ = std::fs::remove_dir_all(&venv);
+            let made = Proc::new("python3")
+                .args(["-m", "venv"])
+                .arg(&venv)
+                .output()
+                .expect("python3 -m venv");
+            assert!(
+                made.status.success(),
+                "python3 -m venv {} failed:\n{}",
+                venv.display(),
+                String::from_utf8_lossy(&made.stderr)
+            );
+            let installed = Proc::new(&python)
+                .args([
+                    "-m",
+                    "pip",
+                    "install",
+                    "--quiet",
+                    "--disable-pip-version-check",
+                    "-r",
+                ])
+                .arg(workspace().join("tests").join("python-requirements.txt"))
+                .output()
+                .expect("pip install");
+            assert!(
+                installed.status.success(),
+                "installing tests/python-requirements.txt into {} failed (PyPI reachable?):\n{}",
+                venv.display(),
+                String::from_utf8_lossy(&installed.stderr)
+            );
+            assert!(
+                imports_mcap(&python),
+                "{} cannot import mcap",
+                python.display()
+            );
+        }
+        python
+    })
+}
+
 /// Opens MCAP files with the public Python reader (`mcap` package, `make_reader`) and returns,
 /// per path, `{messages, last_log_time_ns: {topic: ns}}`; panics with the reader's error if a
 /// file does not open or read to its end.
@@ -400,7 +468,7 @@ for path in sys.argv[1:]:
     out[path] = {"messages": n, "last_log_time_ns": last}
 print(json.dumps(out))
 "#;
-    let out = Proc::new("python3")
+    let out = Proc::new(python_with_mcap())
         .arg("-c")
         .arg(SCRIPT)
         .args(paths)
