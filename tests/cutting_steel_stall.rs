@@ -28,7 +28,7 @@ fn run_in(
         // No depth floor: only the stall and the force limit stand between the push and
         // the part.
         "fixtures.depth_floor.z_mm=-400".to_string(),
-        "duration_s=10".to_string(),
+        format!("duration_s={GRID_DURATION_S}"),
     ];
     if let Some(t) = torque_n_mm {
         o.push(format!("cutting.tool.max_torque_n_mm={t}"));
@@ -76,9 +76,18 @@ struct Stall {
     max_force_n: f64,
     limit_n: f64,
     stalls: u64,
+    /// When the last stall began, s (NaN: none).
+    last_stall_s: f64,
     safe_stops: u64,
     repairs: u64,
 }
+
+/// The grid's session length, s (`run_in`).
+const GRID_DURATION_S: f64 = 10.0;
+/// A stall's safe stop lifts the tool until the spindle turns again, then the master
+/// re-pairs: 1.1–2.3 s in the grid (measured 2026-12-04). A run that ends sooner after its
+/// only stall is not asked to have re-paired.
+const REPAIR_WINDOW_S: f64 = 3.0;
 
 /// Resin, aluminium and steel × spindles of 20, 30, 45 and 60 N·mm (all too weak for the
 /// pushed cut) × seeds 1–3, no depth floor, with `extra` overrides.
@@ -94,6 +103,7 @@ fn stall_grid(extra: &[&str]) -> Vec<Stall> {
                     max_force_n: s.max_force_n,
                     limit_n,
                     stalls: c.spindle_stalls,
+                    last_stall_s: c.spindle_last_stall_s,
                     safe_stops: s.slave_safe_stops,
                     repairs: s.repairs,
                 });
@@ -135,10 +145,13 @@ fn a_stall_stops_the_slave_within_the_force_limit_on_every_material() {
                 r.case,
                 r.stalls
             );
+            let only_stall_at_the_end =
+                r.stalls == 1 && r.last_stall_s > GRID_DURATION_S - REPAIR_WINDOW_S;
             assert!(
-                r.repairs >= 1,
-                "{}: never re-paired after its stall",
-                r.case
+                r.repairs >= 1 || only_stall_at_the_end,
+                "{}: never re-paired after its stall at {} s",
+                r.case,
+                r.last_stall_s
             );
         }
         assert!(

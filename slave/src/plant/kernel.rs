@@ -138,6 +138,9 @@ impl SimArm {
         let mut pen = self.penetration_mm;
         let mut last_fn = 0.0;
         let mut last_slip = [0.0f64; 2];
+        // Sums over the block of the normal force and the slip (the sensor's period mean).
+        let mut sum_fn = 0.0;
+        let mut sum_slip = [0.0f64; 2];
         for _ in 0..n {
             // Carriages: PID servo on the encoder (derivative on the measurement,
             // anti-windup), the structural force f, friction.
@@ -173,6 +176,9 @@ impl SimArm {
             let v0 = w[0] + dv_n;
             let (w1, w2, w3) = (w[1], w[2], w[3]);
             last_slip = [w1 * removed, w2 * removed];
+            sum_fn += last_fn;
+            sum_slip[0] += last_slip[0];
+            sum_slip[1] += last_slip[1];
             // Leg rates J V (the tangential part's computed before the friction's square
             // root is known, then scaled), the structural forces and leg lengths of the
             // next period.
@@ -206,15 +212,18 @@ impl SimArm {
         self.pose = Pose::from(pose);
         let mut vel = [0.0f64; 4];
         let mut fc = [0.0f64; 4];
+        let mut sum = [0.0f64; 3];
         for a in 0..3 {
             vel[a] = nrm[a] * vb[0] + t1[a] * vb[1] + t2[a] * vb[2];
             fc[a] =
                 nrm[a] * last_fn - (t1[a] * last_slip[0] + t2[a] * last_slip[1]) * m_tool_over_dt;
+            sum[a] = nrm[a] * sum_fn - (t1[a] * sum_slip[0] + t2[a] * sum_slip[1]) * m_tool_over_dt;
         }
         vel[3] = vb[3];
         self.vel = Pose::from(vel);
         self.penetration_mm = pen;
         self.contact_wrench = Vector4::from(fc);
+        self.book_load(sum, n);
     }
 
     /// The constants of a block of the plane kernel: the plane's frame `(nrm, t1, t2)`, the
@@ -282,6 +291,7 @@ impl SimArm {
         let mu = surface.material.friction_coefficient;
         let reg = cfg.friction_velocity_mm_per_s;
         let mut fc = [0.0f64; 3];
+        let mut sum = [0.0f64; 3];
         let mut pen = self.penetration_mm;
         // Products of constants taken out of the loop.
         let dt_over_m_tool = st.dt_over_m_tool;
@@ -328,11 +338,15 @@ impl SimArm {
                     fc[a] = nrm[a] * f_n - dv_t * m_tool_over_dt;
                 }
             }
+            for (s, f) in sum.iter_mut().zip(fc) {
+                *s += f;
+            }
             st.advance(vs);
         }
         st.store(self);
         self.penetration_mm = pen;
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
+        self.book_load(sum, n);
     }
 }
 

@@ -10,6 +10,20 @@ use serde::{Deserialize, Serialize};
 
 use crate::filter::Butterworth2;
 
+/// What each sample of the sensor's A/D reads of the load.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AdcAperture {
+    /// The load at the sample's instant (a fast A/D: no lag of its own; a load with content
+    /// at multiples of the sample rate aliases into the reading: a milling cutter's tooth
+    /// pulses, docs/cutting.md "The sensor and the cut").
+    #[default]
+    Instant,
+    /// The load's mean over the sample period (an integrating A/D: nothing at a multiple of
+    /// the sample rate aliases; half a period more lag).
+    Period,
+}
+
 /// The force/torque sensor's imperfections and its digital filter.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -36,6 +50,8 @@ pub struct SensorConfig {
     /// Cut-off of the 2nd-order Butterworth low-pass filter, Hz (≥ 0.45 × the sample rate
     /// disables it).
     pub filter_cutoff_hz: f64,
+    /// What a sample reads of the load: `instant` or `period` ([`AdcAperture`]).
+    pub adc_aperture: AdcAperture,
 }
 
 impl Default for SensorConfig {
@@ -51,6 +67,7 @@ impl Default for SensorConfig {
             bias_drift_n_mm_per_sqrt_s: 0.0,
             sample_rate_hz: 1000.0,
             filter_cutoff_hz: 80.0,
+            adc_aperture: AdcAperture::Instant,
         }
     }
 }
@@ -85,7 +102,7 @@ impl Section for SensorConfig {
 /// The sensor's state: its noise source, its filters and the latest filtered reading.
 #[derive(Clone, Debug)]
 pub(super) struct ForceSensor {
-    cfg: SensorConfig,
+    pub(super) cfg: SensorConfig,
     rng: Rng,
     filters: [Butterworth2; 4],
     /// The drift of the bias so far, N and N·mm.

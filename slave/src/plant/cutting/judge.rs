@@ -127,10 +127,17 @@ pub struct CutSummary {
     pub steady_feed_cycles: u64,
     /// Spindle stalls.
     pub spindle_stalls: u64,
+    /// When the last spindle stall began, s from the start (NaN: none).
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub spindle_last_stall_s: f64,
     /// Cycles in which a fixture limited the commanded tool point.
     pub fixture_limited_cycles: u64,
     /// Largest true contact force during the cut, N.
     pub cutting_force_max_n: f64,
+}
+
+fn nan() -> f64 {
+    f64::NAN
 }
 
 /// A number that JSON wrote as null (NaN, infinite) read back as NaN.
@@ -211,6 +218,8 @@ pub struct CutEvaluator {
     removed_while_cutting_mm3: f64,
     last_removed_mm3: f64,
     force_max_n: f64,
+    stalls_seen: u64,
+    last_stall_cycle: Option<usize>,
 }
 
 impl CutEvaluator {
@@ -233,6 +242,8 @@ impl CutEvaluator {
             removed_while_cutting_mm3: 0.0,
             last_removed_mm3: 0.0,
             force_max_n: 0.0,
+            stalls_seen: 0,
+            last_stall_cycle: None,
         }
     }
 
@@ -242,6 +253,10 @@ impl CutEvaluator {
         self.force_ring[i] = s.report.mean_force_n[2];
         self.tip_ring[i] = [s.tip_mm[0], s.tip_mm[1]];
         self.setpoint_ring[i] = s.setpoint_n;
+        if s.report.stalls > self.stalls_seen {
+            self.stalls_seen = s.report.stalls;
+            self.last_stall_cycle = Some(self.n);
+        }
         let f = s.report.mean_force_n;
         self.force_max_n = self
             .force_max_n
@@ -327,6 +342,9 @@ impl CutEvaluator {
             },
             steady_feed_cycles: self.deviations_pct.len() as u64,
             spindle_stalls: report.stalls,
+            spindle_last_stall_s: self
+                .last_stall_cycle
+                .map_or(f64::NAN, |n| n as f64 / 1000.0),
             fixture_limited_cycles,
             cutting_force_max_n: self.force_max_n,
         }

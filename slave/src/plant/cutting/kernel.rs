@@ -153,6 +153,7 @@ impl SimArm {
             reg_mm_per_s: cfg.friction_velocity_mm_per_s,
         };
         let mut fc = [0.0f64; 3];
+        let mut sum = [0.0f64; 3];
         for _ in 0..n {
             let mut vs = st.structure();
             let before = [st.vel[0], st.vel[1], st.vel[2]];
@@ -161,9 +162,13 @@ impl SimArm {
             for (i, f) in cut.force_impulse_n_s.iter_mut().zip(fc) {
                 *i += f * dt;
             }
+            for (s, f) in sum.iter_mut().zip(fc) {
+                *s += f;
+            }
             st.advance(vs);
         }
         st.store(self);
+        self.book_load(sum, n);
         self.penetration_mm = cut.stock().top_mm() - st.pose[2];
         self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
         self.cut = Some(cut);
