@@ -105,7 +105,9 @@ fn the_pocket_meets_the_surface_target_with_its_region() {
 /// The issue's force target for the scripted pocket: cutting-force deviation p99 ≤ 10 % at
 /// steady feed. Not measurable in this session: the depth floor holds the tool in nearly
 /// every cycle (49 221 of 51 500 measured 2026-12-03), where the force loop is suspended
-/// by design, so no cycle is steady feed.
+/// by design, so no cycle is steady feed. Off the floor the loop holds a steady cut but not
+/// through line ends (a roughing pass: 79 % p99): docs/cutting.md, "The sensor and the
+/// cut".
 #[test]
 #[ignore = "figure: force deviation not measurable (no steady feed off the floor); see docs/cutting.md"]
 fn the_pocket_meets_the_force_target() {

@@ -117,9 +117,11 @@ fn stall_grid(extra: &[&str]) -> Vec<Stall> {
 /// stops itself (its safe stop: the force ramps down, the tool retracts, and lifts further
 /// while the spindle stays stalled; the master cannot clear it meanwhile), the spindle runs
 /// again and the master re-pairs, and the true force stays within the slave's force limit.
-/// Measured 2026-12-03: 1–9 stalls per run (the scripted operator pushes on after each),
+/// Measured 2026-12-04: 1–9 stalls per run (the scripted operator pushes on after each),
 /// 30 of 36 runs stall (steel does not stall 45 and 60 N·mm spindles at this push), true
-/// force at most 67.0 N (aluminium, 60 N·mm, seed 2) against 80 N.
+/// force at most 77.0 N (aluminium, 60 N·mm, seed 2; 67.0 N on 2026-12-03) against 80 N.
+/// With the integrating sensor (`slave.sensor.adc_aperture=period`) one run reaches 100.4 N
+/// (aluminium, 60 N·mm, seed 3): docs/cutting.md, "The sensor and the cut".
 ///
 /// Two layers keep it there, each shown needed by a control over the same grid:
 /// * without the stall's safe stop (`spindle_stall_safe_stop = false`, the behaviour before
