@@ -103,6 +103,19 @@ impl CutTarget {
     fn judged(&self, x: f64, y: f64, tool: &Tool) -> bool {
         self.distance_mm(x, y) <= tool.radius_mm + self.margin_mm
     }
+
+    /// `[x_min, x_max, y_min, y_max]` of a box that holds every judged point, mm.
+    fn judged_box_mm(&self, tool: &Tool) -> [f64; 4] {
+        let reach = tool.radius_mm + self.margin_mm;
+        let half = if self.kind == TargetKind::Ring {
+            let r = self.radius_mm + 0.5 * self.size_mm[0] + reach;
+            [r, r]
+        } else {
+            [0.5 * self.size_mm[0] + reach, 0.5 * self.size_mm[1] + reach]
+        };
+        let [cx, cy] = self.centre_mm;
+        [cx - half[0], cx + half[0], cy - half[1], cy + half[1]]
+    }
 }
 
 /// The summary's cutting fields (NaN is written as null and read back as NaN).
@@ -317,13 +330,15 @@ impl CutEvaluator {
         let (nx, ny) = stock.dims();
         let mut errors = Vec::new();
         let mut lowest = top;
+        let judged_box = target.map(|t| t.judged_box_mm(tool));
         for iy in 0..ny {
             for ix in 0..nx {
                 let h = stock.height_at(ix, iy);
                 lowest = lowest.min(h);
-                if let Some(t) = target {
+                if let (Some(t), Some(b)) = (target, judged_box) {
                     let c = stock.cell_centre_mm(ix, iy);
-                    if t.judged(c[0], c[1], tool) {
+                    let in_box = c[0] >= b[0] && c[0] <= b[1] && c[1] >= b[2] && c[1] <= b[3];
+                    if in_box && t.judged(c[0], c[1], tool) {
                         errors.push((h - t.height_mm(c[0], c[1], top, tool)).abs());
                     }
                 }
@@ -387,6 +402,53 @@ pub fn write_outputs(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The box the judge scans holds every judged point, for a pocket and a ring (points on
+    /// a 0.05 mm grid around each, the box's edges included).
+    #[test]
+    fn the_judged_box_holds_every_judged_point() {
+        let tool = Tool::default();
+        let pocket = CutTarget {
+            kind: TargetKind::Pocket,
+            centre_mm: [3.0, -2.0],
+            size_mm: [20.0, 12.0],
+            radius_mm: 0.0,
+            depth_mm: 2.0,
+            margin_mm: 3.0,
+        };
+        let ring = CutTarget {
+            kind: TargetKind::Ring,
+            centre_mm: [-1.0, 4.0],
+            size_mm: [2.0, 0.0],
+            radius_mm: 25.0,
+            ..pocket
+        };
+        for t in [pocket, ring] {
+            let b = t.judged_box_mm(&tool);
+            let (mut judged, mut outside) = (0u32, 0u32);
+            for i in -800..=800 {
+                for j in -800..=800 {
+                    let (x, y) = (
+                        t.centre_mm[0] + 0.05 * f64::from(i),
+                        t.centre_mm[1] + 0.05 * f64::from(j),
+                    );
+                    if t.judged(x, y, &tool) {
+                        judged += 1;
+                        assert!(
+                            x >= b[0] && x <= b[1] && y >= b[2] && y <= b[3],
+                            "{t:?}: ({x}, {y}) outside {b:?}"
+                        );
+                    } else {
+                        outside += 1;
+                    }
+                }
+            }
+            assert!(
+                judged > 1000 && outside > 1000,
+                "{judged} judged, {outside} not"
+            );
+        }
+    }
 
     /// The target is the ball's envelope over the pocket: the floor inside, the fillet of
     /// the tool's radius at the edge, the top beyond.
