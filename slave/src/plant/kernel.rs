@@ -97,18 +97,9 @@ impl SimArm {
         let mut pose = [self.pose[0], self.pose[1], self.pose[2], self.pose[3]];
         let v3 = [self.vel[0], self.vel[1], self.vel[2]];
         let mut vb = [dot3(&v3, &nrm), dot3(&v3, &t1), dot3(&v3, &t2), self.vel[3]];
-        let mut ld = [0.0f64; 4];
-        let mut l = [0.0f64; 4];
+        let (mut l, mut ld) = self.legs_now();
         let mut f = [0.0f64; 4];
         for r in 0..4 {
-            let mut acc = self.l0[r];
-            let mut rate = 0.0;
-            for (c, p) in pose.iter().enumerate() {
-                acc += self.jac[(r, c)] * (p - self.pose0[c]);
-                rate += self.jac[(r, c)] * self.vel[c];
-            }
-            l[r] = acc;
-            ld[r] = rate;
             f[r] = k[r] * (l[r] - q[r]) + cs[r] * (ld[r] - qd[r]);
         }
         // Gravity's velocity change per period, in the plane's frame.
@@ -138,9 +129,8 @@ impl SimArm {
         let mut pen = self.penetration_mm;
         let mut last_fn = 0.0;
         let mut last_slip = [0.0f64; 2];
-        // Sums over the block of the normal force and the slip (the sensor's period mean).
-        let mut sum_fn = 0.0;
-        let mut sum_slip = [0.0f64; 2];
+        // Σ normal force and Σ slip over the block, for the sensor's period mean.
+        let (mut sum_fn, mut sum_slip) = (0.0, [0.0f64; 2]);
         for _ in 0..n {
             // Carriages: PID servo on the encoder (derivative on the measurement,
             // anti-windup), the structural force f, friction.
@@ -177,8 +167,7 @@ impl SimArm {
             let (w1, w2, w3) = (w[1], w[2], w[3]);
             last_slip = [w1 * removed, w2 * removed];
             sum_fn += last_fn;
-            sum_slip[0] += last_slip[0];
-            sum_slip[1] += last_slip[1];
+            sum_slip = [sum_slip[0] + last_slip[0], sum_slip[1] + last_slip[1]];
             // Leg rates J V (the tangential part's computed before the friction's square
             // root is known, then scaled), the structural forces and leg lengths of the
             // next period.
@@ -211,19 +200,35 @@ impl SimArm {
         self.integral = integ;
         self.pose = Pose::from(pose);
         let mut vel = [0.0f64; 4];
-        let mut fc = [0.0f64; 4];
-        let mut sum = [0.0f64; 3];
         for a in 0..3 {
             vel[a] = nrm[a] * vb[0] + t1[a] * vb[1] + t2[a] * vb[2];
-            fc[a] =
-                nrm[a] * last_fn - (t1[a] * last_slip[0] + t2[a] * last_slip[1]) * m_tool_over_dt;
-            sum[a] = nrm[a] * sum_fn - (t1[a] * sum_slip[0] + t2[a] * sum_slip[1]) * m_tool_over_dt;
         }
         vel[3] = vb[3];
         self.vel = Pose::from(vel);
         self.penetration_mm = pen;
-        self.contact_wrench = Vector4::from(fc);
+        let fc = plane_force(&nrm, &t1, &t2, last_fn, last_slip, m_tool_over_dt);
+        let sum = plane_force(&nrm, &t1, &t2, sum_fn, sum_slip, m_tool_over_dt);
+        self.contact_wrench = Vector4::new(fc[0], fc[1], fc[2], 0.0);
         self.book_load(sum, n);
+    }
+
+    /// The legs' lengths and rates at the platform's present pose and velocity, the
+    /// Jacobian held (linearised about `pose0`): where a block of servo periods starts.
+    #[inline(always)]
+    fn legs_now(&self) -> ([f64; 4], [f64; 4]) {
+        let mut l = [0.0f64; 4];
+        let mut ld = [0.0f64; 4];
+        for r in 0..4 {
+            let mut acc = self.l0[r];
+            let mut rate = 0.0;
+            for c in 0..4 {
+                acc += self.jac[(r, c)] * (self.pose[c] - self.pose0[c]);
+                rate += self.jac[(r, c)] * self.vel[c];
+            }
+            l[r] = acc;
+            ld[r] = rate;
+        }
+        (l, ld)
     }
 
     /// The constants of a block of the plane kernel: the plane's frame `(nrm, t1, t2)`, the
@@ -391,19 +396,8 @@ impl Substep {
         }
         let pose = [arm.pose[0], arm.pose[1], arm.pose[2], arm.pose[3]];
         let vel = [arm.vel[0], arm.vel[1], arm.vel[2], arm.vel[3]];
-        let mut l = [0.0f64; 4];
-        for (r, lr) in l.iter_mut().enumerate() {
-            let mut acc = arm.l0[r];
-            for c in 0..4 {
-                acc += j[r][c] * (pose[c] - arm.pose0[c]);
-            }
-            *lr = acc;
-        }
-        // Leg rates the platform imposes (J held over the block).
-        let mut ld = [0.0f64; 4];
-        for r in 0..4 {
-            ld[r] = j[r][0] * vel[0] + j[r][1] * vel[1] + j[r][2] * vel[2] + j[r][3] * vel[3];
-        }
+        // Leg lengths and the rates the platform imposes (J held over the block).
+        let (l, ld) = arm.legs_now();
         Substep {
             j,
             servo: CarriageServo::new(&cfg, dt),
@@ -486,6 +480,25 @@ impl Substep {
         arm.pose = Pose::from(self.pose);
         arm.vel = Pose::from(self.vel);
     }
+}
+
+/// The plane kernel's contact force in the base frame, N: the normal force `f_n` along
+/// `nrm` and the friction that took the tangential velocity `slip` (along `t1`, `t2`) off
+/// the tool in one period (`m_over_dt`: the tool's mass over the period).
+#[inline(always)]
+fn plane_force(
+    nrm: &[f64; 3],
+    t1: &[f64; 3],
+    t2: &[f64; 3],
+    f_n: f64,
+    slip: [f64; 2],
+    m_over_dt: f64,
+) -> [f64; 3] {
+    let mut f = [0.0f64; 3];
+    for a in 0..3 {
+        f[a] = nrm[a] * f_n - (t1[a] * slip[0] + t2[a] * slip[1]) * m_over_dt;
+    }
+    f
 }
 
 /// Two unit vectors that complete the unit vector `n` to a right-handed orthonormal frame
