@@ -412,34 +412,32 @@ pub fn python_with_mcap() -> &'static Path {
         let python = venv.join("bin").join("python3");
         if !imports_mcap(&python) {
             let _ = std::fs::remove_dir_all(&venv);
-            let made = Proc::new("python3")
-                .args(["-m", "venv"])
-                .arg(&venv)
-                .output()
-                .expect("python3 -m venv");
-            assert!(
-                made.status.success(),
-                "python3 -m venv {} failed:\n{}",
-                venv.display(),
-                String::from_utf8_lossy(&made.stderr)
+            // A step of making the environment: run it, fail the test with its stderr.
+            let step = |cmd: &mut Proc, what: &str| {
+                let out = cmd.output().expect(what);
+                assert!(
+                    out.status.success(),
+                    "{what} into {} failed (PyPI reachable?):\n{}",
+                    venv.display(),
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            };
+            step(
+                Proc::new("python3").args(["-m", "venv"]).arg(&venv),
+                "python3 -m venv",
             );
-            let installed = Proc::new(&python)
-                .args([
-                    "-m",
-                    "pip",
-                    "install",
-                    "--quiet",
-                    "--disable-pip-version-check",
-                    "-r",
-                ])
-                .arg(workspace().join("tests").join("python-requirements.txt"))
-                .output()
-                .expect("pip install");
-            assert!(
-                installed.status.success(),
-                "installing tests/python-requirements.txt into {} failed (PyPI reachable?):\n{}",
-                venv.display(),
-                String::from_utf8_lossy(&installed.stderr)
+            step(
+                Proc::new(&python)
+                    .args([
+                        "-m",
+                        "pip",
+                        "install",
+                        "--quiet",
+                        "--disable-pip-version-check",
+                    ])
+                    .arg("-r")
+                    .arg(workspace().join("tests").join("python-requirements.txt")),
+                "installing tests/python-requirements.txt",
             );
             assert!(
                 imports_mcap(&python),
