@@ -54,30 +54,29 @@ impl CutState {
             *vs = v;
             return f;
         }
-        // Sideways: the stock the tool moved into without cutting pushes it back out
-        // (Kelvin–Voigt along the contact's direction, explicit as the other kernels).
-        let e = self.engagement.lateral_dir;
+        // Rubbing: the stock pushes the tool back along its way out (Kelvin–Voigt along
+        // `rub_dir`, explicit as the other kernels), with the regularised Coulomb friction
+        // across it solved for the end of the period, as the plant's other kernels.
+        let (p0, e) = (self.engagement.rub_mm, self.engagement.rub_dir);
+        if p0 <= 0.0 {
+            return [0.0; 3];
+        }
+        let t0 = self.rub_tip0_mm;
         let moved_in =
-            -((tip_mm[0] - self.rub_tip0_mm[0]) * e[0] + (tip_mm[1] - self.rub_tip0_mm[1]) * e[1]);
-        let side = self.engagement.lateral_mm + moved_in;
-        let mut f_side = [0.0; 2];
-        if self.engagement.lateral_mm > 0.0 && side > 0.0 {
-            let v_in = -(vel_before[0] * e[0] + vel_before[1] * e[1]);
-            let f = (rub.k_n_per_mm * side + rub.b_n_s_per_mm * v_in).max(0.0);
-            f_side = [f * e[0], f * e[1]];
-            vs[0] += f_side[0] * dt_over_m;
-            vs[1] += f_side[1] * dt_over_m;
-        }
-        let depth = self.engagement.penetration_mm + (self.rub_tip0_mm[2] - tip_mm[2]);
+            -((tip_mm[0] - t0[0]) * e[0] + (tip_mm[1] - t0[1]) * e[1] + (tip_mm[2] - t0[2]) * e[2]);
+        let depth = p0 + moved_in;
         if depth <= 0.0 {
-            return [f_side[0], f_side[1], 0.0];
+            return [0.0; 3];
         }
-        // Rubbing on the stock's top (normal +z): Kelvin–Voigt with the regularised
-        // Coulomb friction solved for the end of the period, as the plant's other kernels.
-        let f_n = (rub.k_n_per_mm * depth - rub.b_n_s_per_mm * vel_before[2]).max(0.0);
+        let v_in = -(vel_before[0] * e[0] + vel_before[1] * e[1] + vel_before[2] * e[2]);
+        let f_n = (rub.k_n_per_mm * depth + rub.b_n_s_per_mm * v_in).max(0.0);
         let dv_n = f_n * dt_over_m;
-        vs[2] += dv_n;
-        let s2 = vs[0] * vs[0] + vs[1] * vs[1];
+        for (v, ec) in vs.iter_mut().zip(e) {
+            *v += dv_n * ec;
+        }
+        let v_n = vs[0] * e[0] + vs[1] * e[1] + vs[2] * e[2];
+        let vt = [vs[0] - v_n * e[0], vs[1] - v_n * e[1], vs[2] - v_n * e[2]];
+        let s2 = vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2];
         let reach = rub.mu * dv_n;
         let edge = rub.reg_mm_per_s + reach;
         let removed = if s2 >= edge * edge {
@@ -85,13 +84,11 @@ impl CutState {
         } else {
             reach / edge
         };
-        let f = [
-            f_side[0] - vs[0] * removed / dt_over_m,
-            f_side[1] - vs[1] * removed / dt_over_m,
-            f_n,
-        ];
-        vs[0] -= vs[0] * removed;
-        vs[1] -= vs[1] * removed;
+        let mut f = [0.0; 3];
+        for i in 0..3 {
+            f[i] = f_n * e[i] - vt[i] * removed / dt_over_m;
+            vs[i] -= vt[i] * removed;
+        }
         f
     }
 }

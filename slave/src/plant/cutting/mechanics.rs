@@ -86,12 +86,16 @@ pub struct Engagement {
     /// is the stock's shallower way out (rubbing), mm; negative: its clearance; −∞ with no
     /// stock under the tool.
     pub penetration_mm: f64,
-    /// Deepest sideways penetration of the tool into stock it moved into without cutting
-    /// (rubbing: the cell's distance inside the tool's radius, where that is shallower than
-    /// its height above the tool's lower surface), mm; 0: none.
-    pub lateral_mm: f64,
-    /// The direction that sideways contact pushes the tool, unit (x, y).
-    pub lateral_dir: [f64; 2],
+    /// Rubbing (a tool that does not cut): the deepest penetration of the stock into the
+    /// tool's solid, each cell's stock column measured along its shortest way out of the
+    /// tool ([`rub_cell`]), mm; 0: none.
+    pub rub_mm: f64,
+    /// The direction the rubbing stock pushes the tool, unit: the penetration-weighted sum
+    /// of the cells' ways out (opposite walls cancel, so the push changes smoothly as the
+    /// tool moves in its groove).
+    pub rub_dir: [f64; 3],
+    /// `Σ p n` over the penetrating cells, before it is normalised into `rub_dir`.
+    rub_sum: [f64; 3],
     /// The last servo period's solve, reused while the same bins act.
     solved: Solved,
 }
@@ -114,8 +118,9 @@ impl Default for Engagement {
             bins: [[Bin::default(); BINS]; LAYERS],
             elements: 0,
             penetration_mm: f64::NEG_INFINITY,
-            lateral_mm: 0.0,
-            lateral_dir: [0.0; 2],
+            rub_mm: 0.0,
+            rub_dir: [0.0, 0.0, 1.0],
+            rub_sum: [0.0; 3],
             solved: Solved::default(),
         }
     }
@@ -191,8 +196,8 @@ impl Engagement {
         self.bins = [[Bin::default(); BINS]; LAYERS];
         self.elements = 0;
         self.penetration_mm = f64::NEG_INFINITY;
-        self.lateral_mm = 0.0;
-        self.lateral_dir = [0.0; 2];
+        self.rub_mm = 0.0;
+        self.rub_sum = [0.0; 3];
         self.solved.key = 0;
         let g = Geometry::new(stock, tool, k, tip_mm, rev_per_s);
         let mut below_surface = false;
@@ -229,6 +234,30 @@ impl Engagement {
         if below_surface && self.penetration_mm < -TOUCH_MM {
             self.clearance_below_surface(stock, &g, tip_mm);
         }
+        self.finish_rub();
+    }
+
+    /// Books one cell's rubbing penetration ([`rub_cell`]).
+    #[inline]
+    fn book_rub(&mut self, p_n: Option<(f64, [f64; 3])>) {
+        if let Some((p, n)) = p_n {
+            self.rub_mm = self.rub_mm.max(p);
+            for (s, nc) in self.rub_sum.iter_mut().zip(n) {
+                *s += p * nc;
+            }
+        }
+    }
+
+    /// The rubbing push's direction from the cells' sum; none when they cancel.
+    fn finish_rub(&mut self) {
+        let [x, y, z] = self.rub_sum;
+        let norm = (x * x + y * y + z * z).sqrt();
+        if self.rub_mm > 0.0 && norm > 1e-12 * self.rub_mm {
+            self.rub_dir = [x / norm, y / norm, z / norm];
+        } else {
+            self.rub_mm = 0.0;
+            self.rub_dir = [0.0, 0.0, 1.0];
+        }
     }
 
     /// Whether the tool with its tip at `tip_mm` is clear of the whole block: its lower
@@ -259,14 +288,10 @@ impl Engagement {
         // Stock inside the tool leaves it the shallower way: up, or sideways out of the
         // radius.
         let sideways = g.r - rho;
-        if h - env > sideways && rho > 0.0 {
-            if sideways > self.lateral_mm {
-                self.lateral_mm = sideways;
-                self.lateral_dir = [-dx / rho, -dy / rho];
-            }
-        } else {
+        if h - env <= sideways || rho <= 0.0 {
             self.penetration_mm = self.penetration_mm.max(h - env);
         }
+        self.book_rub(rub_cell(g.ball, g.r, tip_z, h, dx, dy, rho2));
         if (h - env).abs() > TOUCH_MM {
             // Below the surface, or stock inside the tool (a stalled spindle): rubbing, not
             // cutting.
@@ -563,6 +588,54 @@ fn adjugate_damped(m: &[[f64; 3]; 3], c: f64) -> ([[f64; 3]; 3], f64) {
     (adj, det)
 }
 
+/// How far the stock column of one cell (height `h`, at (`dx`, `dy`) from the tool's axis,
+/// `rho2 = dx² + dy²`) reaches into the tool's solid (tip at `tip_z`, radius `r`; a ball
+/// end, or a flat end mill's cylinder), along its shortest way out, and that way: the unit
+/// direction the column pushes the tool. For a ball, the column's point nearest the ball's
+/// centre (at `tip_z + r`, the column's top or the centre's height, whichever is lower)
+/// gives both, so a ball displaced in a groove of its own shape is pushed back along the
+/// groove's normal, smoothly, and a column above the ball's equator pushes it sideways
+/// (the shank above is the same cylinder). For a flat end, the shallower of up and
+/// sideways. `None` where the column does not reach into the tool.
+#[inline]
+fn rub_cell(
+    ball: bool,
+    r: f64,
+    tip_z: f64,
+    h: f64,
+    dx: f64,
+    dy: f64,
+    rho2: f64,
+) -> Option<(f64, [f64; 3])> {
+    if rho2 > r * r {
+        return None;
+    }
+    if ball {
+        let zc = tip_z + r;
+        let dz = zc - h.min(zc);
+        let d2 = rho2 + dz * dz;
+        if d2 >= r * r {
+            return None;
+        }
+        let d = d2.sqrt();
+        if d <= 0.0 {
+            return Some((r, [0.0, 0.0, 1.0]));
+        }
+        return Some((r - d, [-dx / d, -dy / d, dz / d]));
+    }
+    let up = h - tip_z;
+    if up <= 0.0 {
+        return None;
+    }
+    let rho = rho2.sqrt();
+    let side = r - rho;
+    if up <= side || rho <= 0.0 {
+        Some((up, [0.0, 0.0, 1.0]))
+    } else {
+        Some((side, [-dx / rho, -dy / rho, 0.0]))
+    }
+}
+
 /// Solves `(I + c M) x = v` for `x` (backward Euler of a tool of mass `1/c·dt` against the
 /// force `−M x`); `v` unchanged when the system is singular. The reference of
 /// [`Engagement::solve`].
@@ -701,13 +774,67 @@ mod tests {
         let k = CuttingCoefficients::of(MaterialPreset::Steel);
         let mut e = Engagement::default();
         e.gather(&s, &t, &k, [tip[0] + 0.5, tip[1], tip[2]], 0.0);
-        assert!((e.lateral_mm - 0.5).abs() < 0.15, "{}", e.lateral_mm);
-        assert!(e.lateral_dir[0] < -0.9, "{:?}", e.lateral_dir);
+        assert!((e.rub_mm - 0.5).abs() < 0.15, "{}", e.rub_mm);
+        assert!(e.rub_dir[0] < -0.9, "{:?}", e.rub_dir);
         assert!(
             e.penetration_mm <= 1e-3,
             "pushed up by {}",
             e.penetration_mm
         );
+    }
+
+    /// A stopped ball end displaced sideways in the groove it cut, 2 mm deep: the groove's
+    /// wall pushes it back and up along the wall's normal (not sideways from one cell, not
+    /// flipping), the push grows smoothly with the displacement, and a mirrored displacement
+    /// gives the mirrored push; centred in its groove it is not pushed at all.
+    #[test]
+    fn a_stopped_ball_in_its_groove_is_pushed_back_along_the_wall() {
+        let (s, t, tip) = cut_slot(ToolKind::Ball, 2.0);
+        let k = CuttingCoefficients::of(MaterialPreset::Aluminium);
+        // Back along the slot, away from its end face.
+        let at = |dy: f64| {
+            let mut e = Engagement::default();
+            e.gather(&s, &t, &k, [tip[0] - 3.0, tip[1] + dy, tip[2]], 0.0);
+            (e.rub_mm, e.rub_dir)
+        };
+        let (p0, _) = at(0.0);
+        assert!(p0 < 0.01, "centred, pushed by {p0} mm");
+        let mut last = 0.0;
+        for dy in [0.025, 0.05, 0.1, 0.2] {
+            let (p, d) = at(dy);
+            let (pm, dm) = at(-dy);
+            // The wall 2 mm deep on a 3 mm ball is inclined (its normal 48° from the
+            // vertical at the rim): the push has a lifting part, the depth is a fraction of
+            // the displacement.
+            assert!(p > 0.3 * dy && p < 1.1 * dy, "{dy}: {p}");
+            assert!(d[1] < -0.5 && d[2] > 0.2 && d[0].abs() < 0.2, "{dy}: {d:?}");
+            assert!((pm - p).abs() < 0.1 * p + 0.01, "{dy}: {pm} vs {p}");
+            assert!(
+                dm[1] > 0.5 && (dm[2] - d[2]).abs() < 0.1,
+                "{dy}: {dm:?} vs {d:?}"
+            );
+            assert!(p > last, "{dy}: {p} after {last}");
+            last = p;
+        }
+    }
+
+    /// A stopped flat or ball end mill pressed into the uncut top is pushed straight up by
+    /// the depth, as the plane contact pushes it.
+    #[test]
+    fn a_stopped_tool_pressed_into_the_top_is_pushed_up() {
+        let s = Stock::new([0.0, 0.0, 0.0], [60.0, 40.0], 20.0, 0.1).unwrap();
+        let k = CuttingCoefficients::of(MaterialPreset::Steel);
+        for kind in [ToolKind::Flat, ToolKind::Ball] {
+            let t = Tool {
+                kind,
+                ..Tool::default()
+            };
+            let mut e = Engagement::default();
+            e.gather(&s, &t, &k, [1.03, -2.01, -0.3], 0.0);
+            // The ball's deepest cell is within half a cell of its axis: ρ²/2r ≤ 0.001 mm.
+            assert!((e.rub_mm - 0.3).abs() < 1e-3, "{kind:?}: {}", e.rub_mm);
+            assert!(e.rub_dir[2] > 0.999, "{kind:?}: {:?}", e.rub_dir);
+        }
     }
 
     /// The cells within `reach` of (`x`, `y`), the way the first gather walked them.
@@ -750,8 +877,8 @@ mod tests {
             self.bins = [[Bin::default(); BINS]; LAYERS];
             self.elements = 0;
             self.penetration_mm = f64::NEG_INFINITY;
-            self.lateral_mm = 0.0;
-            self.lateral_dir = [0.0; 2];
+            self.rub_mm = 0.0;
+            self.rub_sum = [0.0; 3];
             let r = tool.radius_mm;
             let cell = stock.cell_mm();
             let rim_lift = tool.lift_mm(r * r);
@@ -778,14 +905,11 @@ mod tests {
                     // Stock inside the tool leaves it the shallower way: up, or sideways out of
                     // the radius.
                     let sideways = r - rho;
-                    if h - env > sideways && rho > 0.0 {
-                        if sideways > self.lateral_mm {
-                            self.lateral_mm = sideways;
-                            self.lateral_dir = [-dx / rho, -dy / rho];
-                        }
-                    } else {
+                    if h - env <= sideways || rho <= 0.0 {
                         self.penetration_mm = self.penetration_mm.max(h - env);
                     }
+                    let ball = tool.kind == ToolKind::Ball;
+                    self.book_rub(rub_cell(ball, r, tip_mm[2], h, dx, dy, rho2));
                     if (h - env).abs() > TOUCH_MM && h < env {
                         return;
                     }
@@ -834,6 +958,7 @@ mod tests {
                     *s += area * nc;
                 }
             });
+            self.finish_rub();
         }
     }
 
@@ -910,7 +1035,10 @@ mod tests {
                         a.penetration_mm,
                         b.penetration_mm
                     );
-                    assert!(close(a.lateral_mm, b.lateral_mm), "{kind:?} at {p:?}");
+                    assert!(close(a.rub_mm, b.rub_mm), "{kind:?} at {p:?}");
+                    for (x, y) in a.rub_dir.iter().zip(&b.rub_dir) {
+                        assert!((x - y).abs() <= 1e-9, "{kind:?} at {p:?}");
+                    }
                     for (la, lb) in a.bins.iter().zip(&b.bins) {
                         for (ba, bb) in la.iter().zip(lb) {
                             for (ra, rb) in ba.b.iter().zip(&bb.b) {

@@ -351,7 +351,10 @@ impl CutState {
         if self.report.spindle_torque_n_mm > self.tool.max_torque_n_mm && !self.report.stalled {
             self.report.stalled = true;
             self.report.stalls += 1;
-            // A stalled spindle rubs from this millisecond on.
+            // A stalled spindle rubs from this millisecond on, on the stock as the turning
+            // tool left it: cut up to where the tip is (the removal update runs only every
+            // quarter cell; the cutter itself cut continuously until it stopped).
+            self.stock.sweep(&self.tool, self.last_tip_mm, tip_mm);
             self.engagement
                 .gather(&self.stock, &self.tool, &self.coeff, tip_mm, 0.0);
             self.last_tip_mm = tip_mm;
@@ -359,7 +362,7 @@ impl CutState {
         }
         if self.report.stalled
             && self.engagement.penetration_mm <= -RESTART_CLEARANCE_MM
-            && self.engagement.lateral_mm <= 0.0
+            && self.engagement.rub_mm <= 0.0
         {
             self.report.stalled = false;
             self.report.spindle_torque_n_mm = 0.0;
