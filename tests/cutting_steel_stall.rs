@@ -92,10 +92,15 @@ const REPAIR_WINDOW_S: f64 = 3.0;
 /// Resin, aluminium and steel × spindles of 20, 30, 45 and 60 N·mm (all too weak for the
 /// pushed cut) × seeds 1–3, no depth floor, with `extra` overrides.
 fn stall_grid(extra: &[&str]) -> Vec<Stall> {
+    stall_runs(&[20.0, 30.0, 45.0, 60.0], &[1, 2, 3], extra)
+}
+
+/// The three materials × `torques_n_mm` × `seeds`, no depth floor, with `extra` overrides.
+fn stall_runs(torques_n_mm: &[f64], seeds: &[u64], extra: &[&str]) -> Vec<Stall> {
     let mut runs = Vec::new();
     for material in ["resin", "aluminium", "steel"] {
-        for torque in [20.0, 30.0, 45.0, 60.0] {
-            for seed in [1, 2, 3] {
+        for &torque in torques_n_mm {
+            for &seed in seeds {
                 let (s, limit_n) = run_in(material, Some(torque), Some(seed), extra);
                 let c = s.cutting.as_ref().unwrap();
                 runs.push(Stall {
@@ -111,6 +116,52 @@ fn stall_grid(extra: &[&str]) -> Vec<Stall> {
         }
     }
     runs
+}
+
+/// Every stalled run safe-stopped and re-paired (unless its only stall began in its last
+/// [`REPAIR_WINDOW_S`]); every run's true force within the slave's limit.
+fn check_stalls(runs: &[Stall]) {
+    for r in runs {
+        if r.stalls > 0 {
+            assert!(
+                r.safe_stops >= 1,
+                "{}: stalled {} times, no safe stop",
+                r.case,
+                r.stalls
+            );
+            let only_stall_at_the_end =
+                r.stalls == 1 && r.last_stall_s > GRID_DURATION_S - REPAIR_WINDOW_S;
+            assert!(
+                r.repairs >= 1 || only_stall_at_the_end,
+                "{}: never re-paired after its stall at {} s",
+                r.case,
+                r.last_stall_s
+            );
+        }
+        assert!(
+            r.max_force_n <= r.limit_n,
+            "{}: true force {} N > {} N",
+            r.case,
+            r.max_force_n,
+            r.limit_n
+        );
+    }
+}
+
+/// Spindles and seeds the grid does not have (25, 40, 52, 70 N·mm × seeds 4–7 × the three
+/// materials, 48 runs): the same guarantees. Measured 2026-12-04 night: 39 runs stall,
+/// true force at most 61.5 N (164.1 N, aluminium 40 N·mm seed 7, before the rubbing
+/// followed each cell's way out of the tool).
+#[test]
+fn a_stall_off_the_grid_stays_within_the_force_limit() {
+    let runs = stall_runs(&[25.0, 40.0, 52.0, 70.0], &[4, 5, 6, 7], &[]);
+    let stalled = runs.iter().filter(|r| r.stalls > 0).count();
+    assert!(
+        stalled >= 30,
+        "only {stalled} of {} runs stalled",
+        runs.len()
+    );
+    check_stalls(&runs);
 }
 
 /// A stall on any material, at any spindle too weak for the cut, with any seed: the slave
@@ -143,31 +194,7 @@ fn a_stall_stops_the_slave_within_the_force_limit_on_every_material() {
         "only {stalled} of {} runs stalled",
         runs.len()
     );
-    for r in &runs {
-        if r.stalls > 0 {
-            assert!(
-                r.safe_stops >= 1,
-                "{}: stalled {} times, no safe stop",
-                r.case,
-                r.stalls
-            );
-            let only_stall_at_the_end =
-                r.stalls == 1 && r.last_stall_s > GRID_DURATION_S - REPAIR_WINDOW_S;
-            assert!(
-                r.repairs >= 1 || only_stall_at_the_end,
-                "{}: never re-paired after its stall at {} s",
-                r.case,
-                r.last_stall_s
-            );
-        }
-        assert!(
-            r.max_force_n <= r.limit_n,
-            "{}: true force {} N > {} N",
-            r.case,
-            r.max_force_n,
-            r.limit_n
-        );
-    }
+    check_stalls(&runs);
     let control = stall_grid(&["slave.controller.spindle_stall_safe_stop=false"]);
     let over: Vec<&Stall> = control
         .iter()
