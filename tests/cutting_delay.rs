@@ -47,7 +47,8 @@ fn the_floor_and_the_force_limit_hold_at_100_and_500_ms() {
 
 /// The verdict: stable by the delay matrix's detector, at 100 and 500 ms, and the
 /// part as without delay (measured 2026-12-03, seed 11: both stable, 0 bounces; surface
-/// error p99 0.094 mm at 100 ms, 0.147 mm at 500 ms; 766 and 764 mm³). At 500 ms the one-way
+/// error p99 0.094 mm at 100 ms, 0.147 mm at 500 ms; 766 and 764 mm³; 2026-12-04 with the
+/// session's integrating sensor: 0.096 and 0.157 mm, 766 and 764 mm³). At 500 ms the one-way
 /// jitter (±50 ms) is beyond the slave's 20 ms watchdog; the session's playout buffer
 /// (`slave.playout`) hands the commands on in order and evenly spaced (one safe stop while
 /// it learns the link). Control: without it the watchdog trips 168 times and a fifth of the

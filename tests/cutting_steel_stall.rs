@@ -45,8 +45,10 @@ fn run_in(
 /// Spindles of 20 and 30 N·mm (about 25 and 40 W at 12 000 rev/min) stall in steel and the
 /// tool does not cut below the pocket's depth; the shipped 300 N·mm spindle, the control,
 /// cuts the same steel without stalling and removes more (each stall stops the cut: the safe
-/// stop retracts the tool and the operator re-pairs; measured 2026-12-04 over 10 s: 20 N·mm
-/// 3 stalls, 16.6 mm³; 30 N·mm 1 stall, 27.0 mm³; 300 N·mm 40.0 mm³).
+/// stop retracts the tool and the operator re-pairs; measured 2026-12-04 over 10 s, the
+/// session's integrating sensor: 20 N·mm 8 stalls, 12.0 mm³; 30 N·mm 5 stalls, 32.7 mm³;
+/// 300 N·mm 379.0 mm³. With the instant sampler the strong spindle removed 40.0 mm³: the
+/// aliased reading held the true axial force at 0.3–5 N for a 6.25 N set-point).
 #[test]
 fn a_weak_spindle_in_steel_stalls_and_stops_cutting() {
     let (strong, _) = run(None);
@@ -149,9 +151,9 @@ fn check_stalls(runs: &[Stall]) {
 }
 
 /// Spindles and seeds the grid does not have (25, 40, 52, 70 N·mm × seeds 4–7 × the three
-/// materials, 48 runs): the same guarantees. Measured 2026-12-04 night: 39 runs stall,
-/// true force at most 61.5 N (164.1 N, aluminium 40 N·mm seed 7, before the rubbing
-/// followed each cell's way out of the tool).
+/// materials, 48 runs): the same guarantees. Measured 2026-12-04 night: all 48 stall, true
+/// force at most 51.0 N (instant sampler: 39 stall, 61.5 N; 164.1 N, aluminium 40 N·mm
+/// seed 7, before the rubbing followed each cell's way out of the tool).
 #[test]
 fn a_stall_off_the_grid_stays_within_the_force_limit() {
     let runs = stall_runs(&[25.0, 40.0, 52.0, 70.0], &[4, 5, 6, 7], &[]);
@@ -168,23 +170,24 @@ fn a_stall_off_the_grid_stays_within_the_force_limit() {
 /// stops itself (its safe stop: the force ramps down, the tool retracts, and lifts further
 /// while the spindle stays stalled; the master cannot clear it meanwhile), the spindle runs
 /// again and the master re-pairs, and the true force stays within the slave's force limit.
-/// Measured 2026-12-04 (night): 1–9 stalls per run (the scripted operator pushes on after
-/// each), 30 of 36 runs stall (steel does not stall 45 and 60 N·mm spindles at this push),
-/// true force at most 58.2 N (aluminium, 45 N·mm, seed 1) against 80 N. Before the stalled
-/// tool's rubbing took each cell's way out along the tool's surface (it took the single
-/// deepest cell's, up or sideways, and the push flipped between the groove's walls as the
-/// lifting tool rattled in it) the same grid reached 77.0 N, and 164.1 N on a case outside
-/// it (aluminium, 40 N·mm, seed 7; 61.5 N now). With the integrating sensor
-/// (`slave.sensor.adc_aperture=period`) 63.1 N (100.4 N before): docs/cutting.md.
+/// Measured 2026-12-04 (night), with the session's integrating sensor
+/// (`slave.sensor.adc_aperture = "period"`): 1–9 stalls per run (the scripted operator
+/// pushes on after each), all 36 runs stall, true force at most 63.1 N (aluminium, 60 N·mm,
+/// seed 2) against 80 N; with the instant sampler 30 runs stall, at most 58.2 N. Before the
+/// stalled tool's rubbing took each cell's way out along the tool's surface (it took the
+/// single deepest cell's, up or sideways, and the push flipped between the groove's walls as
+/// the lifting tool rattled in it) the grid reached 77.0 N (instant) and 100.4 N (period),
+/// and a case outside it 164.1 N (aluminium, 40 N·mm, seed 7, instant).
 ///
 /// Two layers keep it there, each shown needed by a control over the same grid:
 /// * without the stall's safe stop (`spindle_stall_safe_stop = false`, the behaviour before
-///   2026-12-02) the operator feeds the stalled tool on: 17 of 36 runs above 80 N, up to
-///   94.3 N (6 above 1.15 × the limit);
+///   2026-12-02) the operator feeds the stalled tool on: 12 of 36 runs above 80 N, up to
+///   107.5 N (9 above 1.15 × the limit);
 /// * without the cutter's feed limit (`max_feed_mm_per_s = 0`, before 2026-12-03) the tool
 ///   point, pulled towards the operator's point after a re-touch, is rammed sideways into
-///   the stock at ~100 mm/s: 16 of 36 runs above 60 % of the limit, up to 64.2 N, against
-///   2 of 36 with it (10 of 36 above the limit, up to 96.9 N, with the old rubbing).
+///   the stock at ~100 mm/s: the runs' peaks average 49.6 N against 29.4 N with it, 32 of
+///   36 above half the limit against 14, up to 83.8 N (2 runs above the limit; 10, up to
+///   96.9 N, with the old rubbing and the instant sampler).
 #[test]
 fn a_stall_stops_the_slave_within_the_force_limit_on_every_material() {
     let runs = stall_grid(&[]);
@@ -206,15 +209,20 @@ fn a_stall_stops_the_slave_within_the_force_limit_on_every_material() {
         over.len()
     );
     assert!(control.iter().all(|r| r.safe_stops == 0));
-    let hard = |runs: &[Stall]| {
-        runs.iter()
-            .filter(|r| r.max_force_n > 0.6 * r.limit_n)
-            .count()
+    // The feed limit's control: the peaks, not the limit (few runs pass it without).
+    let peaks = |runs: &[Stall]| {
+        let mean = runs.iter().map(|r| r.max_force_n).sum::<f64>() / runs.len() as f64;
+        let over_half = runs
+            .iter()
+            .filter(|r| r.max_force_n > 0.5 * r.limit_n)
+            .count();
+        (mean, over_half)
     };
     let unlimited = stall_grid(&["slave.controller.max_feed_mm_per_s=0"]);
-    let (over, over_limited) = (hard(&unlimited), hard(&runs));
+    let ((mean, over), (mean_limited, over_limited)) = (peaks(&unlimited), peaks(&runs));
     assert!(
-        over >= 8 && over > 3 * over_limited,
-        "without the feed limit {over} runs above 60 % of the limit, with it {over_limited}"
+        mean > 1.4 * mean_limited && over >= 2 * over_limited,
+        "without the feed limit peaks {mean:.1} N on average, {over} runs above half the \
+         limit; with it {mean_limited:.1} N, {over_limited}"
     );
 }
