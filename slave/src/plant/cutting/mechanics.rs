@@ -83,8 +83,9 @@ pub struct Engagement {
     /// Elements touching the stock.
     pub elements: u32,
     /// Deepest penetration of the tool's lower surface into the stock under it where that
-    /// is the stock's shallower way out (rubbing), mm; negative: its clearance; −∞ with no
-    /// stock under the tool.
+    /// is the stock's shallower way out, mm; negative: its clearance (a stalled spindle
+    /// restarts once it is clear); −∞ with no stock under the tool. The rubbing force uses
+    /// `rub_mm` and `rub_dir`.
     pub penetration_mm: f64,
     /// Rubbing (a tool that does not cut): the deepest penetration of the stock into the
     /// tool's solid, each cell's stock column measured along its shortest way out of the
