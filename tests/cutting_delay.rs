@@ -1,7 +1,8 @@
 //! The scripted pocket in resin over a delayed, jittery, lossy link (100 ms and 500 ms round
 //! trip, 20 % jitter, 5 % loss each way): the depth floor still holds (gouge ≤ 0.05 mm) and
 //! the true force stays within the slave's force limit, and the delay matrix's detector calls
-//! both runs stable; a tool bouncing on the part is caught by the same detector.
+//! both runs stable; a tool bouncing on the part is caught by the same detector; and the
+//! same over other round trips, seeds and materials.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
@@ -75,6 +76,36 @@ fn stable_by_the_detector_at_100_and_500_ms() {
     assert!(s.slave_safe_stops > 50, "{} safe stops", s.slave_safe_stops);
     let c = s.cutting.as_ref().unwrap();
     assert!(c.removed_volume_mm3 < 400.0, "{}", c.removed_volume_mm3);
+}
+
+/// Cases the tests above do not have: round trips of 100, 250 and 500 ms (20 % jitter, 5 %
+/// loss) × seeds 1–3 × resin, aluminium and steel (the session's tool, floor and push): every
+/// run stable by the detector, the floor held (gouge ≤ 0.05 mm), the true force within the
+/// slave's limit, the pocket cut. Measured 2026-12-04: all 27 stable; gouge ≤ 0.002 mm; true
+/// force ≤ 11.9 N in resin, 23.3 N in aluminium, 24.1 N in steel; 763–766, 747–752 and
+/// 682–697 mm³ removed.
+#[test]
+fn other_delays_seeds_and_materials_hold_the_floor_and_stay_stable() {
+    for rt in [100.0, 250.0, 500.0] {
+        for seed in [1, 2, 3] {
+            for material in ["resin", "aluminium", "steel"] {
+                let (s, limit) = run_with(
+                    rt,
+                    &[
+                        &format!("seed={seed}"),
+                        &format!("cutting.material={material}"),
+                        &format!("environment.material={material}"),
+                    ],
+                );
+                let case = format!("{rt} ms, seed {seed}, {material}");
+                assert!(s.stable, "{case}: {:?}", s.unstable_reasons);
+                let c = s.cutting.as_ref().unwrap();
+                assert!(c.gouge_max_mm <= 0.05, "{case}: gouge {}", c.gouge_max_mm);
+                assert!(s.max_force_n <= limit, "{case}: {} N", s.max_force_n);
+                assert!(c.removed_volume_mm3 > 100.0, "{case}: nothing cut");
+            }
+        }
+    }
 }
 
 /// The detector's control in a cut: the slave's force loop told the part is 2 N/mm (with its
