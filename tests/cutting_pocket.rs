@@ -129,7 +129,7 @@ fn the_part_files_and_the_recording_carry_the_cut() {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");
     let cfg = session::load(&path, &["duration_s=6".to_string()]).unwrap();
     let dir = std::env::temp_dir().join(format!("h4-cut-pocket-{}", std::process::id()));
-    let mut rec = h4_shared::recording::Recorder::in_memory().unwrap();
+    let mut rec = h4_telemetry::recording::Recorder::in_memory().unwrap();
     let s = session::run_with_outputs(&cfg, Some(&mut rec), Some(&dir)).unwrap();
     let bytes = rec.finish_into_bytes().unwrap();
     h4_tests::check_cut_outputs(&dir);

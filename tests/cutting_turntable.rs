@@ -59,7 +59,7 @@ fn edges(stock: &Stock, c: [f64; 2], phi: f64, r0: f64, r1: f64, d_mm: f64) -> (
 fn the_profile_session_cuts_the_ring_and_writes_the_part() {
     let cfg = profile(&[]);
     let dir = std::env::temp_dir().join(format!("h4-cut-profile-{}", std::process::id()));
-    let mut rec = h4_shared::recording::Recorder::in_memory().unwrap();
+    let mut rec = h4_telemetry::recording::Recorder::in_memory().unwrap();
     let s = session::run_with_outputs(&cfg, Some(&mut rec), Some(&dir)).unwrap();
     let c = s.cutting.as_ref().expect("cutting fields");
     let ring = segment_mm2(1.0) * 2.0 * PI * 25.0;

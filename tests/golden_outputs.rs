@@ -17,8 +17,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use h4_master::session;
-use h4_shared::recording::Recorder;
 use h4_slave::experiment;
+use h4_telemetry::recording::Recorder;
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")

@@ -137,7 +137,7 @@ struct Sample {
 
 #[test]
 fn a_topic_is_advertised_with_its_schema_and_streams_decimated_json() {
-    let server = h4_shared::live::LiveServer::start("127.0.0.1:0", "test").unwrap();
+    let server = h4_telemetry::live::LiveServer::start("127.0.0.1:0", "test").unwrap();
     let mut topic = server
         .topic::<Sample>("/test/sample", "h4.TestSample", 1000.0, 100.0)
         .unwrap();

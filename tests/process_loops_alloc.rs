@@ -10,9 +10,9 @@ use std::path::Path;
 use h4_master::server::MasterRunOptions;
 use h4_master::session::{self, SessionConfig};
 use h4_shared::alloc_count::{CountingAllocator, count_allocations};
-use h4_shared::progress::{Mode, ProgressConfig};
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::RunOptions;
+use h4_telemetry::progress::{Mode, ProgressConfig};
 use h4_transport::inproc;
 
 #[global_allocator]

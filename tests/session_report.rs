@@ -7,8 +7,8 @@
 use std::path::{Path, PathBuf};
 
 use h4_master::session::{self, Summary};
-use h4_shared::recording::Recorder;
 use h4_slave::report::{ReportOptions, report};
+use h4_telemetry::recording::Recorder;
 
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("h4-session-report-{}-{name}", std::process::id()));

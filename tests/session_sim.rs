@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use h4_master::session::{self, SessionError};
-use h4_shared::recording::Recorder;
+use h4_telemetry::recording::Recorder;
 
 fn sessions_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions")

@@ -22,7 +22,7 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use h4_shared::rt::monotonic_ns;
+use h4_telemetry::rt::monotonic_ns;
 use h4_tests::netns::{Host, TwoHosts};
 use h4_tests::record::{self, SafeEpisode};
 use h4_tests::relay::{Proto, Relay};

@@ -7,7 +7,7 @@ mod cli;
 
 /// The h4-teleop master.
 #[derive(Parser)]
-#[command(name = "h4-master", version, about, after_help = h4_shared::process::EXIT_CODES_HELP)]
+#[command(name = "h4-master", version, about, after_help = h4_telemetry::process::EXIT_CODES_HELP)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -54,7 +54,7 @@ fn main() -> std::process::ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("h4-master: {e}");
-            h4_shared::process::ExitStatus::Error.into()
+            h4_telemetry::process::ExitStatus::Error.into()
         }
     }
 }

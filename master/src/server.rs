@@ -13,11 +13,11 @@ use h4_shared::vec3::norm3;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use h4_shared::process::stop_requested;
-use h4_shared::progress::{Progress, ProgressConfig, Unit};
-use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
+use h4_telemetry::process::stop_requested;
+use h4_telemetry::progress::{Progress, ProgressConfig, Unit};
+use h4_telemetry::recording::BackgroundRecorder;
+use h4_telemetry::rt::{LoopReport, RtLoop};
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
 use serde::{Deserialize, Serialize};
@@ -35,9 +35,9 @@ pub struct MasterRunOptions {
     /// How long before each deadline the loop stops sleeping and spins, ns.
     pub spin_ns: u64,
     /// Real-time settings (SCHED_FIFO, locked memory; `--realtime`): default off.
-    pub realtime: h4_shared::rt::RealtimePlan,
+    pub realtime: h4_telemetry::rt::RealtimePlan,
     /// Progress on stderr (waiting for the slave, then the loop): default off.
-    pub progress: h4_shared::progress::ProgressConfig,
+    pub progress: h4_telemetry::progress::ProgressConfig,
     /// Stop by itself after this long, s (None: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
     /// Wait this long for the slave's first feedback before starting the operator's script,
@@ -55,8 +55,8 @@ impl Default for MasterRunOptions {
             arm_id: 0,
             period_ns: 1_000_000,
             spin_ns: 200_000,
-            realtime: h4_shared::rt::RealtimePlan::off(),
-            progress: h4_shared::progress::ProgressConfig::off(),
+            realtime: h4_telemetry::rt::RealtimePlan::off(),
+            progress: h4_telemetry::progress::ProgressConfig::off(),
             duration_s: None,
             wait_for_slave_s: 10.0,
             record: None,
@@ -153,7 +153,7 @@ pub struct MasterRunSummary {
     #[serde(default)]
     pub link_state: crate::link_stats::LinkState,
     /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
-    pub realtime: h4_shared::rt::RealtimeStatus,
+    pub realtime: h4_telemetry::rt::RealtimeStatus,
 }
 
 /// Why the master could not run.
@@ -175,10 +175,10 @@ pub enum MasterRunError {
     Recording(String),
     /// The live view could not start.
     #[error("{0}")]
-    Live(#[from] h4_shared::live::LiveError),
+    Live(#[from] h4_telemetry::live::LiveError),
     /// `--realtime enforce` and a setting was not permitted.
     #[error("--realtime enforce: {0}")]
-    Realtime(#[from] h4_shared::rt::RtError),
+    Realtime(#[from] h4_telemetry::rt::RtError),
 }
 
 /// One master cycle as recorded (topic `/master/cycle`, schema `h4.MasterProcessCycle`).
@@ -250,8 +250,8 @@ pub fn run_then<L: Link<Command, Feedback>>(
     )
     .map_err(|e| MasterRunError::Recording(e.to_string()))?;
     let live_server =
-        h4_shared::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-master")?;
-    let mut live = h4_shared::live::topic_or_off::<CycleRecord>(
+        h4_telemetry::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-master")?;
+    let mut live = h4_telemetry::live::topic_or_off::<CycleRecord>(
         live_server.as_ref(),
         "/master/cycle",
         "h4.MasterProcessCycle",

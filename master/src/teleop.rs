@@ -21,8 +21,8 @@
 use h4_shared::config::ArmConfig;
 use h4_shared::kinematics::{KinError, Workspace};
 use h4_shared::passivity::PassivityParams;
-use h4_shared::rt::Histogram;
 use h4_shared::wire::{Command, Feedback, SlaveState};
+use h4_telemetry::rt::Histogram;
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;

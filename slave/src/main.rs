@@ -4,7 +4,7 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use h4_shared::process::{EXIT_CODES_HELP, ExitStatus};
+use h4_telemetry::process::{EXIT_CODES_HELP, ExitStatus};
 
 mod cli;
 

@@ -12,9 +12,9 @@ use h4_shared::vec3::norm3;
 use std::path::PathBuf;
 
 use h4_shared::passivity::PassivityParams;
-use h4_shared::recording::BackgroundRecorder;
-use h4_shared::rt::{LoopReport, RtLoop};
 use h4_shared::wire::{Command, Feedback, SlaveState};
+use h4_telemetry::recording::BackgroundRecorder;
+use h4_telemetry::rt::{LoopReport, RtLoop};
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
 use serde::{Deserialize, Serialize};
@@ -44,9 +44,9 @@ pub struct RunOptions {
     /// The contact hand-over (a session's `[slave.contact]`).
     pub contact: crate::teleop::ContactHandover,
     /// Real-time settings (SCHED_FIFO, locked memory; `--realtime`): default off.
-    pub realtime: h4_shared::rt::RealtimePlan,
+    pub realtime: h4_telemetry::rt::RealtimePlan,
     /// Progress on stderr: default off.
-    pub progress: h4_shared::progress::ProgressConfig,
+    pub progress: h4_telemetry::progress::ProgressConfig,
     /// Stop by itself after this long, s (None: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
     /// Write an MCAP recording here.
@@ -71,8 +71,8 @@ impl Default for RunOptions {
             restart_silence_ms: 100.0,
             passivity: PassivityParams::default(),
             contact: crate::teleop::ContactHandover::default(),
-            realtime: h4_shared::rt::RealtimePlan::off(),
-            progress: h4_shared::progress::ProgressConfig::off(),
+            realtime: h4_telemetry::rt::RealtimePlan::off(),
+            progress: h4_telemetry::progress::ProgressConfig::off(),
             duration_s: None,
             record: None,
             shutdown_limit_s: 2.0,
@@ -143,7 +143,7 @@ pub struct SlaveRunSummary {
     /// state with the force released (or the time limit); what it reached.
     pub shutdown: ShutdownReport,
     /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
-    pub realtime: h4_shared::rt::RealtimeStatus,
+    pub realtime: h4_telemetry::rt::RealtimeStatus,
 }
 
 impl SlaveRunSummary {
@@ -211,10 +211,10 @@ pub enum ServerError {
     Teleop(#[from] TeleopError),
     /// The live view could not start.
     #[error("{0}")]
-    Live(#[from] h4_shared::live::LiveError),
+    Live(#[from] h4_telemetry::live::LiveError),
     /// `--realtime enforce` and a setting was not permitted.
     #[error("--realtime enforce: {0}")]
-    Realtime(#[from] h4_shared::rt::RtError),
+    Realtime(#[from] h4_telemetry::rt::RtError),
     /// The part's files could not be written.
     #[error("--out: {0}")]
     Part(String),
@@ -295,8 +295,8 @@ pub fn run<L: Link<Feedback, Command>>(
         CutEvaluator::new(cycles, c.tool().spindle_rpm)
     });
     let live_server =
-        h4_shared::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-slave")?;
-    let mut live = h4_shared::live::topic_or_off::<CycleRecord>(
+        h4_telemetry::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-slave")?;
+    let mut live = h4_telemetry::live::topic_or_off::<CycleRecord>(
         live_server.as_ref(),
         "/slave/cycle",
         "h4.SlaveProcessCycle",
@@ -304,20 +304,20 @@ pub fn run<L: Link<Feedback, Command>>(
     );
     // The cut, when the arm cuts a workpiece (the arm file's `[cutting]`).
     let mut live_cut = match teleop.cut_cycle() {
-        Some(_) => h4_shared::live::topic_or_off::<CutCycle>(
+        Some(_) => h4_telemetry::live::topic_or_off::<CutCycle>(
             live_server.as_ref(),
             "/slave/cut",
             "h4.CutCycle",
             1e9 / period_ns as f64,
         ),
-        None => h4_shared::live::LiveTopic::off(),
+        None => h4_telemetry::live::LiveTopic::off(),
     };
 
     let mut realtime = opts.realtime.prepare()?;
     let per_step_s = period_ns as f64 * 1e-9;
-    let progress = h4_shared::progress::Progress::start(
+    let progress = h4_telemetry::progress::Progress::start(
         &opts.progress,
-        h4_shared::progress::Unit::Seconds {
+        h4_telemetry::progress::Unit::Seconds {
             per_step_s,
             what: "",
         },
@@ -420,7 +420,8 @@ impl SlaveRunSummary {
     /// nothing (the times' capacity is allocated before the loop).
     fn book_trip(&mut self, silence_ms: f64, lateness_ms: f64, worst_excess_ms: &mut f64) {
         if self.safe_stop_times_ns.len() < SAFE_STOP_TIMES_MAX {
-            self.safe_stop_times_ns.push(h4_shared::rt::monotonic_ns());
+            self.safe_stop_times_ns
+                .push(h4_telemetry::rt::monotonic_ns());
         }
         if silence_ms - lateness_ms > *worst_excess_ms {
             *worst_excess_ms = silence_ms - lateness_ms;
@@ -491,7 +492,7 @@ fn shut_down<L: Link<Feedback, Command>>(
 impl CycleRecord {
     fn of(
         c: &crate::teleop::TeleopCycle,
-        cx: &h4_shared::rt::CycleCtx<'_>,
+        cx: &h4_telemetry::rt::CycleCtx<'_>,
         force_true_n: f64,
     ) -> Self {
         let out = &c.out;

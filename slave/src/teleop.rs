@@ -23,12 +23,12 @@
 //! master converts with κ = scale.force / scale.motion, so the slave needs no scaling.
 
 use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
-use h4_shared::process::Watchdog;
 use h4_shared::vec3::norm3;
 use h4_shared::wire::{
     CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
     FAULT_FORCE_LIMIT, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
 };
+use h4_telemetry::process::Watchdog;
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;

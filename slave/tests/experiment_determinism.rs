@@ -5,8 +5,8 @@
 use std::path::PathBuf;
 
 use h4_shared::config;
-use h4_shared::recording::Recorder;
 use h4_slave::experiment::{self, ExperimentConfig};
+use h4_telemetry::recording::Recorder;
 
 fn cfg(overrides: &[&str]) -> ExperimentConfig {
     let path = PathBuf::from(concat!(

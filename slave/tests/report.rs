@@ -5,9 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
-use h4_shared::recording::Recorder;
 use h4_slave::experiment::{self, ExperimentConfig};
 use h4_slave::report::{ReportOptions, report};
+use h4_telemetry::recording::Recorder;
 
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("h4-report-test-{}-{name}", std::process::id()));

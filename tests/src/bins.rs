@@ -32,7 +32,7 @@ pub fn binaries() -> &'static (PathBuf, PathBuf) {
             let profile = dir.file_name().and_then(|s| s.to_str()).unwrap_or("debug");
             let profile = if profile == "debug" { "dev" } else { profile };
             let mut build = Command::new(cargo);
-            h4_shared::process::without_cargo_run_env(&mut build);
+            h4_telemetry::process::without_cargo_run_env(&mut build);
             let out = build
                 .args(["build", "-p", "h4-master", "-p", "h4-slave", "--profile"])
                 .arg(profile)

@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use h4_shared::rt::{LoopReport, monotonic_ns};
+use h4_telemetry::rt::{LoopReport, monotonic_ns};
 
 /// A gap between two wake-ups longer than the sentinel's period plus this is recorded as a
 /// stall, ns.

@@ -1,7 +1,7 @@
 //! Round-trip latency at 1 kHz pacing, master → slave → master, through our [`Link`] types
 //! and, in the same run, bare library ping-pongs and a plain UDP loopback baseline.
 //!
-//! Ping (the master) runs on the main thread, paced at 1 kHz by `h4_shared::rt::Pacer`; after
+//! Ping (the master) runs on the main thread, paced at 1 kHz by `h4_telemetry::rt::Pacer`; after
 //! each publish it waits for the reply. Pong (the slave) runs on its own thread or process and
 //! answers each message at once. Both wait by busy-polling, except on the "event wake-up"
 //! paths, where every send notifies an iceoryx2 event and the receiver blocks on its listener
@@ -27,8 +27,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use h4_shared::rt::{Histogram, Pacer};
 use h4_shared::wire::{Command, Feedback, PROTOCOL_VERSION, WireMessage};
+use h4_telemetry::rt::{Histogram, Pacer};
 use h4_transport::Link;
 
 const PERIOD: Duration = Duration::from_millis(1);
@@ -280,11 +280,11 @@ fn in_processes<P: Endpoint>(
     // CPU over the whole measurement (connect, warm-up and measured cycles): the child
     // reports its own at the start of the run and when it stops.
     let wall = Instant::now();
-    let ping_cpu = h4_shared::process::cpu_time_s();
+    let ping_cpu = h4_telemetry::process::cpu_time_s();
     writeln!(child.stdin.as_mut().expect("child stdin"), "cpu?").expect("ask the pong");
     let pong_cpu = read_cpu(&mut from_child);
     let mut outcome = measure(name, cycles, &mut ping);
-    let ping_cpu = h4_shared::process::cpu_time_s() - ping_cpu;
+    let ping_cpu = h4_telemetry::process::cpu_time_s() - ping_cpu;
     drop(child.stdin.take()); // EOF: the child reports its CPU, stops serving and exits
     let pong_cpu = read_cpu(&mut from_child) - pong_cpu;
     let wall = wall.elapsed().as_secs_f64();
@@ -346,7 +346,7 @@ fn pong_main(args: &[String]) {
             // Each line asks for the CPU used so far; EOF asks for it and stops.
             let mut sink = String::new();
             while std::io::stdin().read_line(&mut sink).is_ok_and(|n| n > 0) {
-                println!("cpu {}", h4_shared::process::cpu_time_s());
+                println!("cpu {}", h4_telemetry::process::cpu_time_s());
                 std::io::stdout().flush().expect("flush");
             }
             stop.store(true, Ordering::Relaxed);
@@ -355,7 +355,7 @@ fn pong_main(args: &[String]) {
     println!("ready {info}");
     std::io::stdout().flush().expect("flush");
     serve(pong.as_mut(), &stop);
-    println!("cpu {}", h4_shared::process::cpu_time_s());
+    println!("cpu {}", h4_telemetry::process::cpu_time_s());
     std::io::stdout().flush().expect("flush");
 }
 

@@ -11,13 +11,13 @@ use std::time::{Duration, Instant};
 
 use h4_master::server::MasterRunSummary;
 use h4_master::session::{self, SessionConfig};
-use h4_shared::process::{ExitStatus, LoopArgs};
-use h4_shared::progress::{grouped, verdict_line};
-use h4_shared::rt::RealtimeMode;
 use h4_slave::experiment::{
     ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
+use h4_telemetry::process::{ExitStatus, LoopArgs};
+use h4_telemetry::progress::{grouped, verdict_line};
+use h4_telemetry::rt::RealtimeMode;
 use h4_transport::impaired::ImpairArgs;
 use h4_transport::open::TransportArgs;
 use serde::Serialize;
@@ -28,7 +28,7 @@ use serde::Serialize;
 pub struct LoopbackArgs {
     /// How long the master runs, s, a positive finite number (default: the session's
     /// duration_s).
-    #[arg(long, value_parser = h4_shared::process::positive_seconds)]
+    #[arg(long, value_parser = h4_telemetry::process::positive_seconds)]
     pub duration_s: Option<f64>,
     /// Write the summary as JSON here (it is also printed on stdout).
     #[arg(long)]
@@ -77,7 +77,7 @@ pub struct LoopbackArgs {
     /// The live view: the master serves at HOST:PORT, the slave at HOST:PORT+1 (with port 0,
     /// each picks a free port; both are printed on stderr).
     #[command(flatten)]
-    pub live: h4_shared::live::LiveArgs,
+    pub live: h4_telemetry::live::LiveArgs,
 }
 
 /// What `loopback` prints.
@@ -146,8 +146,9 @@ impl LoopbackArgs {
     /// Runs the two processes; exit code 0 if stable and in real time, 1 if not (or if the
     /// slave process died), 130 if a signal stopped it early.
     pub fn run(self) -> Result<ExitCode, String> {
-        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
-        h4_shared::process::realtime_preflight(self.realtime, self.fifo_priority, false, LABEL)?;
+        h4_telemetry::process::install_stop_handlers()
+            .map_err(|e| format!("signal handlers: {e}"))?;
+        h4_telemetry::process::realtime_preflight(self.realtime, self.fifo_priority, false, LABEL)?;
         let config =
             h4_shared::paths::default_config(self.config.as_deref(), super::SESSION, "--config")?;
         let cfg =
@@ -204,7 +205,7 @@ impl LoopbackArgs {
             (Some(out), Some(p)) => Some(p.merge_into(out, ended.died_unix_ns)?),
             _ => None,
         };
-        let interrupted = h4_shared::process::signal_received();
+        let interrupted = h4_telemetry::process::signal_received();
         let mut summary = combine(&cfg, duration_s, interrupted, master, slave);
         if let Some(e) = &slave_fault {
             summary.complete = false;
@@ -216,7 +217,7 @@ impl LoopbackArgs {
             }
         }
         summary.recording = recording;
-        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
+        h4_telemetry::process::emit_summary(&summary, self.summary.as_deref())?;
         verdict_line(LABEL, &summary.in_words(duration_s));
         Ok(if interrupted {
             ExitStatus::Interrupted.into()
@@ -229,7 +230,7 @@ impl LoopbackArgs {
 
     /// `--summary`, `--record` and the recording's parts must be writable before the run.
     fn check_outputs(&self, parts: Option<&RecordingParts>) -> Result<(), String> {
-        use h4_shared::process::check_writable;
+        use h4_telemetry::process::check_writable;
         if let Some(p) = &self.summary {
             check_writable("--summary", p)?;
         }
@@ -368,7 +369,7 @@ impl SlaveChild {
                         .unwrap_or(true);
                     if exited {
                         died.store(unix_now_ns(), Ordering::SeqCst);
-                        h4_shared::process::request_stop();
+                        h4_telemetry::process::request_stop();
                         return;
                     }
                     std::thread::sleep(Duration::from_millis(20));
@@ -479,7 +480,7 @@ impl RecordingParts {
     /// its last checkpoint and the report says what was lost.
     fn merge_into(&self, out: &Path, slave_died_unix_ns: u64) -> Result<RecordingReport, String> {
         let stats =
-            h4_shared::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
+            h4_telemetry::recording::merge(&[&self.master, &self.slave], out).map_err(|e| {
                 format!(
                     "{e} (the parts {} and {} are kept)",
                     self.master.display(),
@@ -849,7 +850,7 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         exe.display()
     );
     let mut build = std::process::Command::new(cargo);
-    h4_shared::process::without_cargo_run_env(&mut build);
+    h4_telemetry::process::without_cargo_run_env(&mut build);
     let status = build
         .args([
             "build",
@@ -876,7 +877,7 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use h4_shared::rt::LoopReport;
+    use h4_telemetry::rt::LoopReport;
 
     fn summaries(misses: u64, cycles: u64) -> (MasterRunSummary, SlaveRunSummary) {
         let m = MasterRunSummary {

@@ -9,8 +9,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use h4_master::matrix::{self, Case, Limits, Loss, Matrix, Verdict, Wall};
 use h4_master::session::Summary;
-use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, ProgressConfig, Unit};
+use h4_telemetry::process::ExitStatus;
+use h4_telemetry::progress::{Progress, ProgressConfig, Unit};
 use plotters::prelude::*;
 use serde_json::json;
 
@@ -85,7 +85,8 @@ impl MatrixArgs {
     /// Runs the matrix; exit 0 when every cell is stable and keeps the guarantees, 1 when one
     /// does not, 130 when interrupted (the cells run so far are written).
     pub fn run(self) -> Result<ExitCode, String> {
-        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        h4_telemetry::process::install_stop_handlers()
+            .map_err(|e| format!("signal handlers: {e}"))?;
         let session =
             h4_shared::paths::default_config(self.session.as_deref(), super::SESSION, "--session")?;
         let cases = matrix::grid(
@@ -100,7 +101,7 @@ impl MatrixArgs {
         let limits = m.limits(&cases)?;
         std::fs::create_dir_all(&self.out)
             .map_err(|e| format!("--out {}: {e}", self.out.display()))?;
-        h4_shared::process::check_writable("--out", &self.out.join("cells.json"))?;
+        h4_telemetry::process::check_writable("--out", &self.out.join("cells.json"))?;
         let jobs = self.jobs.unwrap_or_else(|| {
             std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get)
         });
@@ -114,7 +115,7 @@ impl MatrixArgs {
         let sums = m.run_all(
             &cases,
             jobs,
-            &h4_shared::process::stop_requested,
+            &h4_telemetry::process::stop_requested,
             &|c, s| {
                 match Verdict::of(c, s, &limits) {
                     Verdict::Unsafe => unsafe_.fetch_add(1, Ordering::Relaxed),
@@ -152,14 +153,14 @@ fn verdict(cases: &[Case], sums: &[Option<Summary>], l: &Limits, out: &Path) -> 
         cases.len(),
         out.display()
     );
-    let (word, code) = if h4_shared::process::signal_received() {
+    let (word, code) = if h4_telemetry::process::signal_received() {
         ("interrupted", ExitStatus::Interrupted)
     } else if unsafe_ + unstable > 0 {
         ("UNSTABLE", ExitStatus::VerdictFailed)
     } else {
         ("stable", ExitStatus::Ok)
     };
-    h4_shared::progress::verdict_line(LABEL, &format!("{word}, {figures}"));
+    h4_telemetry::progress::verdict_line(LABEL, &format!("{word}, {figures}"));
     code.into()
 }
 

@@ -7,7 +7,7 @@ use h4_master::session::SessionConfig;
 pub fn check_session(cfg: &SessionConfig, label: &str) -> Result<(), String> {
     let p = h4_master::plausible::check(cfg);
     for w in &p.warnings {
-        h4_shared::progress::verdict_line(label, &format!("warning: {w}"));
+        h4_telemetry::progress::verdict_line(label, &format!("warning: {w}"));
     }
     if p.refused.is_empty() {
         Ok(())

@@ -5,9 +5,9 @@ use std::process::ExitCode;
 
 use h4_master::server::{self, MasterRunOptions, MasterRunSummary};
 use h4_master::session;
-use h4_shared::process::LoopArgs;
-use h4_shared::progress::{ProgressConfig, grouped, verdict_line};
-use h4_shared::rt::RealtimePlan;
+use h4_telemetry::process::LoopArgs;
+use h4_telemetry::progress::{ProgressConfig, grouped, verdict_line};
+use h4_telemetry::rt::RealtimePlan;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 
@@ -35,7 +35,7 @@ pub struct RunArgs {
     pub run: LoopArgs,
     /// The live view.
     #[command(flatten)]
-    pub live: h4_shared::live::LiveArgs,
+    pub live: h4_telemetry::live::LiveArgs,
     /// Wait this long for the slave's first feedback before the operator's script starts, s.
     #[arg(long, default_value_t = 10.0)]
     pub wait_for_slave_s: f64,
@@ -58,7 +58,8 @@ impl RunArgs {
         label: &str,
         at_loop_end: impl FnOnce(),
     ) -> Result<MasterRunSummary, String> {
-        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        h4_telemetry::process::install_stop_handlers()
+            .map_err(|e| format!("signal handlers: {e}"))?;
         self.run.check_outputs()?;
         let realtime = if self.prechecked {
             RealtimePlan::from_flags(
@@ -95,9 +96,9 @@ impl RunArgs {
     /// Runs the master process; prints and writes the summary, then its verdict line.
     pub fn run(self) -> Result<ExitCode, String> {
         let summary = self.run_summary(LABEL)?;
-        h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
-        let code = h4_shared::process::exit_after_run(self.run.duration_s.is_some());
-        let interrupted = self.run.duration_s.is_some() && h4_shared::process::signal_received();
+        h4_telemetry::process::emit_summary(&summary, self.run.summary.as_deref())?;
+        let code = h4_telemetry::process::exit_after_run(self.run.duration_s.is_some());
+        let interrupted = self.run.duration_s.is_some() && h4_telemetry::process::signal_received();
         verdict_line(LABEL, &in_words(&summary, interrupted));
         Ok(code)
     }

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use h4_master::session;
-use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, interrupted_simulated_line, verdict_line};
-use h4_shared::recording::Recorder;
+use h4_telemetry::process::ExitStatus;
+use h4_telemetry::progress::{Progress, interrupted_simulated_line, verdict_line};
+use h4_telemetry::recording::Recorder;
 
 const LABEL: &str = "h4-master sim";
 
@@ -35,11 +35,12 @@ impl SimArgs {
     /// line (stderr); exit code 0 if the detector says stable, 1 if not, 130 if SIGINT cut
     /// it short (the summary then covers the cycles run, and there is no verdict).
     pub fn run(self) -> Result<ExitCode, String> {
-        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        h4_telemetry::process::install_stop_handlers()
+            .map_err(|e| format!("signal handlers: {e}"))?;
         let cfg = session::load(&self.session, &self.set).map_err(|e| e.to_string())?;
         super::plausible::check_session(&cfg, LABEL)?;
         if let Some(p) = &self.summary {
-            h4_shared::process::check_writable("--summary", p)?;
+            h4_telemetry::process::check_writable("--summary", p)?;
         }
         let mut recorder = match &self.record {
             Some(p) => Some(Recorder::create(p).map_err(|e| e.to_string())?),
@@ -51,7 +52,7 @@ impl SimArgs {
         let result = session::Session::new(&cfg).and_then(|s| {
             s.run_with(recorder.as_mut(), self.out.as_deref(), &mut |k| {
                 handle.set(k);
-                !h4_shared::process::stop_requested()
+                !h4_telemetry::process::stop_requested()
             })
         });
         progress.finish();
@@ -59,7 +60,7 @@ impl SimArgs {
         if let Some(r) = recorder {
             r.finish().map_err(|e| e.to_string())?;
         }
-        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
+        h4_telemetry::process::emit_summary(&summary, self.summary.as_deref())?;
         if summary.cycles < planned {
             interrupted_simulated_line(LABEL, summary.sim_time_s, cfg.duration_s);
             return Ok(ExitStatus::Interrupted.into());

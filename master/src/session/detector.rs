@@ -253,7 +253,7 @@ impl Summary {
         let figures = format!(
             "{} cycles ({:.1} s simulated), round trip mean {:.1} ms, max force {:.1} N \
              (true, at the slave), rendered {:.1} N, observer min {:.2} mJ",
-            h4_shared::progress::grouped(self.cycles),
+            h4_telemetry::progress::grouped(self.cycles),
             self.sim_time_s,
             self.rtt_mean_ms,
             self.max_force_n,

@@ -13,9 +13,9 @@
 //! Every field of a session file is documented in `docs/sessions.md`.
 
 use h4_shared::config::ConfigError;
-use h4_shared::recording::RecordingError;
 use h4_slave::plant::SimError;
 use h4_slave::teleop::TeleopError;
+use h4_telemetry::recording::RecordingError;
 
 use crate::operator::IntentError;
 

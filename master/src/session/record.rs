@@ -2,9 +2,9 @@
 //! events. Topic, schema and field names are a public interface (`docs/sessions.md`).
 
 use h4_shared::passivity::PortEnergy;
-use h4_shared::recording::{ChannelId, Recorder, RecordingError};
 use h4_slave::plant::SimArm;
 use h4_slave::teleop::{SlaveTeleop, TeleopCycle};
+use h4_telemetry::recording::{ChannelId, Recorder, RecordingError};
 use h4_transport::impair::LinkEvent;
 use serde::Serialize;
 

@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use h4_shared::process::ExitStatus;
-use h4_shared::progress::{Progress, grouped, interrupted_simulated_line, verdict_line};
-use h4_shared::recording::Recorder;
 use h4_slave::experiment::Summary;
+use h4_telemetry::process::ExitStatus;
+use h4_telemetry::progress::{Progress, grouped, interrupted_simulated_line, verdict_line};
+use h4_telemetry::recording::Recorder;
 
 const LABEL: &str = "h4-slave experiment";
 
@@ -31,11 +31,12 @@ impl ExperimentArgs {
     /// verdict line (stderr): exit 0 when the file's targets are met, 1 when not, 130 when
     /// SIGINT cut it short (the summary then covers the cycles run, no verdict).
     pub fn run(self) -> Result<ExitCode, String> {
-        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        h4_telemetry::process::install_stop_handlers()
+            .map_err(|e| format!("signal handlers: {e}"))?;
         let cfg: h4_slave::experiment::ExperimentConfig =
             h4_shared::config::load(&self.file, &self.set).map_err(|e| e.to_string())?;
         if let Some(p) = &self.summary {
-            h4_shared::process::check_writable("--summary", p)?;
+            h4_telemetry::process::check_writable("--summary", p)?;
         }
         let mut recorder = match &self.record {
             Some(path) => Some(Recorder::create(path).map_err(|e| e.to_string())?),
@@ -46,14 +47,14 @@ impl ExperimentArgs {
         let handle = progress.handle();
         let result = h4_slave::experiment::run_with(&cfg, recorder.as_mut(), &mut |k| {
             handle.set(k);
-            !h4_shared::process::stop_requested()
+            !h4_telemetry::process::stop_requested()
         });
         progress.finish();
         let summary = result.map_err(|e| format!("{}: {e}", self.file.display()))?;
         if let Some(rec) = recorder {
             rec.finish().map_err(|e| e.to_string())?;
         }
-        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
+        h4_telemetry::process::emit_summary(&summary, self.summary.as_deref())?;
         if summary.cycles < planned {
             interrupted_simulated_line(LABEL, summary.sim_time_s, cfg.duration_s);
             return Ok(ExitStatus::Interrupted.into());

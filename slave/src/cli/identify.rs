@@ -77,7 +77,7 @@ impl IdentifyArgs {
             sim_truth_com_mm: cfg.plant.payload_com_mm,
             arm_file_written: self.write,
         };
-        h4_shared::process::emit_summary(&summary, self.summary.as_deref())?;
+        h4_telemetry::process::emit_summary(&summary, self.summary.as_deref())?;
         Ok(ExitCode::SUCCESS)
     }
 }

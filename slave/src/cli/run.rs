@@ -5,10 +5,10 @@ use std::process::ExitCode;
 
 use h4_shared::clock::MonotonicClock;
 use h4_shared::passivity::PassivityParams;
-use h4_shared::process::LoopArgs;
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::{self, RunOptions};
 use h4_slave::teleop::ContactHandover;
+use h4_telemetry::process::LoopArgs;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 use h4_transport::playout::{Playout, PlayoutConfig};
@@ -38,7 +38,7 @@ pub struct RunArgs {
     pub run: LoopArgs,
     /// The live view.
     #[command(flatten)]
-    pub live: h4_shared::live::LiveArgs,
+    pub live: h4_telemetry::live::LiveArgs,
     /// No valid command for this long puts the arm in its safe state, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
@@ -104,9 +104,10 @@ impl h4_shared::config::Validate for PassivityFile {
 impl RunArgs {
     /// Runs the slave process until stopped; prints and writes the summary.
     pub fn run(self) -> Result<ExitCode, String> {
-        h4_shared::process::install_stop_handlers().map_err(|e| format!("signal handlers: {e}"))?;
+        h4_telemetry::process::install_stop_handlers()
+            .map_err(|e| format!("signal handlers: {e}"))?;
         if let Some(pid) = self.parent_pid {
-            h4_shared::process::stop_with_parent(pid)
+            h4_telemetry::process::stop_with_parent(pid)
                 .map_err(|e| format!("--parent-pid {pid}: {e}"))?;
         }
         self.run.check_outputs()?;
@@ -162,7 +163,7 @@ impl RunArgs {
             arm_id: self.transport.arm_id,
             watchdog_ms: self.watchdog_ms,
             realtime,
-            progress: h4_shared::progress::ProgressConfig::from_env(LABEL),
+            progress: h4_telemetry::progress::ProgressConfig::from_env(LABEL),
             duration_s: self.run.duration_s,
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
@@ -170,10 +171,10 @@ impl RunArgs {
             ..RunOptions::default()
         };
         let summary = server::run(&cfg, &opts, &mut link).map_err(|e| e.to_string())?;
-        h4_shared::process::emit_summary(&summary, self.run.summary.as_deref())?;
-        let interrupted = self.run.duration_s.is_some() && h4_shared::process::signal_received();
-        h4_shared::progress::verdict_line(LABEL, &in_words(&summary, interrupted));
-        Ok(h4_shared::process::exit_after_run(
+        h4_telemetry::process::emit_summary(&summary, self.run.summary.as_deref())?;
+        let interrupted = self.run.duration_s.is_some() && h4_telemetry::process::signal_received();
+        h4_telemetry::progress::verdict_line(LABEL, &in_words(&summary, interrupted));
+        Ok(h4_telemetry::process::exit_after_run(
             self.run.duration_s.is_some(),
         ))
     }
@@ -192,7 +193,7 @@ fn in_words(s: &server::SlaveRunSummary, interrupted: bool) -> String {
         } else {
             "stopped"
         },
-        h4_shared::progress::grouped(s.run.cycles),
+        h4_telemetry::progress::grouped(s.run.cycles),
         s.run.run_time_s,
         s.max_force_n,
         s.force_limit_n,

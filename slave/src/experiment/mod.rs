@@ -22,7 +22,7 @@ pub use metrics::{EventSummary, Summary, Verdict};
 pub use run::{run, run_with};
 
 use h4_shared::config::ConfigError;
-use h4_shared::recording::RecordingError;
+use h4_telemetry::recording::RecordingError;
 
 use crate::plant::SimError;
 

@@ -2,7 +2,7 @@
 //! `/slave/contact`, stamped with the simulated time; the schemas are generated from the
 //! message types.
 
-use h4_shared::recording::{ChannelId, Recorder, RecordingError};
+use h4_telemetry::recording::{ChannelId, Recorder, RecordingError};
 use schemars::JsonSchema;
 use serde::Serialize;
 

@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use h4_shared::config::Validate;
 use h4_shared::kinematics::Pose;
-use h4_shared::recording::Recorder;
 use h4_shared::wire::Mode;
+use h4_telemetry::recording::Recorder;
 use nalgebra::Vector3;
 
 use super::ExperimentError;

@@ -26,10 +26,10 @@ fn run() -> Result<(), String> {
             .insert_json5(key, &value)
             .map_err(|e| format!("{key}: {e}"))?;
     }
-    h4_shared::process::install_stop_handlers().map_err(|e| e.to_string())?;
+    h4_telemetry::process::install_stop_handlers().map_err(|e| e.to_string())?;
     let session = zenoh::open(config).wait().map_err(|e| e.to_string())?;
     println!("ready");
-    while !h4_shared::process::stop_requested() {
+    while !h4_telemetry::process::stop_requested() {
         std::thread::sleep(Duration::from_millis(20));
     }
     session.close().wait().map_err(|e| e.to_string())

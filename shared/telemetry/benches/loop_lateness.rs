@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use h4_shared::rt::{Histogram, Pacer, set_fifo_priority, set_timer_slack_ns};
+use h4_telemetry::rt::{Histogram, Pacer, set_fifo_priority, set_timer_slack_ns};
 
 fn report(name: &str, h: &Histogram, misses: u64) {
     println!(

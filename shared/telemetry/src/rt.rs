@@ -172,29 +172,7 @@ pub struct Pacer {
 /// Misses whose times a [`Pacer`] keeps (the later ones are only counted).
 pub const MISS_SPANS_MAX: usize = 256;
 
-/// `CLOCK_MONOTONIC` now, ns: the same clock in every process of the host (what `Instant`
-/// reads on Linux), so times from two processes and a test can be compared.
-pub fn monotonic_ns() -> u64 {
-    clock_ns(libc::CLOCK_MONOTONIC)
-}
-
-/// CPU time the calling thread has used, ns (0 if unknown).
-pub fn thread_cpu_ns() -> u64 {
-    clock_ns(libc::CLOCK_THREAD_CPUTIME_ID)
-}
-
-/// The clock `id` now, ns (0 if unknown).
-fn clock_ns(id: libc::clockid_t) -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: valid pointer to a live timespec; `id` is one of libc's clock constants.
-    if unsafe { libc::clock_gettime(id, &mut ts) } != 0 {
-        return 0;
-    }
-    u64::try_from(ts.tv_sec).unwrap_or(0) * 1_000_000_000 + u64::try_from(ts.tv_nsec).unwrap_or(0)
-}
+pub use h4_shared::clock::{monotonic_ns, thread_cpu_ns};
 
 impl Pacer {
     /// A pacer whose first deadline is one period from now; `spin` is how long before each
@@ -397,7 +375,7 @@ pub struct CycleCtx<'a> {
 #[derive(Debug)]
 pub struct RtLoop {
     pacer: Pacer,
-    clock: crate::clock::MonotonicClock,
+    clock: h4_shared::clock::MonotonicClock,
     progress: crate::progress::ProgressHandle,
     next_status_ns: u64,
     text: String,
@@ -416,7 +394,7 @@ impl RtLoop {
         );
         RtLoop {
             pacer,
-            clock: crate::clock::MonotonicClock::new(),
+            clock: h4_shared::clock::MonotonicClock::new(),
             progress: crate::progress::ProgressHandle::off(),
             next_status_ns: 0,
             text: String::with_capacity(512),
@@ -453,7 +431,7 @@ impl RtLoop {
         limit_s: f64,
         mut body: impl FnMut(&mut CycleCtx<'_>) -> bool,
     ) {
-        use crate::clock::Clock;
+        use h4_shared::clock::Clock;
         let end_ns = self.clock.now_ns() + (limit_s.max(0.0) * 1e9) as u64;
         let done = std::cell::Cell::new(false);
         let Ok(()) = self.cycle_until(
@@ -470,7 +448,7 @@ impl RtLoop {
         mut body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
         mut stop: impl FnMut(u64) -> bool,
     ) -> Result<(), E> {
-        use crate::clock::Clock;
+        use h4_shared::clock::Clock;
         loop {
             let tick = self.pacer.wait();
             let now_ns = self.clock.now_ns();
@@ -519,7 +497,7 @@ impl RtLoop {
 
     /// The loop's report now: cycles, misses, lateness, CPU and run time.
     pub fn report(&self) -> LoopReport {
-        use crate::clock::Clock;
+        use h4_shared::clock::Clock;
         LoopReport {
             clock_origin_monotonic_ns: self.clock.origin_monotonic_ns(),
             ..LoopReport::new(self.cycles, &self.pacer, self.clock.now_ns() as f64 / 1e9)

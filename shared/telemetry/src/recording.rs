@@ -7,8 +7,8 @@
 //! Unix time in the processes (so [`merge`] can put both processes' files on one timeline).
 //!
 //! ```no_run
-//! use h4_shared::recording::Recorder;
-//! # fn main() -> Result<(), h4_shared::recording::RecordingError> {
+//! use h4_telemetry::recording::Recorder;
+//! # fn main() -> Result<(), h4_telemetry::recording::RecordingError> {
 //! let mut rec = Recorder::create("run.mcap")?;
 //! let ch = rec.add_channel(
 //!     "/slave/force",
@@ -405,7 +405,7 @@ pub struct MergeStats {
 /// Merges MCAP files into one at `out`: every channel of every input (with its schema), and
 /// every message in log-time order (ties keep the inputs' order). The inputs must share a time
 /// base, e.g. the Unix-time stamps of the process recordings
-/// ([`crate::clock::MonotonicClock::unix_ns`]).
+/// ([`h4_shared::clock::MonotonicClock::unix_ns`]).
 pub fn merge(inputs: &[&Path], out: &Path) -> Result<MergeStats, RecordingError> {
     let io = |path: &Path| {
         let path = path.display().to_string();
