@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 const MAX_FN_LINES: usize = 150;
-const CRATES: [&str; 4] = ["shared", "transport", "slave", "master"];
+const CRATES: [&str; 5] = ["shared", "shared/telemetry", "transport", "slave", "master"];
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -178,7 +178,7 @@ fn the_scanner_measures_functions() {
 
 #[test]
 fn crates_depend_in_one_direction() {
-    // shared → transport → slave → master: no crate names a later one.
+    // shared → telemetry → transport → slave → master: no crate names a later one.
     for (i, krate) in CRATES.iter().enumerate() {
         let manifest = std::fs::read_to_string(repo().join(krate).join("Cargo.toml")).unwrap();
         // Dependency lines only: comments may name other crates.
@@ -187,9 +187,10 @@ fn crates_depend_in_one_direction() {
             .map(|l| l.split('#').next().unwrap_or(""))
             .collect();
         for later in &CRATES[i + 1..] {
+            let name = format!("h4-{}", later.rsplit('/').next().unwrap());
             assert!(
-                !code.iter().any(|l| l.contains(&format!("h4-{later}"))),
-                "{krate}/Cargo.toml depends on h4-{later}"
+                !code.iter().any(|l| l.contains(&name)),
+                "{krate}/Cargo.toml depends on {name}"
             );
         }
     }
@@ -230,5 +231,177 @@ fn ci_runs_the_readme_commands() {
     assert!(
         out.contains('/') && ignore.lines().any(|l| l.trim() == format!("{dir}/")),
         "the main job's summary {out} is not under a directory .gitignore names"
+    );
+}
+
+/// The packages a workspace package depends on, directly or not, through normal (not dev or
+/// build) dependencies, from `cargo metadata`'s resolved graph: names only.
+fn normal_closure(meta: &serde_json::Value, package: &str) -> std::collections::BTreeSet<String> {
+    let packages = meta["packages"].as_array().unwrap();
+    let name_of = |id: &str| -> String {
+        packages
+            .iter()
+            .find(|p| p["id"] == id)
+            .map(|p| p["name"].as_str().unwrap().to_string())
+            .unwrap()
+    };
+    let nodes = meta["resolve"]["nodes"].as_array().unwrap();
+    let root = packages
+        .iter()
+        .find(|p| p["name"] == package && p["source"].is_null())
+        .unwrap_or_else(|| panic!("no workspace package {package}"))["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let mut seen = std::collections::BTreeSet::new();
+    let mut todo = vec![root];
+    let mut names = std::collections::BTreeSet::new();
+    while let Some(id) = todo.pop() {
+        if !seen.insert(id.clone()) {
+            continue;
+        }
+        let node = nodes.iter().find(|n| n["id"] == id.as_str()).unwrap();
+        for dep in node["deps"].as_array().unwrap() {
+            let normal = dep["dep_kinds"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|k| k["kind"].is_null());
+            if normal {
+                let dep_id = dep["pkg"].as_str().unwrap().to_string();
+                names.insert(name_of(&dep_id));
+                todo.push(dep_id);
+            }
+        }
+    }
+    names
+}
+
+fn cargo_metadata() -> serde_json::Value {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let out = std::process::Command::new(cargo)
+        .args(["metadata", "--format-version", "1", "--manifest-path"])
+        .arg(repo().join("Cargo.toml"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cargo metadata failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// The core (`h4-shared`: kinematics, compliance, wire, passivity, configuration types) builds
+/// without the I/O and UI stack; telemetry sits beside it. Checked on the resolved dependency
+/// graph, so a crate pulled in through another one counts too.
+#[test]
+fn the_core_builds_without_the_io_stack() {
+    const IO_STACK: [&str; 6] = ["mcap", "foxglove", "indicatif", "clap", "tokio", "plotters"];
+    let meta = cargo_metadata();
+    let core = normal_closure(&meta, "h4-shared");
+    for krate in IO_STACK {
+        assert!(
+            !core.contains(krate),
+            "h4-shared depends on {krate}: {core:?}"
+        );
+    }
+    // Negative control: the same walk finds the stack where it is.
+    let telemetry = normal_closure(&meta, "h4-telemetry");
+    for krate in [
+        "mcap",
+        "foxglove",
+        "indicatif",
+        "clap",
+        "tokio",
+        "h4-shared",
+    ] {
+        assert!(
+            telemetry.contains(krate),
+            "the walk misses {krate} under h4-telemetry: {telemetry:?}"
+        );
+    }
+}
+
+/// The top-level modules of a crate's `src/` and the sibling modules each names
+/// (`crate::<module>`): module → names.
+fn module_imports(src: &Path) -> std::collections::BTreeMap<String, Vec<String>> {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let mut graph = std::collections::BTreeMap::<String, Vec<String>>::new();
+    for f in files {
+        let rel = f.strip_prefix(src).unwrap();
+        let top = rel
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
+        let module = top.trim_end_matches(".rs").to_string();
+        if module == "lib" || module == "main" {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        let names = graph.entry(module.clone()).or_default();
+        for (i, _) in text.match_indices("crate::") {
+            let name: String = text[i + 7..]
+                .chars()
+                .take_while(|c| c.is_alphanumeric() || *c == '_')
+                .collect();
+            if !name.is_empty() && name != module && !names.contains(&name) {
+                names.push(name);
+            }
+        }
+    }
+    graph
+}
+
+/// A cycle in `graph`, if there is one (the modules along it).
+fn import_cycle(graph: &std::collections::BTreeMap<String, Vec<String>>) -> Option<Vec<String>> {
+    fn visit(
+        m: &str,
+        graph: &std::collections::BTreeMap<String, Vec<String>>,
+        path: &mut Vec<String>,
+        done: &mut std::collections::BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(at) = path.iter().position(|p| p == m) {
+            return Some(path[at..].to_vec());
+        }
+        if done.contains(m) {
+            return None;
+        }
+        path.push(m.to_string());
+        for n in graph.get(m).into_iter().flatten() {
+            if let Some(c) = visit(n, graph, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(m.to_string());
+        None
+    }
+    let mut done = std::collections::BTreeSet::new();
+    graph
+        .keys()
+        .find_map(|m| visit(m, graph, &mut Vec::new(), &mut done))
+}
+
+/// The core's and telemetry's modules import each other in one direction (no circle such as
+/// rt → process → rt).
+#[test]
+fn core_and_telemetry_modules_import_in_one_direction() {
+    for krate in ["shared", "shared/telemetry"] {
+        let graph = module_imports(&repo().join(krate).join("src"));
+        assert!(graph.len() > 4, "{krate}: only {graph:?}");
+        assert_eq!(import_cycle(&graph), None, "{krate}: {graph:?}");
+    }
+    // Negative control: the search finds a circle.
+    let mut g = std::collections::BTreeMap::new();
+    g.insert("a".to_string(), vec!["b".to_string()]);
+    g.insert("b".to_string(), vec!["c".to_string()]);
+    g.insert("c".to_string(), vec!["a".to_string()]);
+    assert_eq!(
+        import_cycle(&g),
+        Some(vec!["a".to_string(), "b".to_string(), "c".to_string()])
     );
 }

@@ -12,6 +12,7 @@ pub mod passivity;
 pub mod paths;
 pub mod rng;
 pub mod vec3;
+pub mod watchdog;
 pub mod wire;
 
 pub use kinematics::{

@@ -24,11 +24,11 @@
 
 use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::vec3::norm3;
+use h4_shared::watchdog::Watchdog;
 use h4_shared::wire::{
     CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
     FAULT_FORCE_LIMIT, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
 };
-use h4_telemetry::process::Watchdog;
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;

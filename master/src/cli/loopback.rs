@@ -15,8 +15,9 @@ use h4_slave::experiment::{
     ApproachConfig, ExperimentConfig, ForceConfig, SummaryConfig, TrackConfig,
 };
 use h4_slave::server::SlaveRunSummary;
-use h4_telemetry::process::{ExitStatus, LoopArgs};
+use h4_telemetry::process::ExitStatus;
 use h4_telemetry::progress::{grouped, verdict_line};
+use h4_telemetry::rt::LoopArgs;
 use h4_telemetry::rt::RealtimeMode;
 use h4_transport::impaired::ImpairArgs;
 use h4_transport::open::TransportArgs;
@@ -148,7 +149,7 @@ impl LoopbackArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         h4_telemetry::process::install_stop_handlers()
             .map_err(|e| format!("signal handlers: {e}"))?;
-        h4_telemetry::process::realtime_preflight(self.realtime, self.fifo_priority, false, LABEL)?;
+        h4_telemetry::rt::realtime_preflight(self.realtime, self.fifo_priority, false, LABEL)?;
         let config =
             h4_shared::paths::default_config(self.config.as_deref(), super::SESSION, "--config")?;
         let cfg =

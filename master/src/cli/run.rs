@@ -5,8 +5,8 @@ use std::process::ExitCode;
 
 use h4_master::server::{self, MasterRunOptions, MasterRunSummary};
 use h4_master::session;
-use h4_telemetry::process::LoopArgs;
 use h4_telemetry::progress::{ProgressConfig, grouped, verdict_line};
+use h4_telemetry::rt::LoopArgs;
 use h4_telemetry::rt::RealtimePlan;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;

@@ -118,43 +118,6 @@ pub fn cpu_time_s() -> f64 {
     t(ru.ru_utime) + t(ru.ru_stime)
 }
 
-/// Trips when no valid message has been seen for `timeout_ns` on the caller's clock.
-#[derive(Clone, Copy, Debug)]
-pub struct Watchdog {
-    timeout_ns: u64,
-    last_valid_ns: Option<u64>,
-}
-
-impl Watchdog {
-    /// A watchdog that has seen nothing yet (it is not tripped until the first message).
-    pub fn new(timeout_ns: u64) -> Self {
-        Watchdog {
-            timeout_ns,
-            last_valid_ns: None,
-        }
-    }
-
-    /// A valid message arrived at `now_ns`.
-    pub fn feed(&mut self, now_ns: u64) {
-        self.last_valid_ns = Some(now_ns);
-    }
-
-    /// Whether a message was ever seen.
-    pub fn ever_fed(&self) -> bool {
-        self.last_valid_ns.is_some()
-    }
-
-    /// Time since the last valid message, or `None` before the first.
-    pub fn silence_ns(&self, now_ns: u64) -> Option<u64> {
-        self.last_valid_ns.map(|t| now_ns.saturating_sub(t))
-    }
-
-    /// Tripped: something was seen, and nothing valid for longer than the timeout.
-    pub fn tripped(&self, now_ns: u64) -> bool {
-        self.silence_ns(now_ns).is_some_and(|s| s > self.timeout_ns)
-    }
-}
-
 /// Prints `text` and a newline on standard output. A reader that went away (a closed pipe,
 /// e.g. `| head`) is not an error: the output is simply not wanted any more. Any other write
 /// error is returned, never a panic (`println!` panics on both).
@@ -237,23 +200,6 @@ pub fn exit_after_run(fixed_end: bool) -> std::process::ExitCode {
     }
 }
 
-impl LoopArgs {
-    /// [`check_writable`] on `--summary` and `--record`: an unwritable path is an error
-    /// before the run starts.
-    pub fn check_outputs(&self) -> Result<(), String> {
-        if let Some(p) = &self.summary {
-            check_writable("--summary", p)?;
-        }
-        if let Some(p) = &self.record {
-            check_writable("--record", p)?;
-        }
-        Ok(())
-    }
-}
-
-/// What both `run` commands (`h4-slave run`, `h4-master run`) take about their loop: how
-/// long, where the summary and the recording go, real-time settings (flattened into their
-/// clap arguments).
 /// `--duration-s`: a positive finite number of seconds (0, negative, `nan` and `inf` are usage
 /// errors, exit 2, not a run of no cycles).
 pub fn positive_seconds(text: &str) -> Result<f64, String> {
@@ -266,63 +212,6 @@ pub fn positive_seconds(text: &str) -> Result<f64, String> {
     }
 }
 
-#[derive(Clone, Debug, Default, clap::Args)]
-pub struct LoopArgs {
-    /// Stop by itself after this many seconds, a positive finite number (default: until
-    /// SIGINT/SIGTERM).
-    #[arg(long, value_parser = positive_seconds)]
-    pub duration_s: Option<f64>,
-    /// Write the summary as JSON here (it is also printed on stdout).
-    #[arg(long)]
-    pub summary: Option<std::path::PathBuf>,
-    /// Write an MCAP recording of every cycle here.
-    #[arg(long)]
-    pub record: Option<std::path::PathBuf>,
-    /// Real time: `try` (default) runs the loop under SCHED_FIFO and locks all memory where
-    /// permitted, with a one-line note for what is not; `enforce` makes a refusal an error
-    /// (exit 2) before the run; `off` asks for neither.
-    #[arg(long, value_enum, default_value_t = crate::rt::RealtimeMode::Try)]
-    pub realtime: crate::rt::RealtimeMode,
-    /// The SCHED_FIFO priority `--realtime try|enforce` uses (1–99; default 80).
-    #[arg(long)]
-    pub fifo_priority: Option<i32>,
-    /// Lock all memory (mlockall): implied by `--realtime try|enforce`, kept for scripts.
-    #[arg(long)]
-    pub lock_memory: bool,
-}
-
-impl LoopArgs {
-    /// The real-time plan of the flags, prepared before the run ([`realtime_preflight`]).
-    pub fn realtime_preflight(&self, label: &str) -> Result<crate::rt::RealtimePlan, String> {
-        realtime_preflight(self.realtime, self.fifo_priority, self.lock_memory, label)
-    }
-}
-
-/// Resolves `--realtime`, `--fifo-priority` and `--lock-memory` into a plan and prepares it
-/// before anything else runs: under `enforce` a setting that is not permitted is an error
-/// (exit 2); under `try` each refusal is one line on stderr (`LABEL: real time: …`) and the
-/// run goes on without it.
-pub fn realtime_preflight(
-    mode: crate::rt::RealtimeMode,
-    fifo_priority: Option<i32>,
-    lock_memory: bool,
-    label: &str,
-) -> Result<crate::rt::RealtimePlan, String> {
-    let plan = crate::rt::RealtimePlan::from_flags(mode, fifo_priority, lock_memory)?;
-    let status = plan
-        .prepare()
-        .map_err(|e| format!("--realtime enforce: {e}"))?;
-    for why in &status.not_permitted {
-        crate::progress::verdict_line(
-            label,
-            &format!(
-                "real time: {why}; running without it (--realtime enforce makes this an error, --realtime off silences it)"
-            ),
-        );
-    }
-    Ok(plan)
-}
-
 #[cfg(test)]
 mod tests {
 
@@ -332,18 +221,5 @@ mod tests {
         for bad in ["0", "-1", "nan", "inf", "-inf", "", "ten"] {
             assert!(super::positive_seconds(bad).is_err(), "{bad}");
         }
-    }
-
-    use super::*;
-
-    #[test]
-    fn watchdog_trips_only_after_silence() {
-        let mut w = Watchdog::new(20_000_000);
-        assert!(!w.tripped(1_000_000_000), "not before the first message");
-        w.feed(1_000_000_000);
-        assert!(!w.tripped(1_020_000_000));
-        assert!(w.tripped(1_020_000_001));
-        w.feed(1_030_000_000);
-        assert!(!w.tripped(1_040_000_000));
     }
 }

@@ -261,7 +261,7 @@ impl Drop for Progress {
 fn report(cfg: &ProgressConfig, unit: Unit, shared: &Shared) {
     // A thread started by a loop already under SCHED_FIFO inherits it: printing has no
     // business at real-time priority.
-    crate::rt::set_normal_scheduling();
+    set_normal_scheduling();
     let started = Instant::now();
     let bar = (cfg.mode == Mode::Bar).then(|| new_bar(cfg, shared.total.load(Ordering::Relaxed)));
     let tick = Duration::from_secs_f64(if bar.is_some() {
@@ -392,6 +392,15 @@ pub fn interrupted_simulated_line(label: &str, done_s: f64, planned_s: f64) {
             "interrupted after {done_s:.1} of {planned_s:.1} s simulated: no verdict (the summary covers the cycles run)"
         ),
     );
+}
+
+/// Puts the calling thread back under normal scheduling (`SCHED_OTHER`): a helper thread
+/// started by a loop that runs under `SCHED_FIFO` inherits that policy. Lowering is always
+/// permitted; a failure leaves the thread as it was.
+pub fn set_normal_scheduling() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: plain syscall on the calling thread with a valid, initialised parameter.
+    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) };
 }
 
 #[cfg(test)]

@@ -172,6 +172,7 @@ pub struct Pacer {
 /// Misses whose times a [`Pacer`] keeps (the later ones are only counted).
 pub const MISS_SPANS_MAX: usize = 256;
 
+pub use crate::progress::set_normal_scheduling;
 pub use h4_shared::clock::{monotonic_ns, thread_cpu_ns};
 
 impl Pacer {
@@ -578,15 +579,6 @@ pub fn set_fifo_priority(priority: i32) -> Result<(), RtError> {
     }
 }
 
-/// Puts the calling thread back under normal scheduling (`SCHED_OTHER`): a helper thread
-/// started by a loop that runs under `SCHED_FIFO` inherits that policy. Lowering is always
-/// permitted; a failure leaves the thread as it was.
-pub fn set_normal_scheduling() {
-    let param = libc::sched_param { sched_priority: 0 };
-    // SAFETY: plain syscall on the calling thread with a valid, initialised parameter.
-    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) };
-}
-
 /// Locks current and future memory so the loop never page-faults.
 pub fn lock_memory() -> Result<(), RtError> {
     // SAFETY: plain syscall with constant flags.
@@ -763,6 +755,80 @@ impl RealtimePlan {
         }
         Ok(())
     }
+}
+
+impl LoopArgs {
+    /// [`check_writable`](crate::process::check_writable) on `--summary` and `--record`: an unwritable path is an error
+    /// before the run starts.
+    pub fn check_outputs(&self) -> Result<(), String> {
+        if let Some(p) = &self.summary {
+            crate::process::check_writable("--summary", p)?;
+        }
+        if let Some(p) = &self.record {
+            crate::process::check_writable("--record", p)?;
+        }
+        Ok(())
+    }
+}
+
+/// What both `run` commands (`h4-slave run`, `h4-master run`) take about their loop: how
+/// long, where the summary and the recording go, real-time settings (flattened into their
+/// clap arguments).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct LoopArgs {
+    /// Stop by itself after this many seconds, a positive finite number (default: until
+    /// SIGINT/SIGTERM).
+    #[arg(long, value_parser = crate::process::positive_seconds)]
+    pub duration_s: Option<f64>,
+    /// Write the summary as JSON here (it is also printed on stdout).
+    #[arg(long)]
+    pub summary: Option<std::path::PathBuf>,
+    /// Write an MCAP recording of every cycle here.
+    #[arg(long)]
+    pub record: Option<std::path::PathBuf>,
+    /// Real time: `try` (default) runs the loop under SCHED_FIFO and locks all memory where
+    /// permitted, with a one-line note for what is not; `enforce` makes a refusal an error
+    /// (exit 2) before the run; `off` asks for neither.
+    #[arg(long, value_enum, default_value_t = RealtimeMode::Try)]
+    pub realtime: RealtimeMode,
+    /// The SCHED_FIFO priority `--realtime try|enforce` uses (1–99; default 80).
+    #[arg(long)]
+    pub fifo_priority: Option<i32>,
+    /// Lock all memory (mlockall): implied by `--realtime try|enforce`, kept for scripts.
+    #[arg(long)]
+    pub lock_memory: bool,
+}
+
+impl LoopArgs {
+    /// The real-time plan of the flags, prepared before the run ([`realtime_preflight`]).
+    pub fn realtime_preflight(&self, label: &str) -> Result<RealtimePlan, String> {
+        realtime_preflight(self.realtime, self.fifo_priority, self.lock_memory, label)
+    }
+}
+
+/// Resolves `--realtime`, `--fifo-priority` and `--lock-memory` into a plan and prepares it
+/// before anything else runs: under `enforce` a setting that is not permitted is an error
+/// (exit 2); under `try` each refusal is one line on stderr (`LABEL: real time: …`) and the
+/// run goes on without it.
+pub fn realtime_preflight(
+    mode: RealtimeMode,
+    fifo_priority: Option<i32>,
+    lock_memory: bool,
+    label: &str,
+) -> Result<RealtimePlan, String> {
+    let plan = RealtimePlan::from_flags(mode, fifo_priority, lock_memory)?;
+    let status = plan
+        .prepare()
+        .map_err(|e| format!("--realtime enforce: {e}"))?;
+    for why in &status.not_permitted {
+        crate::progress::verdict_line(
+            label,
+            &format!(
+                "real time: {why}; running without it (--realtime enforce makes this an error, --realtime off silences it)"
+            ),
+        );
+    }
+    Ok(plan)
 }
 
 #[cfg(test)]

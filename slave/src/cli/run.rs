@@ -8,7 +8,7 @@ use h4_shared::passivity::PassivityParams;
 use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::{self, RunOptions};
 use h4_slave::teleop::ContactHandover;
-use h4_telemetry::process::LoopArgs;
+use h4_telemetry::rt::LoopArgs;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 use h4_transport::playout::{Playout, PlayoutConfig};
