@@ -96,29 +96,6 @@ impl Clock for SimClock {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sim_clock_moves_only_forward_and_is_shared() {
-        let clock = SimClock::new();
-        let view = clock.clone();
-        clock.advance_ns(1_000_000);
-        assert_eq!(view.now_ns(), 1_000_000);
-        clock.set_ns(10);
-        assert_eq!(view.now_ns(), 1_000_000);
-    }
-
-    #[test]
-    fn monotonic_clock_does_not_go_back() {
-        let clock = MonotonicClock::new();
-        let a = clock.now_ns();
-        let b = clock.now_ns();
-        assert!(b >= a);
-    }
-}
-
 /// `CLOCK_MONOTONIC` now, ns: the same clock in every process of the host (what `Instant`
 /// reads on Linux), so times from two processes and a test can be compared.
 pub fn monotonic_ns() -> u64 {
@@ -142,4 +119,27 @@ fn clock_ns(id: libc::clockid_t) -> u64 {
         return 0;
     }
     u64::try_from(ts.tv_sec).unwrap_or(0) * 1_000_000_000 + u64::try_from(ts.tv_nsec).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sim_clock_moves_only_forward_and_is_shared() {
+        let clock = SimClock::new();
+        let view = clock.clone();
+        clock.advance_ns(1_000_000);
+        assert_eq!(view.now_ns(), 1_000_000);
+        clock.set_ns(10);
+        assert_eq!(view.now_ns(), 1_000_000);
+    }
+
+    #[test]
+    fn monotonic_clock_does_not_go_back() {
+        let clock = MonotonicClock::new();
+        let a = clock.now_ns();
+        let b = clock.now_ns();
+        assert!(b >= a);
+    }
 }
