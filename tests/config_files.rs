@@ -45,8 +45,8 @@ fn bad_arm_configs_are_named() {
 /// environment takes the experiment's surface ranges.
 #[test]
 fn a_value_gets_the_same_verdict_in_every_file() {
-    use h4_master::session;
-    use h4_slave::experiment::ExperimentConfig;
+    use h4_master_sim::session;
+    use h4_slave_sim::experiment::ExperimentConfig;
     let session_file = config_dir().join("sessions/wall-push.toml");
     let experiment_file = config_dir().join("experiments/fig6b.toml");
     let verdict = |e: Result<(), ConfigError>| match e {

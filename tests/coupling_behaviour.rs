@@ -6,8 +6,8 @@
 
 use std::path::PathBuf;
 
-use h4_master::operator::IntentSegment;
-use h4_master::session::{self, MasterCycle, Session, SessionConfig};
+use h4_master_sim::operator::IntentSegment;
+use h4_master_sim::session::{self, Session, SessionConfig, SimMasterCycle};
 use h4_shared::kinematics::Pose;
 use h4_slave::teleop::TeleopCycle;
 
@@ -57,7 +57,7 @@ fn run(cfg: &SessionConfig) -> Vec<Rec> {
     let n = (cfg.duration_s * 1000.0).round() as usize;
     let mut out = Vec::with_capacity(n);
     for k in 0..n {
-        let (m, t): (MasterCycle, TeleopCycle) = s.cycle().unwrap();
+        let (m, t): (SimMasterCycle, TeleopCycle) = s.cycle().unwrap();
         let w = s.slave.arm().true_contact_wrench();
         out.push(Rec {
             t_s: (k + 1) as f64 * 1e-3,

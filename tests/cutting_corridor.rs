@@ -5,8 +5,8 @@
 
 use std::path::PathBuf;
 
-use h4_master::operator::IntentSegment;
-use h4_master::session::{self, Session};
+use h4_master_sim::operator::IntentSegment;
+use h4_master_sim::session::{self, Session};
 
 /// The largest |y| of the tool's true position while it cuts (x between −8 and 8 mm), and the
 /// largest |y| of a cell cut deeper than 0.5 mm.

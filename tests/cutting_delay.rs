@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, Summary};
+use h4_master_sim::session::{self, Summary};
 
 fn run(round_trip_ms: f64) -> (Summary, f64) {
     run_with(round_trip_ms, &[])

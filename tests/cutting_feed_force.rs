@@ -5,7 +5,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, Session};
+use h4_master_sim::session::{self, Session};
 
 /// Over 6 s of the pocket session (the first passes): the mean rendered force along the
 /// handle's horizontal motion while it feeds, and the slave's measured force along it × the

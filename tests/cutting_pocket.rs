@@ -5,7 +5,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, Summary};
+use h4_master_sim::session::{self, Summary};
 
 fn run(overrides: &[&str]) -> Summary {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-pocket.toml");

@@ -6,7 +6,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, Summary};
+use h4_master_sim::session::{self, Summary};
 
 /// The pocket session in steel with no depth floor and a spindle of `torque_n_mm`.
 fn run(torque_n_mm: Option<f64>) -> (Summary, f64) {

@@ -7,9 +7,9 @@
 use std::f64::consts::PI;
 use std::path::PathBuf;
 
-use h4_master::operator::IntentSegment;
-use h4_master::session::{self, Session, SessionConfig};
-use h4_slave::plant::cutting::Stock;
+use h4_master_sim::operator::IntentSegment;
+use h4_master_sim::session::{self, Session, SessionConfig};
+use h4_slave_sim::plant::cutting::Stock;
 
 fn profile(overrides: &[&str]) -> SessionConfig {
     let path =

@@ -28,11 +28,11 @@
 
 use std::path::PathBuf;
 
-use h4_master::matrix::{
+use h4_master_sim::matrix::{
     self, Case, Limits, Loss, Matrix, RTT_MS, Wall, grid, misses, safety_misses, shipped_cases,
     worst_report,
 };
-use h4_master::session::Summary;
+use h4_master_sim::session::Summary;
 
 fn session_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml")

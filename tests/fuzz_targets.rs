@@ -114,6 +114,7 @@ fn the_session_config_parser_survives_1e5_mutations() {
         .collect();
     run("session_config", &seeds, |d| {
         let text = String::from_utf8_lossy(d);
-        let _ = h4_shared::config::parse::<h4_master::session::SessionConfig>(&text, "fuzz", &[]);
+        let _ =
+            h4_shared::config::parse::<h4_master_sim::session::SessionConfig>(&text, "fuzz", &[]);
     });
 }

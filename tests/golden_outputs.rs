@@ -16,8 +16,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use h4_master::session;
-use h4_slave::experiment;
+use h4_master_sim::session;
+use h4_slave_sim::experiment;
 use h4_telemetry::recording::Recorder;
 
 fn repo() -> PathBuf {

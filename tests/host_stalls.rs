@@ -20,7 +20,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, Session, SessionConfig};
+use h4_master_sim::session::{self, Session, SessionConfig};
 use h4_shared::vec3::norm3;
 
 const MATERIALS: [&str; 3] = ["resin", "aluminium", "steel"];
@@ -117,7 +117,7 @@ fn run(material: &str, link: (f64, f64), stall: (&str, f64, f64), extra: &[&str]
     };
     for k in 0..n {
         let (m, t) = s.cycle().unwrap();
-        let v = s.master.device().true_state().velocity;
+        let v = s.master.device().arm().true_state().velocity;
         let dv = norm3(&[v[0] - prev_v[0], v[1] - prev_v[1], v[2] - prev_v[2]]);
         prev_v = [v[0], v[1], v[2]];
         window[k % window.len()] = dv * dv;

@@ -6,7 +6,17 @@
 use std::path::{Path, PathBuf};
 
 const MAX_FN_LINES: usize = 150;
-const CRATES: [&str; 5] = ["shared", "shared/telemetry", "transport", "slave", "master"];
+const CRATES: [&str; 9] = [
+    "shared",
+    "shared/telemetry",
+    "transport",
+    "slave",
+    "slave/sim",
+    "slave/cli",
+    "master",
+    "master/sim",
+    "master/cli",
+];
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -176,22 +186,98 @@ fn the_scanner_measures_functions() {
     assert_eq!(f.len(), 3);
 }
 
+/// The workspace's packages in their one direction: each may depend (normally, directly or
+/// not) on earlier ones only; the product crates (`h4-slave`, `h4-master`) on no simulation
+/// or command-line crate, and the master's product crate not on the slave's. Checked on
+/// `cargo metadata`'s resolved graph.
 #[test]
 fn crates_depend_in_one_direction() {
-    // shared → telemetry → transport → slave → master: no crate names a later one.
-    for (i, krate) in CRATES.iter().enumerate() {
-        let manifest = std::fs::read_to_string(repo().join(krate).join("Cargo.toml")).unwrap();
-        // Dependency lines only: comments may name other crates.
-        let code: Vec<&str> = manifest
-            .lines()
-            .map(|l| l.split('#').next().unwrap_or(""))
-            .collect();
-        for later in &CRATES[i + 1..] {
-            let name = format!("h4-{}", later.rsplit('/').next().unwrap());
+    const ORDER: [&str; 9] = [
+        "h4-shared",
+        "h4-telemetry",
+        "h4-transport",
+        "h4-slave",
+        "h4-master",
+        "h4-slave-sim",
+        "h4-master-sim",
+        "h4-slave-cli",
+        "h4-master-cli",
+    ];
+    let meta = cargo_metadata();
+    for (i, krate) in ORDER.iter().enumerate() {
+        let deps = normal_closure(&meta, krate);
+        for later in &ORDER[i + 1..] {
             assert!(
-                !code.iter().any(|l| l.contains(&name)),
-                "{krate}/Cargo.toml depends on {name}"
+                !deps.contains(*later),
+                "{krate} depends on {later}: {deps:?}"
             );
+        }
+    }
+    let master = normal_closure(&meta, "h4-master");
+    assert!(
+        !master.contains("h4-slave"),
+        "h4-master depends on h4-slave"
+    );
+    // Negative control: the walk finds the dependencies that are there.
+    let cli = normal_closure(&meta, "h4-master-cli");
+    for krate in ["h4-master", "h4-master-sim", "h4-slave", "h4-slave-sim"] {
+        assert!(
+            cli.contains(krate),
+            "the walk misses {krate} under h4-master-cli"
+        );
+    }
+}
+
+/// `cargo tree -p <package> -e normal`: the packages one package pulls in when built alone
+/// (its own features, not the workspace's union), names only.
+fn tree_alone(package: &str) -> std::collections::BTreeSet<String> {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let out = std::process::Command::new(cargo)
+        .args([
+            "tree", "-e", "normal", "--prefix", "none", "--format", "{p}", "-p", package,
+        ])
+        .arg("--manifest-path")
+        .arg(repo().join("Cargo.toml"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cargo tree failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_whitespace().next())
+        .map(str::to_string)
+        .collect()
+}
+
+/// The product crates build without the simulator and the UI stack (`cargo tree -p h4-slave`
+/// shows no plotters, mcap, foxglove or indicatif): the servers hand their records to a
+/// sink the command-line crates build.
+#[test]
+fn the_product_crates_build_without_the_simulator_or_the_ui_stack() {
+    const NOT_IN_PRODUCT: [&str; 6] = [
+        "plotters",
+        "mcap",
+        "foxglove",
+        "indicatif",
+        "h4-slave-sim",
+        "h4-master-sim",
+    ];
+    for product in ["h4-slave", "h4-master"] {
+        let tree = tree_alone(product);
+        assert!(tree.contains("h4-shared"), "{product}: {tree:?}");
+        for krate in NOT_IN_PRODUCT {
+            assert!(!tree.contains(krate), "{product} pulls in {krate}");
+        }
+    }
+    assert!(!tree_alone("h4-master").contains("h4-slave"));
+    // Negative control: the command-line crates have them.
+    for cli in ["h4-slave-cli", "h4-master-cli"] {
+        let tree = tree_alone(cli);
+        for krate in ["plotters", "mcap", "foxglove", "indicatif"] {
+            assert!(tree.contains(krate), "the tree of {cli} misses {krate}");
         }
     }
 }

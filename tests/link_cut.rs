@@ -24,7 +24,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use h4_master::server::MasterRunSummary;
-use h4_slave::server::SlaveRunSummary;
+use h4_slave_sim::server::SimRunSummary;
 use h4_tests::netns::{Host, TwoHosts};
 use h4_tests::record::{self, SafeEpisode};
 use h4_tests::relay::{Proto, Relay};
@@ -42,7 +42,7 @@ fn overrides() -> Vec<String> {
 }
 
 /// The criteria for one cut of `cut_s` seconds.
-fn check_cut(m: &MasterRunSummary, s: &SlaveRunSummary, cycles: &[record::SlaveCycle], cut_s: f64) {
+fn check_cut(m: &MasterRunSummary, s: &SimRunSummary, cycles: &[record::SlaveCycle], cut_s: f64) {
     let session = remote_procs::session(SESSION, &overrides()).unwrap();
     let why = remote_procs::judge(m, s, &session);
     assert!(why.is_empty(), "{why:?}\n{m:#?}\n{s:#?}");

@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use h4_master::session;
+use h4_master_sim::session;
 use h4_tests::procs::*;
 use serde_json::Value;
 

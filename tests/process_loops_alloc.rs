@@ -8,10 +8,10 @@
 use std::path::Path;
 
 use h4_master::server::MasterRunOptions;
-use h4_master::session::{self, SessionConfig};
+use h4_master_sim::session::{self, SessionConfig};
 use h4_shared::alloc_count::{CountingAllocator, count_allocations};
-use h4_slave::experiment::ExperimentConfig;
 use h4_slave::server::RunOptions;
+use h4_slave_sim::experiment::ExperimentConfig;
 use h4_telemetry::progress::{Mode, ProgressConfig};
 use h4_transport::inproc;
 
@@ -44,8 +44,6 @@ fn master_opts(duration_s: f64) -> MasterRunOptions {
     MasterRunOptions {
         duration_s: Some(duration_s),
         wait_for_slave_s: 0.0,
-        // The live view on: its per-cycle hand-off is on the measured thread too.
-        foxglove_ws: Some("127.0.0.1:0".into()),
         progress: progress("alloc test, master"),
         ..MasterRunOptions::default()
     }
@@ -54,9 +52,24 @@ fn master_opts(duration_s: f64) -> MasterRunOptions {
 fn slave_opts(duration_s: f64) -> RunOptions {
     RunOptions {
         duration_s: Some(duration_s),
-        foxglove_ws: Some("127.0.0.1:0".into()),
         progress: progress("alloc test, slave"),
         ..RunOptions::default()
+    }
+}
+
+/// The live view on: its per-cycle hand-off is on the measured thread too.
+fn live_master() -> h4_master_sim::server::RunOutputs {
+    h4_master_sim::server::RunOutputs {
+        foxglove_ws: Some("127.0.0.1:0".into()),
+        ..Default::default()
+    }
+}
+
+/// The live view on (the slave's).
+fn live_slave() -> h4_slave_sim::server::RunOutputs {
+    h4_slave_sim::server::RunOutputs {
+        foxglove_ws: Some("127.0.0.1:0".into()),
+        ..Default::default()
     }
 }
 
@@ -66,10 +79,11 @@ fn master_run(duration_s: f64) -> (u64, u64) {
     let cfg = session();
     let w = world();
     let helper = std::thread::spawn(move || {
-        h4_slave::server::run(&w, &slave_opts(duration_s + 0.5), &mut s).unwrap()
+        h4_slave_sim::server::run(&w, &slave_opts(duration_s + 0.5), &live_slave(), &mut s).unwrap()
     });
-    let (n, summary) =
-        count_allocations(|| h4_master::server::run(&cfg, &master_opts(duration_s), m).unwrap());
+    let (n, summary) = count_allocations(|| {
+        h4_master_sim::server::run(&cfg, &master_opts(duration_s), &live_master(), m).unwrap()
+    });
     helper.join().unwrap();
     (n, summary.run.cycles)
 }
@@ -80,10 +94,11 @@ fn slave_run(duration_s: f64) -> (u64, u64) {
     let cfg = session();
     let w = world();
     let helper = std::thread::spawn(move || {
-        h4_master::server::run(&cfg, &master_opts(duration_s + 0.5), m).unwrap()
+        h4_master_sim::server::run(&cfg, &master_opts(duration_s + 0.5), &live_master(), m).unwrap()
     });
-    let (n, summary) =
-        count_allocations(|| h4_slave::server::run(&w, &slave_opts(duration_s), &mut s).unwrap());
+    let (n, summary) = count_allocations(|| {
+        h4_slave_sim::server::run(&w, &slave_opts(duration_s), &live_slave(), &mut s).unwrap()
+    });
     helper.join().unwrap();
     (n, summary.run.cycles)
 }

@@ -53,7 +53,7 @@ use std::process::Command;
 use std::sync::Mutex;
 
 use h4_master::server::MasterRunSummary;
-use h4_slave::server::SlaveRunSummary;
+use h4_slave_sim::server::SimRunSummary;
 use h4_tests::netns::{Host, TwoHosts};
 use h4_tests::relay::{Proto, Relay};
 use h4_tests::remote_procs::{self, Running, Scratch};
@@ -180,7 +180,7 @@ struct Outcome {
     cell: Cell,
     reasons: Vec<String>,
     master: MasterRunSummary,
-    slave: SlaveRunSummary,
+    slave: SimRunSummary,
     /// Messages lost on the way (impairment counters or the relay's), both directions.
     lost: u64,
     /// Either loop missed more than 1 % of its deadlines.
@@ -316,7 +316,7 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         ));
     }
     let m: MasterRunSummary = remote_procs::read_summary(&master_summary)?;
-    let s: SlaveRunSummary = remote_procs::read_summary(&slave_summary)?;
+    let s: SimRunSummary = remote_procs::read_summary(&slave_summary)?;
     let lost = match &relay {
         Some(r) => r.counters().dropped,
         None => impair_lost(&slave.log()) + impair_lost(&master.log()),

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, Session};
+use h4_master_sim::session::{self, Session};
 use h4_shared::alloc_count::{CountingAllocator, allocations_in, count_allocations};
 
 #[global_allocator]

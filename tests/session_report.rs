@@ -6,8 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
-use h4_master::session::{self, Summary};
-use h4_slave::report::{ReportOptions, report};
+use h4_master_sim::session::{self, Summary};
+use h4_slave_sim::report::{ReportOptions, report};
 use h4_telemetry::recording::Recorder;
 
 fn tmp(name: &str) -> PathBuf {

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use h4_master::session::{self, SessionError};
+use h4_master_sim::session::{self, SessionError};
 use h4_telemetry::recording::Recorder;
 
 fn sessions_dir() -> PathBuf {

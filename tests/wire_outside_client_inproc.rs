@@ -16,11 +16,11 @@ use h4_shared::config::ArmConfig;
 use h4_shared::kinematics::Pose;
 use h4_shared::wire::{Command, Feedback};
 use h4_slave::controller::ControllerParams;
-use h4_slave::plant::{
+use h4_slave::teleop::{SlaveTeleop, TeleopParams};
+use h4_slave_sim::plant::{
     MaterialPreset, PlantConfig, SensorConfig, ShapeKind, SimArm, SurfaceConfig,
 };
-use h4_slave::teleop::{SlaveTeleop, TeleopParams};
-use h4_slave::world::SlaveWorld;
+use h4_slave_sim::world::SlaveWorld;
 use h4_transport::gate::GateCounters;
 use h4_transport::inproc::{self, DecodingEnd, RawEnd};
 use outside_client::{Cmd, Fb, bad_messages};

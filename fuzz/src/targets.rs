@@ -6,7 +6,7 @@
 use h4_shared::config::{ArmConfig, parse};
 use h4_shared::kinematics::{ActuatorStiffness, H4Params, WorkspaceLimits};
 use h4_shared::wire::{Command, CommandLimits, Feedback, WireMessage};
-use h4_slave::experiment::ExperimentConfig;
+use h4_slave_sim::experiment::ExperimentConfig;
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate};
 use h4_transport::inproc;
@@ -175,7 +175,7 @@ pub fn kin_tool(data: &[u8]) {
     };
     let limits = WorkspaceLimits::default();
     for l in [Some(&limits), None] {
-        let v = h4_slave::kin_tool::answer(&line, &H4Params::PROTOTYPE, &k, l);
+        let v = h4_slave_sim::kin_tool::answer(&line, &H4Params::PROTOTYPE, &k, l);
         assert!(v.is_object(), "{v}");
         assert!(v.get("error").is_some() || v.get("pose").is_some() || v.get("l").is_some());
     }

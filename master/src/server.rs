@@ -1,6 +1,6 @@
 //! `h4-master run`: the master as a real process. A 1 kHz loop on absolute deadlines steps
-//! the master's endpoint ([`MasterTeleop`]: simulated master arm, scripted operator,
-//! receive gate, coupling with its passivity port and feedback-loss fade) on the process's
+//! the master's endpoint ([`MasterTeleop`] over any [`HapticDevice`]: receive gate,
+//! coupling with its passivity port and feedback-loss fade) on the process's
 //! monotonic clock, and publishes one command per cycle on the link.
 //!
 //! When feedback stops the coupling fades the rendered force to zero; when it returns the
@@ -10,19 +10,18 @@
 //! a writer thread.
 
 use h4_shared::vec3::norm3;
-use std::path::PathBuf;
 use std::time::Duration;
 
 use h4_shared::wire::{Command, Feedback, SlaveState};
 use h4_telemetry::process::stop_requested;
 use h4_telemetry::progress::{Progress, ProgressConfig, Unit};
-use h4_telemetry::recording::BackgroundRecorder;
 use h4_telemetry::rt::{LoopReport, RtLoop};
+use h4_telemetry::sink::Sink;
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
 use serde::{Deserialize, Serialize};
 
-use crate::session::{SessionConfig, SessionError};
+use crate::device::HapticDevice;
 use crate::teleop::{MasterTeleop, MasterTeleopError};
 
 /// How the master loop runs.
@@ -43,10 +42,6 @@ pub struct MasterRunOptions {
     /// Wait this long for the slave's first feedback before starting the operator's script,
     /// s (0: start at once).
     pub wait_for_slave_s: f64,
-    /// Write an MCAP recording here.
-    pub record: Option<PathBuf>,
-    /// Serve the live view here (`--foxglove-ws HOST:PORT`).
-    pub foxglove_ws: Option<String>,
 }
 
 impl Default for MasterRunOptions {
@@ -59,8 +54,6 @@ impl Default for MasterRunOptions {
             progress: h4_telemetry::progress::ProgressConfig::off(),
             duration_s: None,
             wait_for_slave_s: 10.0,
-            record: None,
-            foxglove_ws: None,
         }
     }
 }
@@ -159,9 +152,10 @@ pub struct MasterRunSummary {
 /// Why the master could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum MasterRunError {
-    /// The session file could not be used (the operator's script).
+    /// The device could not be built (the simulated one: the session file's operator
+    /// script or master arm).
     #[error("{0}")]
-    Session(#[from] SessionError),
+    Device(String),
     /// The master's endpoint could not be built.
     #[error("{0}")]
     Master(#[from] MasterTeleopError),
@@ -170,12 +164,9 @@ pub enum MasterRunError {
         "no feedback from a slave within {0} s: is `h4-slave run` running with the same transport, arm id and prefix/endpoints?"
     )]
     NoSlave(f64),
-    /// The recording could not be written.
-    #[error("recording: {0}")]
-    Recording(String),
-    /// The live view could not start.
+    /// The recording could not be written, or the live view could not start.
     #[error("{0}")]
-    Live(#[from] h4_telemetry::live::LiveError),
+    Outputs(String),
     /// `--realtime enforce` and a setting was not permitted.
     #[error("--realtime enforce: {0}")]
     Realtime(#[from] h4_telemetry::rt::RtError),
@@ -183,84 +174,63 @@ pub enum MasterRunError {
 
 /// One master cycle as recorded (topic `/master/cycle`, schema `h4.MasterProcessCycle`).
 #[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
-struct CycleRecord {
+pub struct CycleRecord {
     /// The loop's clock, ns since the loop started.
-    time_ns: u64,
+    pub time_ns: u64,
     /// How late the loop woke for this cycle, µs.
-    lateness_us: f64,
+    pub lateness_us: f64,
     /// Handle pose [x, y, z, theta], mm, rad.
-    pose: [f64; 4],
-    /// The operator's hand on the handle [Fx, Fy, Fz, My], N, N·mm.
-    hand_wrench: [f64; 4],
+    pub pose: [f64; 4],
+    /// The operator's hand on the handle [Fx, Fy, Fz, My], N, N·mm, when the device knows
+    /// it (the simulated operator; null for a real device: [`HapticDevice::hand_wrench`]).
+    pub hand_wrench: Option<[f64; 4]>,
     /// Wrench applied by the device [Fx, Fy, Fz, My], N, N·mm.
-    rendered_wrench: [f64; 4],
+    pub rendered_wrench: [f64; 4],
     /// Fade factor of the rendered force (1 full, 0 faded out).
-    fade: f64,
+    pub fade: f64,
     /// The slave's target sent this cycle [x, y, z, theta], mm, rad.
-    slave_target: [f64; 4],
+    pub slave_target: [f64; 4],
     /// The slave's measured force in the newest valid feedback, N.
-    slave_force_n: [f64; 3],
+    pub slave_force_n: [f64; 3],
     /// The slave's state in the newest valid feedback (`SlaveState` code).
-    slave_state: u8,
+    pub slave_state: u8,
     /// The newest round trip (`teleop::RoundTrip`: now − the send time of the command the
     /// newest echoing feedback echoed), µs; null (so not a required field) until a feedback
     /// message has echoed a command.
-    round_trip_us: Option<f64>,
+    pub round_trip_us: Option<f64>,
     /// The master port's passivity observer, J.
-    energy_observed_j: f64,
+    pub energy_observed_j: f64,
     /// Feedback messages the slave sent that the master did not accept, so far (lost on the
     /// link or rejected by the gate; from the slave's sequence numbers, `link_stats`).
-    feedback_lost: u64,
+    pub feedback_lost: u64,
 }
 
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
 }
 
-/// The master's endpoint of a session file, for `arm_id` (the master's sections only: no
-/// simulated slave is built).
-pub fn master_teleop(cfg: &SessionConfig, arm_id: u16) -> Result<MasterTeleop, MasterRunError> {
-    let script = cfg.operator.script().map_err(SessionError::from)?;
-    Ok(MasterTeleop::new(&cfg.master_teleop(arm_id), script)?)
-}
-
-/// Runs the master until stopped (SIGINT/SIGTERM or the duration), on `link`.
-pub fn run<L: Link<Command, Feedback>>(
-    cfg: &SessionConfig,
-    opts: &MasterRunOptions,
-    link: L,
-) -> Result<MasterRunSummary, MasterRunError> {
-    run_then(cfg, opts, link, || {})
-}
-
-/// [`run`], calling `at_loop_end` as soon as the loop has stopped (before the summary and
-/// the recording are finished): `loopback` stops the slave there, before its watchdog
-/// would notice the silence.
-pub fn run_then<L: Link<Command, Feedback>>(
-    cfg: &SessionConfig,
+/// Runs the master until stopped (SIGINT/SIGTERM or the duration), on `link`: a real-time
+/// shell (pacer, clock, statistics, status line, signals) around the master's endpoint
+/// `side` over any [`HapticDevice`]. Every cycle's record goes to `sink` (the recording and
+/// the live view: `h4_telemetry::sink::Outputs` from the command line). Calls
+/// `at_loop_end` as soon as the loop has stopped (before the summary and the recording are
+/// finished): `loopback` stops the slave there, before its watchdog would notice the
+/// silence.
+pub fn run_then<D, S, L>(
+    side: &mut MasterTeleop<D>,
+    mut sink: S,
     opts: &MasterRunOptions,
     mut link: L,
     at_loop_end: impl FnOnce(),
-) -> Result<MasterRunSummary, MasterRunError> {
-    let mut side = master_teleop(cfg, opts.arm_id)?;
-    let mut recorder = BackgroundRecorder::<CycleRecord>::start_for(
-        opts.record.as_deref(),
-        "/master/cycle",
-        "h4.MasterProcessCycle",
-    )
-    .map_err(|e| MasterRunError::Recording(e.to_string()))?;
-    let live_server =
-        h4_telemetry::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-master")?;
-    let mut live = h4_telemetry::live::topic_or_off::<CycleRecord>(
-        live_server.as_ref(),
-        "/master/cycle",
-        "h4.MasterProcessCycle",
-        1e9 / opts.period_ns.max(1) as f64,
-    );
-
+) -> Result<MasterRunSummary, MasterRunError>
+where
+    D: HapticDevice,
+    S: Sink<CycleRecord>,
+    L: Link<Command, Feedback>,
+{
     let mut realtime = opts.realtime.prepare()?;
     let mut s = MasterRunSummary {
-        waited_for_slave_s: wait_for_slave(&mut side, &mut link, opts)?,
+        waited_for_slave_s: wait_for_slave(side, &mut link, opts)?,
         ..MasterRunSummary::default()
     };
     let period_ns = opts.period_ns.max(1);
@@ -270,7 +240,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
     s.realtime = realtime;
     let mut rt =
         RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
-    let mut stats = RenderStats::new(cfg.scale.force);
+    let mut stats = RenderStats::new(side.coupling().params().force_scale);
     let mut link_stats = crate::link_stats::LossMeter::new();
     rt.run(|cx| {
         let now = cx.now_ns;
@@ -293,7 +263,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
             time_ns: now,
             lateness_us: us(cx.tick.lateness_ns),
             pose: m.handle.pose,
-            hand_wrench: m.hand.wrench,
+            hand_wrench: side.device().hand_wrench(),
             rendered_wrench: m.rendered_wrench,
             fade,
             slave_target: m.step.slave_target,
@@ -306,8 +276,8 @@ pub fn run_then<L: Link<Command, Feedback>>(
                 sent.saturating_sub(arrived)
             },
         };
-        recorder.push(cx.unix_ns, record);
-        live.push(cx.unix_ns, record);
+        sink.record(cx.unix_ns, record, None);
+        sink.show(cx.unix_ns, record, None);
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(
@@ -351,16 +321,16 @@ pub fn run_then<L: Link<Command, Feedback>>(
     s.link_down_cycles = link_stats.down_cycles();
     s.link_state = link_stats.state();
     s.run = rt.report();
-    s.recording_dropped = recorder.dropped();
-    recorder.finish().map_err(MasterRunError::Recording)?;
+    s.recording_dropped = sink.dropped();
+    sink.finish().map_err(MasterRunError::Outputs)?;
     Ok(s)
 }
 
 /// Waits for the slave's first valid feedback (at most `opts.wait_for_slave_s`; 0: not at
 /// all, or until a stop request); returns how long it waited, s. The feedback goes through
 /// the endpoint's gate (at time 0, before the loop's clock starts).
-fn wait_for_slave<L: Link<Command, Feedback>>(
-    side: &mut MasterTeleop,
+fn wait_for_slave<D: HapticDevice, L: Link<Command, Feedback>>(
+    side: &mut MasterTeleop<D>,
     link: &mut L,
     opts: &MasterRunOptions,
 ) -> Result<f64, MasterRunError> {
@@ -526,30 +496,5 @@ pub fn state_name(code: u8) -> &'static str {
         c if c == SlaveState::Active as u8 => "active",
         c if c == SlaveState::SafeStop as u8 => "safe-stop",
         _ => "?",
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use h4_transport::inproc;
-
-    fn wall_push() -> SessionConfig {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../config/sessions/wall-push.toml"
-        );
-        crate::session::load(std::path::Path::new(path), &[]).expect("wall-push loads")
-    }
-
-    /// The endpoint of a session file speaks for the process's arm.
-    #[test]
-    fn master_teleop_speaks_for_its_arm() {
-        let cfg = wall_push();
-        let mut side = master_teleop(&cfg, 3).expect("master endpoint");
-        let (mut master_end, mut slave_end) = inproc::pair(16);
-        side.step(&mut master_end, 1_000_000, 1e-3);
-        let cmd = slave_end.recv_latest().expect("link").expect("a command");
-        assert_eq!(cmd.arm_id, 3);
     }
 }

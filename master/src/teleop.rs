@@ -5,8 +5,8 @@
 //! endpoint, `h4_slave::teleop::SlaveTeleop`.
 //!
 //! One [`MasterTeleop::step`]:
-//! 1. the operator's hand acts on the handle (the simulated master arm, [`SimMasterArm`]),
-//!    and the handle is read;
+//! 1. the cycle begins at the device ([`HapticDevice::begin_cycle`]: on the simulated
+//!    device the operator's hand acts on the handle), and the handle is read;
 //! 2. drains the link through the receive gate, the only check of incoming feedback (wrong
 //!    version, wrong arm, undecodable, reserved bits, length, session, sequence number or
 //!    energy is counted by reason and dropped); each accepted message goes to the coupling and to the round-trip
@@ -28,8 +28,7 @@ use h4_transport::gate::{EnergyBound, Gate, GateCounters};
 use serde::Serialize;
 
 use crate::coupling::{CouplingConfig, CouplingParams, MasterCoupling, MasterStep, ScaleConfig};
-use crate::device::{DeviceState, HapticDevice, MasterArmConfig, SimMasterArm};
-use crate::operator::{HandConfig, HandOutput, Operator, Script};
+use crate::device::{DeviceState, HapticDevice};
 
 /// After this much feedback silence a message whose sequence number went backwards is taken
 /// as a restarted slave, ms.
@@ -42,15 +41,12 @@ const SLAVE_SPEED_MARGIN: f64 = 0.9;
 const SLAVE_FORCE_LIMIT_BOUND_N: f64 = 1000.0;
 
 /// What the master's endpoint is built from: the master's sections of a session file
-/// (master arm, operator's hand, coupling, scale, passivity) and the slave it maps into.
+/// (coupling, scale, passivity) and the slave it maps into. The device is built apart
+/// (the simulated one from `master.*` and `operator.*`, `h4_master_sim::hand`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MasterTeleopConfig {
     /// Arm id: commands carry it, feedback for another arm is rejected.
     pub arm_id: u16,
-    /// The master arm (`master.*`).
-    pub master: MasterArmConfig,
-    /// The operator's hand (`operator.hand.*`).
-    pub hand: HandConfig,
     /// The coupling (`coupling.*`).
     pub coupling: CouplingConfig,
     /// Motion and force scaling (`scale.*`).
@@ -192,8 +188,6 @@ pub struct MasterCycle {
     pub rendered_wrench: [f64; 4],
     /// The handle: pose, velocity and clutch as read this cycle, master frame.
     pub handle: DeviceState,
-    /// The hand.
-    pub hand: HandOutput,
     /// A feedback message was accepted this cycle.
     pub fresh: bool,
     /// The newest round trip after this cycle's reception ([`RoundTrip::last_us`]), µs;
@@ -201,51 +195,43 @@ pub struct MasterCycle {
     pub round_trip_us: f64,
 }
 
-/// The master's teleoperation endpoint: the simulated master arm with the operator's hand
-/// on it, the receive gate, the coupling.
-pub struct MasterTeleop {
+/// The master's teleoperation endpoint over the haptic device `D`: the device, the receive
+/// gate, the coupling.
+pub struct MasterTeleop<D: HapticDevice> {
     session_id: u64,
-    device: SimMasterArm,
-    operator: Operator,
+    device: D,
     gate: Gate<Feedback>,
     coupling: MasterCoupling,
     round_trip: RoundTrip,
     counters: MasterTeleopCounters,
 }
 
-impl MasterTeleop {
-    /// An endpoint from its configuration; the operator follows `script`.
-    pub fn new(cfg: &MasterTeleopConfig, script: Script) -> Result<Self, MasterTeleopError> {
-        let device = SimMasterArm::new(cfg.master).map_err(MasterTeleopError::Device)?;
+impl<D: HapticDevice> MasterTeleop<D> {
+    /// An endpoint from its configuration, over `device`.
+    pub fn new(cfg: &MasterTeleopConfig, device: D) -> Self {
         // The slave's energy fields are bounded by the largest force limit a slave accepts
         // (1000 N) at its speed limit, four times over (docs/wire.md).
         let energy =
             EnergyBound::from_limits(SLAVE_FORCE_LIMIT_BOUND_N, cfg.slave_max_speed_mm_per_s, 4.0);
-        Ok(MasterTeleop {
+        MasterTeleop {
             session_id: h4_shared::wire::new_session_id(),
             device,
-            operator: Operator::new(cfg.hand, script, cfg.master.home_pose),
             gate: Gate::new(cfg.arm_id, (RESTART_SILENCE_MS * 1e6) as u64)
                 .with_energy_bound(energy),
             coupling: MasterCoupling::new(cfg.coupling_params()),
             round_trip: RoundTrip::new(),
             counters: MasterTeleopCounters::default(),
-        })
+        }
     }
 
-    /// The simulated master arm.
-    pub fn device(&self) -> &SimMasterArm {
+    /// The device.
+    pub fn device(&self) -> &D {
         &self.device
     }
 
-    /// The simulated master arm, mutable (it is advanced by its owner).
-    pub fn device_mut(&mut self) -> &mut SimMasterArm {
+    /// The device, mutable (a simulated one is advanced by its owner).
+    pub fn device_mut(&mut self) -> &mut D {
         &mut self.device
-    }
-
-    /// The operator.
-    pub fn operator(&self) -> &Operator {
-        &self.operator
     }
 
     /// The coupling.
@@ -320,35 +306,11 @@ impl MasterTeleop {
         d.accepted > 0
     }
 
-    /// The operator's hand alone, for `dt_s` at `now_ns`: it is physics and acts on the
-    /// handle's true state, also while the loop itself does not run (a host stall: the
-    /// device holds the last wrench written, the hand goes on).
-    pub fn hand_step(&mut self, now_ns: u64, dt_s: f64) -> HandOutput {
-        let before = self.device.true_state();
-        let hand = self
-            .operator
-            .step(now_ns as f64 * 1e-9, &before.pose, &before.velocity, dt_s);
-        self.device.set_hand(hand.wrench, hand.clutch);
-        hand
-    }
-
     /// The `missed` periods of `period_ns` before the cycle at `now_ns` that a stalled host
-    /// did not run: the device held the last wrench written while the hand went on, a
-    /// period at a time (at most [`MAX_STALL_CATCH_UP_MS`] of them; through a longer
-    /// stall's rest the hand's last wrench is held too).
+    /// did not run ([`HapticDevice::stalled`]: the simulated device's hand goes on).
     pub fn stalled(&mut self, now_ns: u64, period_ns: u64, missed: u64) {
-        if missed == 0 {
-            return;
-        }
-        let dt_s = period_ns as f64 * 1e-9;
-        let steps = missed.min(MAX_STALL_CATCH_UP_MS);
-        let rest = missed - steps;
-        if rest > 0 {
-            self.device.advance(rest * period_ns);
-        }
-        for k in (1..=steps).rev() {
-            self.hand_step(now_ns.saturating_sub(k * period_ns), dt_s);
-            self.device.advance(period_ns);
+        if missed > 0 {
+            self.device.stalled(now_ns, period_ns, missed);
         }
     }
 
@@ -359,7 +321,7 @@ impl MasterTeleop {
         now_ns: u64,
         dt_s: f64,
     ) -> MasterCycle {
-        let hand = self.hand_step(now_ns, dt_s);
+        self.device.begin_cycle(now_ns, dt_s);
         let dev = self.device.read();
         let fresh = self.receive(link, now_ns);
         let step = self.coupling.step(&dev, now_ns, dt_s);
@@ -375,15 +337,11 @@ impl MasterTeleop {
             step,
             rendered_wrench,
             handle: dev,
-            hand,
             fresh,
             round_trip_us: self.round_trip.last_us(),
         }
     }
 }
-
-/// Most missed periods [`MasterTeleop::stalled`] replays one by one (10 s at 1 kHz).
-pub const MAX_STALL_CATCH_UP_MS: u64 = 10_000;
 
 /// Most feedback messages taken from the link in one cycle.
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;
@@ -391,14 +349,28 @@ const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::operator::IntentSegment;
+    use crate::device::PrincipalMasses;
     use h4_transport::inproc;
+
+    /// A handle held still (the test needs no physics).
+    struct StillHandle;
+
+    impl HapticDevice for StillHandle {
+        fn read(&mut self) -> DeviceState {
+            DeviceState {
+                effective_mass_kg: 0.5,
+                principal_masses: PrincipalMasses::isotropic(0.5),
+                ..DeviceState::default()
+            }
+        }
+        fn write_wrench(&mut self, wrench: &[f64; 4]) -> [f64; 4] {
+            *wrench
+        }
+    }
 
     fn config(arm_id: u16) -> MasterTeleopConfig {
         MasterTeleopConfig {
             arm_id,
-            master: MasterArmConfig::default(),
-            hand: HandConfig::default(),
             coupling: CouplingConfig::default(),
             scale: ScaleConfig::default(),
             passivity: PassivityParams::default(),
@@ -408,23 +380,11 @@ mod tests {
         }
     }
 
-    fn hold_still() -> Script {
-        Script::Segments(vec![IntentSegment {
-            at_s: 0.0,
-            target_mm: [0.0, 0.0, 0.0],
-            move_s: 1.0,
-            push_n: [0.0; 3],
-            push_ramp_s: 0.3,
-            clutch: false,
-            theta_rad: 0.0,
-        }])
-    }
-
     /// A master for arm 3 commands arm 3 and takes only arm 3's feedback; each accepted
     /// feedback that echoes a command is one round trip.
     #[test]
     fn speaks_for_its_arm_and_measures_round_trips() {
-        let mut ep = MasterTeleop::new(&config(3), hold_still()).unwrap();
+        let mut ep = MasterTeleop::new(&config(3), StillHandle);
         let (mut master_end, mut slave_end) = inproc::pair(16);
         let mut t_ns = 0;
         for _ in 0..5 {

@@ -1,5 +1,5 @@
 //! Where the default configuration files are: relative to the repository the binaries belong
-//! to, not to the working directory, so `cd master && cargo run -p h4-master -- loopback`
+//! to, not to the working directory, so `cd master && cargo run -p h4-master-cli -- loopback`
 //! finds `config/sessions/wall-push.toml` like a run from the repository's root does.
 
 use std::path::{Path, PathBuf};

@@ -1,14 +1,16 @@
 //! The driver boundary: what the slave controller needs of an arm. A real robot's driver
 //! implements [`ArmDriver`] (read the four actuator encoders and the force/torque sensor,
 //! write four actuator position set-points); so does the simulation,
-//! [`crate::plant::SimArm`].
+//! `h4_slave_sim::plant::SimArm`, and the replay driver, `h4_slave_sim::replay::ReplayArm`.
+//! docs/drivers.md says how to add one.
 
 use serde::Serialize;
 
 /// One reading of the arm's sensors.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct ArmReading {
-    /// Time of the reading, ns (the simulated clock for [`SimArm`](crate::plant::SimArm)).
+    /// Time of the reading, ns (the driver's clock: the simulated clock for the simulated
+    /// arm). A reading whose time does not move on is not fresh.
     pub time_ns: u64,
     /// Actuator positions from the encoders, mm (carriage positions: they do not see the
     /// structure's deflection).
@@ -39,4 +41,8 @@ pub trait ArmDriver {
     fn spindle_stalled(&self) -> bool {
         false
     }
+    /// `dt_ns` of the arm's own time pass between two reads: a simulated arm integrates its
+    /// physics (the server calls this after every cycle, and for the periods a stalled host
+    /// missed); a real arm runs on its own (the default: nothing).
+    fn advance(&mut self, _dt_ns: u64) {}
 }

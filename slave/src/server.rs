@@ -9,21 +9,48 @@
 //! recording is handed to a writer thread through a bounded queue (full queue = counted drop).
 
 use h4_shared::vec3::norm3;
-use std::path::PathBuf;
 
 use h4_shared::passivity::PassivityParams;
 use h4_shared::wire::{Command, Feedback, SlaveState};
-use h4_telemetry::recording::BackgroundRecorder;
 use h4_telemetry::rt::{LoopReport, RtLoop};
+use h4_telemetry::sink::Sink;
 use h4_transport::Link;
 use h4_transport::gate::GateCounters;
 use serde::{Deserialize, Serialize};
 
+use crate::arm::ArmDriver;
 use crate::controller::Status;
-use crate::experiment::ExperimentConfig;
-use crate::plant::SimError;
-use crate::plant::cutting::judge::{CutEvaluator, CutSummary};
-use crate::teleop::{CutCycle, SlaveTeleop, TeleopCounters, TeleopError, TeleopParams};
+use crate::teleop::{SlaveTeleop, TeleopCounters, TeleopCycle, TeleopError};
+
+/// What a driver can tell beyond its sensors, for the recording and the summary only:
+/// nothing here reaches the controller. The simulated arm knows the true contact force and
+/// the cut (`h4_slave_sim::server::SimDiagnostics`); a real arm knows neither
+/// ([`NoDiagnostics`]: the measured force stands in for the true one). Called from the
+/// 1 kHz loop: allocates nothing, blocks on nothing.
+pub trait Diagnostics<A: ArmDriver> {
+    /// The second recorded topic's sample (`()` without one).
+    type Sample: Copy + Send + 'static;
+    /// The true contact force's magnitude now, N (None: not known).
+    fn true_force_n(&self, teleop: &SlaveTeleop<A>) -> Option<f64>;
+    /// This cycle's sample of the second topic (None: no sample this cycle).
+    fn sample(&self, teleop: &SlaveTeleop<A>) -> Option<Self::Sample>;
+    /// Every cycle of the run (not the shutdown's), after the endpoint's step.
+    fn observe(&mut self, _teleop: &SlaveTeleop<A>, _cycle: &TeleopCycle) {}
+}
+
+/// A driver with nothing to tell beyond its sensors (a real arm).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoDiagnostics;
+
+impl<A: ArmDriver> Diagnostics<A> for NoDiagnostics {
+    type Sample = ();
+    fn true_force_n(&self, _: &SlaveTeleop<A>) -> Option<f64> {
+        None
+    }
+    fn sample(&self, _: &SlaveTeleop<A>) -> Option<()> {
+        None
+    }
+}
 
 /// How the loop runs.
 #[derive(Clone, Debug)]
@@ -49,16 +76,9 @@ pub struct RunOptions {
     pub progress: h4_telemetry::progress::ProgressConfig,
     /// Stop by itself after this long, s (None: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
-    /// Write an MCAP recording here.
-    pub record: Option<PathBuf>,
     /// After a stop request, keep cycling (commands ignored) for at most this long until the
     /// arm is in its safe state with the force released, s.
     pub shutdown_limit_s: f64,
-    /// Serve the live view here (`--foxglove-ws HOST:PORT`).
-    pub foxglove_ws: Option<String>,
-    /// When the arm cuts: write the machined part here at the end (`height.png`,
-    /// `part.stl`, `deviation.png` with a `cut_target`; `--out DIR`).
-    pub out_dir: Option<PathBuf>,
 }
 
 impl Default for RunOptions {
@@ -74,10 +94,7 @@ impl Default for RunOptions {
             realtime: h4_telemetry::rt::RealtimePlan::off(),
             progress: h4_telemetry::progress::ProgressConfig::off(),
             duration_s: None,
-            record: None,
             shutdown_limit_s: 2.0,
-            foxglove_ws: None,
-            out_dir: None,
         }
     }
 }
@@ -115,7 +132,8 @@ pub struct SlaveRunSummary {
     pub safe_stop_times_ns: Vec<u64>,
     /// Times a master was paired after a safe stop.
     pub repairs: u64,
-    /// Largest true contact force of the simulated arm, N.
+    /// Largest true contact force, N: the driver's diagnostics' (the simulated arm's true
+    /// force), or the measured force's magnitude when the driver has none (a real arm).
     pub max_force_n: f64,
     /// Lowest value of the slave's passivity observer, J (below zero: the link generated
     /// energy at this port).
@@ -133,12 +151,6 @@ pub struct SlaveRunSummary {
     pub final_state: String,
     /// Recording samples dropped because the writer fell behind.
     pub recording_dropped: u64,
-    /// With a `cutting` section: the cut and the part (`removed_volume_mm3`,
-    /// `surface_error_p99_mm` and `gouge_max_mm` against the world's `cut_target` and
-    /// fixture floor, `cutting_force_dev_p99_pct`, `removal_rate_mm3_per_s`, …; the fields
-    /// of the simulation's summary, `docs/cutting.md`).
-    #[serde(flatten, skip_serializing_if = "Option::is_none")]
-    pub cutting: Option<CutSummary>,
     /// The stop: the loop kept running with commands ignored until the arm was in its safe
     /// state with the force released (or the time limit); what it reached.
     pub shutdown: ShutdownReport,
@@ -168,7 +180,7 @@ pub struct ShutdownReport {
     pub cycles: u64,
     /// The endpoint's state at exit (`SafeStop`, or `Idle` if no master ever commanded).
     pub final_state: String,
-    /// True contact force at exit, N.
+    /// True contact force at exit, N (the measured force without diagnostics).
     pub final_force_n: f64,
     /// The arm reached its safe state (not `Active`) with the true force below
     /// [`SHUTDOWN_RELEASED_N`] within the limit.
@@ -197,9 +209,6 @@ impl<L: Link<Feedback, Command>> Link<Feedback, Command> for Deaf<'_, L> {
 /// Why the slave could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum ServerError {
-    /// The simulated arm could not be built.
-    #[error("simulated arm: {0}")]
-    Sim(#[from] SimError),
     /// The configuration is unusable.
     #[error("configuration: {0}")]
     Config(#[from] h4_shared::config::ConfigError),
@@ -209,109 +218,76 @@ pub enum ServerError {
     /// The teleoperation endpoint's settings are unusable.
     #[error("{0}")]
     Teleop(#[from] TeleopError),
-    /// The live view could not start.
-    #[error("{0}")]
-    Live(#[from] h4_telemetry::live::LiveError),
     /// `--realtime enforce` and a setting was not permitted.
     #[error("--realtime enforce: {0}")]
     Realtime(#[from] h4_telemetry::rt::RtError),
-    /// The part's files could not be written.
-    #[error("--out: {0}")]
-    Part(String),
 }
 
 /// One cycle of the slave process as recorded (topic `/slave/cycle`, schema
 /// `h4.SlaveProcessCycle`; the session simulation records another shape on the same topic,
 /// `h4.SlaveCycle`).
 #[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
-struct CycleRecord {
+pub struct CycleRecord {
     /// The loop's clock, ns since the process's loop started.
-    time_ns: u64,
+    pub time_ns: u64,
     /// The endpoint's state (`SlaveState` code: 0 idle, 1 active, 2 safe stop).
-    state: u8,
+    pub state: u8,
     /// The controller's status code.
-    status: u8,
+    pub status: u8,
     /// How late the loop woke for this cycle, µs.
-    lateness_us: f64,
+    pub lateness_us: f64,
     /// Measured force along the contact normal, N.
-    force_measured_n: f64,
+    pub force_measured_n: f64,
     /// Force set-point along the contact normal, N.
-    force_desired_n: f64,
-    /// True contact force magnitude of the simulated arm, N.
-    force_true_n: f64,
+    pub force_desired_n: f64,
+    /// True contact force magnitude, N (the driver's diagnostics: the simulated arm's true
+    /// force; the measured force's magnitude without diagnostics).
+    pub force_true_n: f64,
     /// Measured pose of the tool [x, y, z, theta], mm, rad.
-    measured_pose: [f64; 4],
+    pub measured_pose: [f64; 4],
     /// Commanded pose of the tool [x, y, z, theta], mm, rad.
-    commanded_pose: [f64; 4],
+    pub commanded_pose: [f64; 4],
     /// Estimated contact normal (unit vector).
-    contact_normal: [f64; 3],
+    pub contact_normal: [f64; 3],
     /// Sequence number of the command acted on.
-    command_seq: u64,
+    pub command_seq: u64,
     /// The slave port's passivity observer, J.
-    energy_observed_j: f64,
+    pub energy_observed_j: f64,
+    /// The arm's reading this cycle: actuator positions from the encoders, mm (what a
+    /// replay driver plays back).
+    pub actuators_mm: [f64; 4],
+    /// The arm's reading this cycle: the sensor's wrench `[Fx_n, Fy_n, Fz_n, My_n_mm]`, base
+    /// frame, as the driver reported it (bias not removed).
+    pub wrench_sensor: [f64; 4],
 }
-
-/// The slave's recording: `/slave/cycle` and, when the arm cuts, `/slave/cut`.
-type SlaveRecorder = BackgroundRecorder<CycleRecord, CutCycle>;
-
-/// The most steady-feed samples a cutting run keeps for `cutting_force_dev_p99_pct` (one a
-/// cycle: the first 10 minutes of steady feed; 4.8 MB allocated before the loop).
-const MAX_STEADY_FEED_SAMPLES: usize = 600_000;
 
 fn us(ns: u64) -> f64 {
     ns as f64 / 1e3
 }
 
 /// Runs the slave until stopped (SIGINT/SIGTERM or the duration), on `link`: a real-time
-/// shell (pacer, clock, statistics, recording, status line, signals) around the slave's
-/// teleoperation endpoint [`SlaveTeleop`], the same per-cycle code the lockstep session
-/// simulation steps.
-pub fn run<L: Link<Feedback, Command>>(
-    cfg: &ExperimentConfig,
+/// shell (pacer, clock, statistics, status line, signals) around the slave's teleoperation
+/// endpoint [`SlaveTeleop`], the same per-cycle code the lockstep session simulation steps,
+/// over any [`ArmDriver`]. Every cycle's record goes to `sink` (the recording and the live
+/// view: `h4_telemetry::sink::Outputs` from the command line); what the driver knows beyond
+/// its sensors comes from `diag`, for the record and the summary only.
+pub fn run<A, D, S, L>(
+    teleop: &mut SlaveTeleop<A>,
+    diag: &mut D,
+    mut sink: S,
     opts: &RunOptions,
     link: &mut L,
-) -> Result<SlaveRunSummary, ServerError> {
-    use h4_shared::config::Validate;
-    cfg.validate()?;
+) -> Result<SlaveRunSummary, ServerError>
+where
+    A: ArmDriver,
+    D: Diagnostics<A>,
+    S: Sink<CycleRecord, D::Sample>,
+    L: Link<Feedback, Command>,
+{
     opts.passivity.validate_at("passivity.")?;
     opts.contact.validate_at("contact.")?;
     let period_ns = opts.period_ns.max(1);
     let dt_s = period_ns as f64 * 1e-9;
-    let mut teleop = build_teleop(cfg, opts, period_ns)?;
-    // `/slave/cut` beside the cycles when the arm cuts.
-    let mut recorder: SlaveRecorder = BackgroundRecorder::start_two_for(
-        opts.record.as_deref(),
-        "/slave/cycle",
-        "h4.SlaveProcessCycle",
-        teleop.cut_cycle().map(|_| ("/slave/cut", "h4.CutCycle")),
-    )
-    .map_err(|e| ServerError::Recording(e.to_string()))?;
-    // The cut's evidence: the steady-feed deviations of the run (at most
-    // `MAX_STEADY_FEED_SAMPLES`, allocated here).
-    let mut cut_ev = teleop.arm().cut().map(|c| {
-        let cycles = opts.duration_s.map_or(MAX_STEADY_FEED_SAMPLES, |d| {
-            ((d / dt_s).ceil() as usize).min(MAX_STEADY_FEED_SAMPLES)
-        });
-        CutEvaluator::new(cycles, c.tool().spindle_rpm)
-    });
-    let live_server =
-        h4_telemetry::live::LiveServer::start_if(opts.foxglove_ws.as_deref(), "h4-slave")?;
-    let mut live = h4_telemetry::live::topic_or_off::<CycleRecord>(
-        live_server.as_ref(),
-        "/slave/cycle",
-        "h4.SlaveProcessCycle",
-        1e9 / period_ns as f64,
-    );
-    // The cut, when the arm cuts a workpiece (the arm file's `[cutting]`).
-    let mut live_cut = match teleop.cut_cycle() {
-        Some(_) => h4_telemetry::live::topic_or_off::<CutCycle>(
-            live_server.as_ref(),
-            "/slave/cut",
-            "h4.CutCycle",
-            1e9 / period_ns as f64,
-        ),
-        None => h4_telemetry::live::LiveTopic::off(),
-    };
 
     let mut realtime = opts.realtime.prepare()?;
     let per_step_s = period_ns as f64 * 1e-9;
@@ -327,7 +303,7 @@ pub fn run<L: Link<Feedback, Command>>(
     let mut rt =
         RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
     let mut s = SlaveRunSummary {
-        force_limit_n: cfg.controller.force_limit_n,
+        force_limit_n: teleop.controller().params().force_limit_n,
         // Allocated whole before the loop: recording a trip allocates nothing.
         safe_stop_times_ns: Vec::with_capacity(SAFE_STOP_TIMES_MAX),
         realtime,
@@ -338,7 +314,7 @@ pub fn run<L: Link<Feedback, Command>>(
     let mut state = SlaveState::Idle;
     let Ok(()) = rt.run(|cx| {
         let now = cx.now_ns;
-        // The simulated arm keeps real time: through deadlines the loop missed (a stalled
+        // A simulated arm keeps real time: through deadlines the loop missed (a stalled
         // host) its servos held the last command written, before this cycle reads it.
         teleop.arm_mut().advance(period_ns * cx.tick.missed);
         let c = teleop.step(link, now, dt_s);
@@ -352,8 +328,8 @@ pub fn run<L: Link<Feedback, Command>>(
         teleop.arm_mut().advance(period_ns);
 
         let out = &c.out;
-        let true_force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
         let measured_n = norm3(&out.wrench_measured);
+        let true_force_n = diag.true_force_n(teleop).unwrap_or(measured_n);
         s.max_force_n = s.max_force_n.max(true_force_n);
         s.max_measured_force_n = s.max_measured_force_n.max(measured_n);
         if out.status == Status::Contact {
@@ -361,15 +337,10 @@ pub fn run<L: Link<Feedback, Command>>(
             error_sum += (out.normal_force_n - out.setpoint_n).abs();
         }
         let record = CycleRecord::of(&c, cx, true_force_n);
-        recorder.push(cx.unix_ns, record);
-        live.push(cx.unix_ns, record);
-        if let Some(cut) = teleop.cut_cycle() {
-            live_cut.push(cx.unix_ns, cut);
-            recorder.push_second(cx.unix_ns, cut);
-        }
-        if let (Some(ev), Some(sample)) = (cut_ev.as_mut(), teleop.cut_sample(&c)) {
-            ev.push(&sample);
-        }
+        let sample = diag.sample(teleop);
+        sink.record(cx.unix_ns, record, sample);
+        sink.show(cx.unix_ns, record, sample);
+        diag.observe(teleop, &c);
         if let Some(line) = &mut cx.status {
             use std::fmt::Write;
             let _ = write!(
@@ -388,19 +359,9 @@ pub fn run<L: Link<Feedback, Command>>(
         Ok::<(), std::convert::Infallible>(())
     });
     let k = *teleop.counters();
-    s.shutdown = shut_down(&mut teleop, link, &mut rt, &mut recorder, opts);
+    s.shutdown = shut_down(teleop, diag, link, &mut rt, &mut sink, opts);
     progress.finish();
     s.book_endpoint(&k, teleop.gate_counters());
-    if let Some(ev) = cut_ev {
-        s.cutting = teleop
-            .finish_cut(
-                ev,
-                cfg.cut_target.as_ref(),
-                cfg.fixtures.depth_floor.map(|f| f.z_mm),
-                opts.out_dir.as_deref(),
-            )
-            .map_err(|e| ServerError::Part(e.to_string()))?;
-    }
     s.force_error_mean_n = if s.contact_cycles > 0 {
         error_sum / s.contact_cycles as f64
     } else {
@@ -408,8 +369,8 @@ pub fn run<L: Link<Feedback, Command>>(
     };
     s.final_state = format!("{state:?}");
     s.run = rt.report();
-    s.recording_dropped = recorder.dropped();
-    recorder.finish().map_err(ServerError::Recording)?;
+    s.recording_dropped = sink.dropped();
+    sink.finish().map_err(ServerError::Recording)?;
     Ok(s)
 }
 
@@ -431,40 +392,22 @@ impl SlaveRunSummary {
     }
 }
 
-/// The slave's endpoint over the simulated arm of `cfg`, which starts `approach.gap_mm` above
-/// the surface's contact point.
-fn build_teleop(
-    cfg: &ExperimentConfig,
-    opts: &RunOptions,
-    period_ns: u64,
-) -> Result<SlaveTeleop<crate::plant::SimArm>, ServerError> {
-    let p = cfg.surface.contact_point_mm;
-    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let (arm, ctrl) = cfg.world().build(start, cfg.seed)?;
-    Ok(SlaveTeleop::new(
-        TeleopParams {
-            arm_id: opts.arm_id,
-            watchdog_ms: opts.watchdog_ms,
-            restart_silence_ms: opts.restart_silence_ms,
-            passivity: opts.passivity,
-            contact: opts.contact,
-            ..TeleopParams::default()
-        },
-        ctrl,
-        arm,
-        period_ns,
-    )?)
-}
-
 /// After the stop request: commands ignored, the watchdog trips, the safe stop ramps the
 /// force to zero and retracts; returns when the arm holds released (or at the limit).
-fn shut_down<L: Link<Feedback, Command>>(
-    teleop: &mut SlaveTeleop<crate::plant::SimArm>,
+fn shut_down<A, D, S, L>(
+    teleop: &mut SlaveTeleop<A>,
+    diag: &D,
     link: &mut L,
     rt: &mut RtLoop,
-    recorder: &mut SlaveRecorder,
+    sink: &mut S,
     opts: &RunOptions,
-) -> ShutdownReport {
+) -> ShutdownReport
+where
+    A: ArmDriver,
+    D: Diagnostics<A>,
+    S: Sink<CycleRecord, D::Sample>,
+    L: Link<Feedback, Command>,
+{
     let period_ns = opts.period_ns.max(1);
     let mut deaf = Deaf(link);
     let mut r = ShutdownReport::default();
@@ -473,11 +416,14 @@ fn shut_down<L: Link<Feedback, Command>>(
         teleop.arm_mut().advance(period_ns * cx.tick.missed);
         let c = teleop.step(&mut deaf, cx.now_ns, period_ns as f64 * 1e-9);
         teleop.arm_mut().advance(period_ns);
-        let force_n = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
-        recorder.push(cx.unix_ns, CycleRecord::of(&c, cx, force_n));
-        if let Some(cut) = teleop.cut_cycle() {
-            recorder.push_second(cx.unix_ns, cut);
-        }
+        let force_n = diag
+            .true_force_n(teleop)
+            .unwrap_or_else(|| norm3(&c.out.wrench_measured));
+        sink.record(
+            cx.unix_ns,
+            CycleRecord::of(&c, cx, force_n),
+            diag.sample(teleop),
+        );
         r.cycles += 1;
         r.final_force_n = force_n;
         r.safe = c.state != SlaveState::Active && force_n < SHUTDOWN_RELEASED_N;
@@ -490,11 +436,7 @@ fn shut_down<L: Link<Feedback, Command>>(
 }
 
 impl CycleRecord {
-    fn of(
-        c: &crate::teleop::TeleopCycle,
-        cx: &h4_telemetry::rt::CycleCtx<'_>,
-        force_true_n: f64,
-    ) -> Self {
+    fn of(c: &TeleopCycle, cx: &h4_telemetry::rt::CycleCtx<'_>, force_true_n: f64) -> Self {
         let out = &c.out;
         CycleRecord {
             time_ns: cx.now_ns,
@@ -509,6 +451,8 @@ impl CycleRecord {
             contact_normal: out.contact_normal,
             command_seq: c.command_seq,
             energy_observed_j: c.port.observed_j,
+            actuators_mm: c.reading.actuators_mm,
+            wrench_sensor: c.reading.wrench,
         }
     }
 }

@@ -35,8 +35,6 @@ use serde::Serialize;
 
 use crate::arm::ArmDriver;
 use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
-use crate::plant::cutting::export::ExportError;
-use crate::plant::cutting::judge::{CutEvaluator, CutSample, CutSummary, CutTarget, write_outputs};
 
 /// Settings of the endpoint.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -273,6 +271,8 @@ pub struct TeleopCycle {
     pub dissipated_j: f64,
     /// Sequence number of the newest accepted command (0: none).
     pub command_seq: u64,
+    /// The arm's reading this cycle (encoders and force/torque sensor), as the driver gave it.
+    pub reading: crate::arm::ArmReading,
 }
 
 /// The slave's teleoperation endpoint over the arm `A`.
@@ -495,6 +495,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             energy_out_j: energy.out_j,
             dissipated_j: energy.dissipated_j,
             command_seq,
+            reading,
         }
     }
 
@@ -1003,102 +1004,6 @@ struct PortCommand {
     command: SlaveCommand,
 }
 
-/// One cycle of the cut, in a cutting session or a cutting `h4-slave run` (topic
-/// `/slave/cut`, schema `h4.CutCycle`: the simulation's recording and the processes' live
-/// view).
-#[derive(Clone, Copy, Debug, Serialize, schemars::JsonSchema)]
-pub struct CutCycle {
-    /// The tool's tip in the workpiece frame, mm (simulation truth).
-    pub tool_tip_in_workpiece_mm: [f64; 3],
-    /// The contact force on the tool (cutting, or rubbing when the spindle is stopped) at
-    /// the cycle's end, N, workpiece frame (simulation truth, with the tooth-passing
-    /// ripple).
-    pub cutting_force_n: [f64; 3],
-    /// That force averaged over the cycle, N.
-    pub cutting_force_mean_n: [f64; 3],
-    /// Volume removed so far, mm³.
-    pub removed_mm3: f64,
-    /// Removal rate over the cycle, mm³/s.
-    pub removal_rate_mm3_per_s: f64,
-    /// The spindle's torque over the cycle, N·mm.
-    pub spindle_torque_n_mm: f64,
-    /// The spindle has stalled.
-    pub stalled: bool,
-    /// A virtual fixture limited the slave's command this cycle.
-    pub fixture_active: bool,
-    /// The turntable's true angle, rad (0 without a turntable: the workpiece frame is then
-    /// the base frame).
-    pub turntable_rad: f64,
-    /// The turntable's commanded angle (its servo's last set-point as commanded), rad (0
-    /// without a turntable).
-    pub turntable_cmd_rad: f64,
-}
-
-impl SlaveTeleop<crate::plant::SimArm> {
-    /// The evidence of the cut in cycle `c`, for a
-    /// [`CutEvaluator`] (None when the arm does
-    /// not cut).
-    pub fn cut_sample(&self, c: &TeleopCycle) -> Option<CutSample> {
-        let cut = self.arm.cut()?;
-        let p = self.arm.true_pose();
-        Some(CutSample {
-            report: cut.report(),
-            tip_mm: cut.to_workpiece([p[0], p[1], p[2]]),
-            in_contact: c.out.status == Status::Contact,
-            fixture_active: self.ctrl.fixture_activity().0,
-            setpoint_n: c.out.setpoint_n,
-        })
-    }
-
-    /// The cutting fields of a summary from the evidence `ev` gathered, judged against
-    /// `target` and the fixture floor `floor_z_mm`; with `out_dir`, the part's files there
-    /// (`height.png`, `part.stl`, `deviation.png` with a target). None when the arm does not
-    /// cut.
-    pub fn finish_cut(
-        &self,
-        ev: CutEvaluator,
-        target: Option<&CutTarget>,
-        floor_z_mm: Option<f64>,
-        out_dir: Option<&std::path::Path>,
-    ) -> Result<Option<CutSummary>, ExportError> {
-        let Some(cut) = self.arm.cut() else {
-            return Ok(None);
-        };
-        if let Some(dir) = out_dir {
-            write_outputs(dir, cut.stock(), cut.tool(), target)?;
-        }
-        Ok(Some(ev.finish(
-            cut.stock(),
-            cut.tool(),
-            &cut.report(),
-            target,
-            floor_z_mm,
-            self.ctrl.fixture_activity().1,
-        )))
-    }
-
-    /// This cycle's cut, when the simulated arm cuts a workpiece (None otherwise).
-    pub fn cut_cycle(&self) -> Option<CutCycle> {
-        let cut = self.arm.cut()?;
-        let tp = self.arm.true_pose();
-        let f = self.arm.true_contact_wrench();
-        let rep = cut.report();
-        let table = cut.turntable();
-        Some(CutCycle {
-            tool_tip_in_workpiece_mm: cut.to_workpiece([tp[0], tp[1], tp[2]]),
-            cutting_force_n: [f[0], f[1], f[2]],
-            cutting_force_mean_n: rep.mean_force_n,
-            removed_mm3: rep.removed_mm3,
-            removal_rate_mm3_per_s: rep.removal_rate_mm3_per_s,
-            spindle_torque_n_mm: rep.spindle_torque_n_mm,
-            stalled: rep.stalled,
-            fixture_active: self.ctrl.fixture_activity().0,
-            turntable_rad: table.map_or(0.0, |t| t.angle_rad()),
-            turntable_cmd_rad: table.map_or(0.0, |t| t.commanded_rad()),
-        })
-    }
-}
-
 /// How close to a surface held before position mode slows to the approach speed, mm.
 const SURFACE_MARGIN_MM: f64 = 1.0;
 
@@ -1129,16 +1034,6 @@ const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::controller::ControllerParams;
-    use crate::plant::{
-        MaterialPreset, PlantConfig, SensorConfig, ShapeKind, SimArm, SurfaceConfig,
-    };
-    use crate::world::SlaveWorld;
-    use h4_shared::config::ArmConfig;
-    use h4_shared::kinematics::Pose;
-    use h4_transport::inproc::{self, InprocEnd};
-
-    const PERIOD_NS: u64 = 1_000_000;
 
     /// The hand-over spring softens over a told round trip to K·T = 0.5 N·s/mm, never
     /// stiffens, and stays as set when not told; the set-point follows the spring in effect.
@@ -1159,255 +1054,5 @@ mod tests {
         assert!(c.validate_at("contact.").is_err());
         c.round_trip_ms = f64::NAN;
         assert!(c.validate_at("contact.").is_err());
-    }
-
-    fn endpoint(passivity: bool) -> SlaveTeleop<SimArm> {
-        let (p, ctrl, arm) = parts(passivity);
-        SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap()
-    }
-
-    fn parts(passivity: bool) -> (TeleopParams, SlaveController, SimArm) {
-        let world = SlaveWorld {
-            arm: ArmConfig::default(),
-            surface: SurfaceConfig::new(
-                ShapeKind::Plane,
-                MaterialPreset::Resin,
-                [0.0, 0.0, -260.0],
-            ),
-            sensor: SensorConfig::default(),
-            plant: PlantConfig::default(),
-            controller: ControllerParams::default(),
-            cutting: None,
-            fixtures: Default::default(),
-        };
-        let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
-        let mut p = TeleopParams::default();
-        p.passivity.enabled = passivity;
-        (p, ctrl, arm)
-    }
-
-    fn command(seq: u64, now_ns: u64, z: f64) -> Command {
-        Command {
-            seq,
-            send_time_ns: now_ns,
-            pose: [0.0, 0.0, z, 0.0],
-            mode: Mode::Position as u8,
-            protocol_version: PROTOCOL_VERSION,
-            ..Command::default()
-        }
-    }
-
-    struct Rig {
-        ep: SlaveTeleop<SimArm>,
-        master: InprocEnd<Command, Feedback>,
-        slave: InprocEnd<Feedback, Command>,
-        now: u64,
-        seq: u64,
-        reasons: u32,
-        /// Commands carry the safe-stop acknowledgement.
-        ack: bool,
-    }
-
-    impl Rig {
-        fn cycle(&mut self, send: Option<f64>) -> TeleopCycle {
-            if let Some(z) = send {
-                self.seq += 1;
-                let mut c = command(self.seq, self.now, z);
-                if self.ack {
-                    c.flags |= CMD_FLAG_ACK_SAFE_STOP;
-                    c.energy_in_j = 1e-4;
-                } else {
-                    c.energy_in_j = 5.0;
-                }
-                self.master.publish(&c).unwrap();
-            }
-            let c = self.ep.step(&mut self.slave, self.now, 1e-3);
-            while let Some(fb) = self.master.try_recv().unwrap() {
-                self.reasons |= fb.rejected_reasons;
-            }
-            self.ep.arm_mut().advance(PERIOD_NS);
-            self.now += PERIOD_NS;
-            c
-        }
-    }
-
-    /// The simulated arm with a spindle drive whose stall the test sets.
-    struct StallingArm {
-        arm: SimArm,
-        stalled: bool,
-    }
-
-    impl ArmDriver for StallingArm {
-        fn read(&mut self) -> crate::arm::ArmReading {
-            self.arm.read()
-        }
-        fn command(&mut self, actuators_mm: &[f64; 4]) {
-            self.arm.command(actuators_mm);
-        }
-        fn spindle_stalled(&self) -> bool {
-            self.stalled
-        }
-    }
-
-    #[test]
-    fn a_spindle_stall_safe_stops_and_the_master_cannot_clear_it_while_it_lasts() {
-        let (p, ctrl, arm) = parts(true);
-        let arm = StallingArm {
-            arm,
-            stalled: false,
-        };
-        let mut ep = SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap();
-        let (mut master, mut slave) = inproc::pair(64);
-        let (mut now, mut seq) = (0, 0);
-        let mut cycle = |ep: &mut SlaveTeleop<StallingArm>, ack: bool| {
-            seq += 1;
-            let mut c = command(seq, now, -251.0);
-            if ack {
-                c.flags |= CMD_FLAG_ACK_SAFE_STOP;
-            }
-            master.publish(&c).unwrap();
-            let out = ep.step(&mut slave, now, 1e-3);
-            while master.try_recv().unwrap().is_some() {}
-            ep.arm_mut().arm.advance(PERIOD_NS);
-            now += PERIOD_NS;
-            out
-        };
-        for _ in 0..100 {
-            assert_eq!(cycle(&mut ep, false).state, SlaveState::Active);
-        }
-        // The spindle stalls: a safe stop at once, with the link alive.
-        ep.arm_mut().stalled = true;
-        let c = cycle(&mut ep, false);
-        assert_eq!(c.state, SlaveState::SafeStop);
-        assert_eq!(ep.counters().safe_stops, 1);
-        assert_eq!(ep.counters().spindle_stall_stops, 1);
-        let z_stalled = c.out.commanded_pose[2];
-        // The master acknowledges, as it does once it has faded out: refused while the
-        // spindle stays stalled; meanwhile the tool lifts (to come clear of the stock).
-        let mut z = z_stalled;
-        for _ in 0..500 {
-            let c = cycle(&mut ep, true);
-            assert_eq!(c.state, SlaveState::SafeStop);
-            assert!(!c.repaired);
-            assert!(c.out.commanded_pose[2] >= z - 1e-9, "the lift went down");
-            z = c.out.commanded_pose[2];
-        }
-        assert!(z > z_stalled + 1.0, "lifted only {} mm", z - z_stalled);
-        assert_eq!(ep.counters().repairs, 0);
-        // The spindle runs again: the next acknowledgement re-pairs.
-        ep.arm_mut().stalled = false;
-        let repaired = (0..5).any(|_| cycle(&mut ep, true).repaired);
-        assert!(repaired);
-        assert_eq!(ep.state(), SlaveState::Active);
-        assert_eq!(ep.counters().spindle_stall_stops, 1);
-    }
-
-    #[test]
-    fn watchdog_safe_stop_and_repair_without_jump() {
-        let (master, slave) = inproc::pair(64);
-        let mut r = Rig {
-            ep: endpoint(true),
-            master,
-            slave,
-            now: 0,
-            seq: 0,
-            reasons: 0,
-            ack: false,
-        };
-        assert_eq!(r.ep.state(), SlaveState::Idle);
-        // Follow a slow downward ramp.
-        let mut z = -250.0;
-        for _ in 0..500 {
-            z -= 0.004;
-            let c = r.cycle(Some(z));
-            assert_eq!(c.state, SlaveState::Active);
-        }
-        // Silence: the watchdog trips at 20 ms, not before.
-        let mut tripped_at = None;
-        for k in 1..=40 {
-            let c = r.cycle(None);
-            if c.tripped {
-                tripped_at = Some(k);
-            }
-        }
-        let k = tripped_at.expect("watchdog never tripped");
-        assert!((19..=21).contains(&k), "tripped after {k} silent cycles");
-        assert_eq!(r.ep.state(), SlaveState::SafeStop);
-        assert_eq!(r.ep.counters().safe_stops, 1);
-        let held = r.cycle(None).out.commanded_pose;
-        assert!(r.cycle(None).fault_flags & FAULT_COMMAND_TIMEOUT != 0);
-        // Commands without the master's acknowledgement do not re-engage the arm, and
-        // their (old ledger's) energy is not taken.
-        let observed = r.ep.port().observed_j();
-        for _ in 0..100 {
-            let c = r.cycle(Some(-230.0));
-            assert!(!c.repaired);
-            assert_eq!(c.state, SlaveState::SafeStop);
-            assert!((c.out.commanded_pose[2] - held[2]).abs() < 0.2);
-        }
-        assert_eq!(r.ep.port().observed_j(), observed);
-        assert_eq!(r.ep.counters().unacknowledged_in_safe_stop, 100);
-        // The master comes back 20 mm away and acknowledges: re-paired on a new ledger
-        // (the old ledger's 5 J are gone), and the commanded pose moves gradually (no
-        // jump).
-        r.ack = true;
-        let mut prev = held;
-        let mut repaired = false;
-        for _ in 0..300 {
-            let c = r.cycle(Some(-230.0));
-            repaired |= c.repaired;
-            let step = (c.out.commanded_pose[2] - prev[2]).abs();
-            assert!(step < 0.2, "jump of {step} mm");
-            prev = c.out.commanded_pose;
-        }
-        assert!(repaired);
-        assert_eq!(r.ep.counters().repairs, 1);
-        assert_eq!(r.ep.counters().new_pairings, 1);
-        assert!(r.ep.port().observed_j() <= 1e-4 + 1e-12);
-        assert_eq!(r.ep.state(), SlaveState::Active);
-        assert!(prev[2] > held[2] + 1.0, "did not move towards the master");
-        assert_eq!(r.ep.counters().feedback_published, r.ep.counters().cycles);
-    }
-
-    #[test]
-    fn bad_commands_are_counted_not_followed() {
-        let (master, slave) = inproc::pair(64);
-        // Passivity off: the target is passed to the controller as the link asks.
-        let mut r = Rig {
-            ep: endpoint(false),
-            master,
-            slave,
-            now: 0,
-            seq: 0,
-            reasons: 0,
-            ack: false,
-        };
-        for _ in 0..200 {
-            r.cycle(Some(-250.0));
-        }
-        // Wrong arm and wrong version: rejected by the gate.
-        let mut wrong_arm = command(1000, r.now, -240.0);
-        wrong_arm.arm_id = 7;
-        r.master.publish(&wrong_arm).unwrap();
-        let mut wrong_version = command(1001, r.now, -240.0);
-        wrong_version.protocol_version = PROTOCOL_VERSION + 1;
-        r.master.publish(&wrong_version).unwrap();
-        let c = r.cycle(None);
-        assert!(!c.fresh);
-        assert_eq!(r.ep.gate_counters().rejected(), 2);
-        // Outside the workspace: the gate rejects it as out of range (issue 14: before
-        // anything acts on it), and the feedback reports the reason.
-        let c = r.cycle(Some(-2000.0));
-        assert!(!c.fresh, "{c:?}");
-        assert_eq!(r.ep.gate_counters().out_of_range, 1);
-        assert_eq!(r.ep.gate_counters().rejected(), 3);
-        assert!((c.out.commanded_pose[2] + 250.0).abs() < 0.5);
-        use h4_shared::wire::RejectReason;
-        assert_eq!(
-            r.reasons,
-            RejectReason::WrongArm.bit()
-                | RejectReason::WrongVersion.bit()
-                | RejectReason::OutOfRange.bit()
-        );
     }
 }

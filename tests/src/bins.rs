@@ -34,7 +34,14 @@ pub fn binaries() -> &'static (PathBuf, PathBuf) {
             let mut build = Command::new(cargo);
             h4_telemetry::process::without_cargo_run_env(&mut build);
             let out = build
-                .args(["build", "-p", "h4-master", "-p", "h4-slave", "--profile"])
+                .args([
+                    "build",
+                    "-p",
+                    "h4-master-cli",
+                    "-p",
+                    "h4-slave-cli",
+                    "--profile",
+                ])
                 .arg(profile)
                 .arg("--manifest-path")
                 .arg(workspace().join("Cargo.toml"))

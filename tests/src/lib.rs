@@ -15,7 +15,7 @@ pub mod bins;
 /// Runs `cycles` lockstep cycles of `session` and returns the largest `metric(true pose)`
 /// over the cycles whose tool tip is below `below_z_mm` (the tool in the cut); 0 if none.
 pub fn max_while_cutting(
-    session: &mut h4_master::session::Session,
+    session: &mut h4_master_sim::session::Session,
     cycles: usize,
     below_z_mm: f64,
     metric: impl Fn(&h4_shared::Pose) -> f64,

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use crate::netns::{Host, TwoHosts};
 use crate::relay::Relay;
 use h4_master::server::MasterRunSummary;
-use h4_slave::server::SlaveRunSummary;
+use h4_slave_sim::server::SimRunSummary;
 
 /// The observers' floor of the criteria (and the simulated matrix's): a passivity
 /// observer below −1 mJ means the link generated energy.
@@ -45,7 +45,14 @@ pub fn binaries() -> Result<&'static (PathBuf, PathBuf), String> {
             h4_telemetry::process::without_cargo_run_env(&mut build);
             let target = dir.parent().ok_or("no target directory")?;
             let out = build
-                .args(["build", "-p", "h4-master", "-p", "h4-slave", "--profile"])
+                .args([
+                    "build",
+                    "-p",
+                    "h4-master-cli",
+                    "-p",
+                    "h4-slave-cli",
+                    "--profile",
+                ])
                 .arg(profile)
                 .arg("--manifest-path")
                 .arg(workspace().join("Cargo.toml"))
@@ -266,8 +273,8 @@ pub fn slave_config(
 /// `slave.max_force_n` / `slave.force_limit_n`.)
 pub fn judge(
     master: &MasterRunSummary,
-    slave: &SlaveRunSummary,
-    session: &h4_master::session::SessionConfig,
+    slave: &SimRunSummary,
+    session: &h4_master_sim::session::SessionConfig,
 ) -> Vec<String> {
     let coupling_limit_n = session.coupling.force_limit_n;
     let force_limit_n = session.detector.force_limit_n;
@@ -401,7 +408,7 @@ impl Pair {
     }
 
     /// Waits for the master's end, stops the slave, reads both summaries.
-    pub fn finish(&mut self) -> Result<(MasterRunSummary, SlaveRunSummary), String> {
+    pub fn finish(&mut self) -> Result<(MasterRunSummary, SimRunSummary), String> {
         let ok = self.master.wait(self.duration_s + 60.0)?;
         self.slave.stop()?;
         if !ok {
@@ -424,7 +431,7 @@ pub const MAX_MISSED_SHARE: f64 = 0.01;
 
 /// Whether either loop of a run was starved by the host (missed more than
 /// [`MAX_MISSED_SHARE`] of its deadlines): its physics then describe the host, not the link.
-pub fn starved(master: &MasterRunSummary, slave: &SlaveRunSummary) -> bool {
+pub fn starved(master: &MasterRunSummary, slave: &SimRunSummary) -> bool {
     [
         (master.run.cycles, master.run.deadline_misses),
         (slave.run.cycles, slave.run.deadline_misses),
@@ -438,8 +445,8 @@ pub fn starved(master: &MasterRunSummary, slave: &SlaveRunSummary) -> bool {
 pub fn session(
     session: &str,
     overrides: &[String],
-) -> Result<h4_master::session::SessionConfig, String> {
-    h4_master::session::load(&workspace().join(session), overrides).map_err(|e| e.to_string())
+) -> Result<h4_master_sim::session::SessionConfig, String> {
+    h4_master_sim::session::load(&workspace().join(session), overrides).map_err(|e| e.to_string())
 }
 
 /// The arguments of one side of a Zenoh link between the two hosts: `--transport zenoh`

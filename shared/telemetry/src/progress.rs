@@ -263,7 +263,8 @@ fn report(cfg: &ProgressConfig, unit: Unit, shared: &Shared) {
     // business at real-time priority.
     set_normal_scheduling();
     let started = Instant::now();
-    let bar = (cfg.mode == Mode::Bar).then(|| new_bar(cfg, shared.total.load(Ordering::Relaxed)));
+    let bar = (cfg.mode == Mode::Bar && cfg!(feature = "bars"))
+        .then(|| new_bar(cfg, shared.total.load(Ordering::Relaxed)));
     let tick = Duration::from_secs_f64(if bar.is_some() {
         BAR_INTERVAL_S / 2.0
     } else {
@@ -304,6 +305,7 @@ fn report(cfg: &ProgressConfig, unit: Unit, shared: &Shared) {
     }
 }
 
+#[cfg(feature = "bars")]
 fn new_bar(cfg: &ProgressConfig, total: u64) -> indicatif::ProgressBar {
     use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
     let target = ProgressDrawTarget::stderr_with_hz(8);
@@ -318,6 +320,25 @@ fn new_bar(cfg: &ProgressConfig, total: u64) -> indicatif::ProgressBar {
     }
     bar.set_prefix(cfg.label.clone());
     bar
+}
+
+/// Without the `bars` feature (a product crate built alone): no bar, plain lines instead.
+#[cfg(not(feature = "bars"))]
+fn new_bar(_cfg: &ProgressConfig, _total: u64) -> NoBar {
+    NoBar
+}
+
+/// The bar's place when the crate is built without indicatif (never constructed: a bar
+/// request falls back to plain lines).
+#[cfg(not(feature = "bars"))]
+struct NoBar;
+
+#[cfg(not(feature = "bars"))]
+impl NoBar {
+    fn set_length(&self, _: u64) {}
+    fn set_position(&self, _: u64) {}
+    fn set_message(&self, _: String) {}
+    fn finish_and_clear(&self) {}
 }
 
 /// One progress text: position (and share of the total), elapsed time, a time-left estimate

@@ -5,7 +5,7 @@
 //!
 //! The sensor carries the tool beyond it: at rest it reads the tool's weight in its own
 //! frame, plus its bias; accelerating, it reads `m (g − a)`. The model is the plant's
-//! ([`crate::plant::sensor_load`]) with the identified mass, centre of mass and bias, the
+//! ([`sensor_load`]) with the identified mass, centre of mass and bias, the
 //! controller's gravity vector and, for `a`, the commanded acceleration `command_latency_cycles`
 //! old (the arm follows the command that much later).
 
@@ -13,7 +13,6 @@ use h4_shared::config::ToolModel;
 use nalgebra::Vector4;
 
 use super::params::ControllerParams;
-use crate::plant::sensor_load;
 
 /// Commanded positions kept for the acceleration (latency up to `HISTORY − 3` cycles).
 const HISTORY: usize = 16;
@@ -101,4 +100,34 @@ impl ToolCompensation {
 pub(super) fn to_base(w: Vector4<f64>, theta_rad: f64) -> Vector4<f64> {
     let (s, c) = theta_rad.sin_cos();
     Vector4::new(c * w[0] + s * w[2], w[1], -s * w[0] + c * w[2], w[3])
+}
+
+/// The load on the force sensor `[Fx, Fy, Fz, My]` in its frame (turned by `theta_rad` about
+/// y from the base frame): the contact wrench `contact` (base frame) plus a payload of
+/// `mass_kg` at `com_mm` (sensor frame) under `g_minus_a_mm_per_s2` (gravity minus the
+/// platform's acceleration, base frame). The same model the controller's compensation and
+/// `h4-slave identify` fit.
+pub fn sensor_load(
+    contact: &Vector4<f64>,
+    theta_rad: f64,
+    mass_kg: f64,
+    com_mm: [f64; 3],
+    g_minus_a_mm_per_s2: [f64; 3],
+) -> Vector4<f64> {
+    let (s, c) = theta_rad.sin_cos();
+    let m = mass_kg * 1e-3;
+    let fb = [
+        contact[0] + m * g_minus_a_mm_per_s2[0],
+        contact[1] + m * g_minus_a_mm_per_s2[1],
+        contact[2] + m * g_minus_a_mm_per_s2[2],
+    ];
+    // The payload's load in the sensor's frame (x and z: My needs no more).
+    let px = m * (c * g_minus_a_mm_per_s2[0] - s * g_minus_a_mm_per_s2[2]);
+    let pz = m * (s * g_minus_a_mm_per_s2[0] + c * g_minus_a_mm_per_s2[2]);
+    Vector4::new(
+        c * fb[0] - s * fb[2],
+        fb[1],
+        s * fb[0] + c * fb[2],
+        contact[3] + com_mm[2] * px - com_mm[0] * pz,
+    )
 }

@@ -43,6 +43,7 @@
 
 mod arm_model;
 mod compensation;
+pub use compensation::sensor_load;
 mod contact;
 mod deflection;
 mod estimator;

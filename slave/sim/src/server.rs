@@ -1,0 +1,192 @@
+//! `h4-slave run --arm sim`: the product's real-time server ([`h4_slave::server::run`])
+//! over the simulated arm of a world file, with the simulated arm's diagnostics: the true
+//! contact force (`force_true_n` of `/slave/cycle`, the summary's `max_force_n`) and, when
+//! the arm cuts, the cut (`/slave/cut`, the summary's cutting fields, the part's files).
+//! Nothing here reaches the controller: the server reads the arm through
+//! [`h4_slave::arm::ArmDriver`] only.
+
+use std::path::PathBuf;
+
+use h4_shared::wire::{Command, Feedback};
+use h4_slave::server::{Diagnostics, RunOptions, ServerError, SlaveRunSummary};
+use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError, TeleopParams};
+use h4_telemetry::sink::{Outputs, OutputsError};
+use h4_transport::Link;
+use serde::{Deserialize, Serialize};
+
+use crate::cut::{CutCycle, CutTeleop};
+use crate::experiment::ExperimentConfig;
+use crate::plant::SimArm;
+use crate::plant::SimError;
+use crate::plant::cutting::judge::{CutEvaluator, CutSummary};
+
+/// Where a run's outputs go.
+#[derive(Clone, Debug, Default)]
+pub struct RunOutputs {
+    /// Write an MCAP recording here (`--record`).
+    pub record: Option<PathBuf>,
+    /// Serve the live view here (`--foxglove-ws HOST:PORT`).
+    pub foxglove_ws: Option<String>,
+    /// When the arm cuts: write the machined part here at the end (`height.png`,
+    /// `part.stl`, `deviation.png` with a `cut_target`; `--out DIR`).
+    pub out_dir: Option<PathBuf>,
+}
+
+/// What a run on the simulated arm reports: the product's summary, and the cut's fields
+/// when the arm cuts.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SimRunSummary {
+    /// The product server's summary (fields flattened).
+    #[serde(flatten)]
+    pub slave: SlaveRunSummary,
+    /// With a `cutting` section: the cut and the part (`removed_volume_mm3`,
+    /// `surface_error_p99_mm` and `gouge_max_mm` against the world's `cut_target` and
+    /// fixture floor, `cutting_force_dev_p99_pct`, `removal_rate_mm3_per_s`, …; the fields
+    /// of the simulation's summary, `docs/cutting.md`).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub cutting: Option<CutSummary>,
+}
+
+impl std::ops::Deref for SimRunSummary {
+    type Target = SlaveRunSummary;
+    fn deref(&self) -> &SlaveRunSummary {
+        &self.slave
+    }
+}
+
+impl std::ops::DerefMut for SimRunSummary {
+    fn deref_mut(&mut self) -> &mut SlaveRunSummary {
+        &mut self.slave
+    }
+}
+
+/// Why the slave could not run on the simulated arm.
+#[derive(Debug, thiserror::Error)]
+pub enum SimServerError {
+    /// The simulated arm could not be built.
+    #[error("simulated arm: {0}")]
+    Sim(#[from] SimError),
+    /// The configuration is unusable.
+    #[error("configuration: {0}")]
+    Config(#[from] h4_shared::config::ConfigError),
+    /// The teleoperation endpoint's settings are unusable.
+    #[error("{0}")]
+    Teleop(#[from] TeleopError),
+    /// The server could not run.
+    #[error("{0}")]
+    Server(#[from] ServerError),
+    /// The recording or the live view could not start.
+    #[error("{0}")]
+    Outputs(#[from] OutputsError),
+    /// The part's files could not be written.
+    #[error("--out: {0}")]
+    Part(String),
+}
+
+/// The most steady-feed samples a cutting run keeps for `cutting_force_dev_p99_pct` (one a
+/// cycle: the first 10 minutes of steady feed; 4.8 MB allocated before the loop).
+const MAX_STEADY_FEED_SAMPLES: usize = 600_000;
+
+/// The simulated arm's diagnostics: its true contact force, and the cut (its record and
+/// its evidence for the judge).
+pub struct SimDiagnostics {
+    cut_ev: Option<CutEvaluator>,
+}
+
+impl SimDiagnostics {
+    /// For `teleop`, over a run of `duration_s` (None: open-ended) at `period_ns`: the cut's
+    /// evidence is allocated here, before the loop.
+    pub fn new(teleop: &SlaveTeleop<SimArm>, duration_s: Option<f64>, period_ns: u64) -> Self {
+        let dt_s = period_ns.max(1) as f64 * 1e-9;
+        let cut_ev = teleop.arm().cut().map(|c| {
+            let cycles = duration_s.map_or(MAX_STEADY_FEED_SAMPLES, |d| {
+                ((d / dt_s).ceil() as usize).min(MAX_STEADY_FEED_SAMPLES)
+            });
+            CutEvaluator::new(cycles, c.tool().spindle_rpm)
+        });
+        SimDiagnostics { cut_ev }
+    }
+}
+
+impl Diagnostics<SimArm> for SimDiagnostics {
+    type Sample = CutCycle;
+    fn true_force_n(&self, teleop: &SlaveTeleop<SimArm>) -> Option<f64> {
+        Some(teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm())
+    }
+    fn sample(&self, teleop: &SlaveTeleop<SimArm>) -> Option<CutCycle> {
+        teleop.cut_cycle()
+    }
+    fn observe(&mut self, teleop: &SlaveTeleop<SimArm>, cycle: &TeleopCycle) {
+        if let (Some(ev), Some(sample)) = (self.cut_ev.as_mut(), teleop.cut_sample(cycle)) {
+            ev.push(&sample);
+        }
+    }
+}
+
+/// Runs the slave on the simulated arm of `cfg` until stopped (SIGINT/SIGTERM or the
+/// duration), on `link`.
+pub fn run<L: Link<Feedback, Command>>(
+    cfg: &ExperimentConfig,
+    opts: &RunOptions,
+    outputs: &RunOutputs,
+    link: &mut L,
+) -> Result<SimRunSummary, SimServerError> {
+    use h4_shared::config::Validate;
+    cfg.validate()?;
+    opts.passivity.validate_at("passivity.")?;
+    opts.contact.validate_at("contact.")?;
+    let period_ns = opts.period_ns.max(1);
+    let mut teleop = build_teleop(cfg, opts, period_ns)?;
+    // `/slave/cut` beside the cycles when the arm cuts.
+    let sink = Outputs::start(
+        outputs.record.as_deref(),
+        outputs.foxglove_ws.as_deref(),
+        "h4-slave",
+        ("/slave/cycle", "h4.SlaveProcessCycle"),
+        teleop.cut_cycle().map(|_| ("/slave/cut", "h4.CutCycle")),
+        1e9 / period_ns as f64,
+    )?;
+    let mut diag = SimDiagnostics::new(&teleop, opts.duration_s, period_ns);
+    let slave = h4_slave::server::run(&mut teleop, &mut diag, sink, opts, link)?;
+    let mut s = SimRunSummary {
+        slave,
+        cutting: None,
+    };
+    if let Some(ev) = diag.cut_ev {
+        s.cutting = teleop
+            .finish_cut(
+                ev,
+                cfg.cut_target.as_ref(),
+                cfg.fixtures.depth_floor.map(|f| f.z_mm),
+                outputs.out_dir.as_deref(),
+            )
+            .map_err(|e| SimServerError::Part(e.to_string()))?;
+    }
+    Ok(s)
+}
+
+/// The slave's endpoint over the simulated arm of `cfg`, which starts `approach.gap_mm` above
+/// the surface's contact point.
+pub fn build_teleop(
+    cfg: &ExperimentConfig,
+    opts: &RunOptions,
+    period_ns: u64,
+) -> Result<SlaveTeleop<SimArm>, SimServerError> {
+    let p = cfg.surface.contact_point_mm;
+    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
+    let (arm, ctrl) = cfg.world().build(start, cfg.seed)?;
+    Ok(SlaveTeleop::new(
+        TeleopParams {
+            arm_id: opts.arm_id,
+            watchdog_ms: opts.watchdog_ms,
+            restart_silence_ms: opts.restart_silence_ms,
+            passivity: opts.passivity,
+            contact: opts.contact,
+            ..TeleopParams::default()
+        },
+        ctrl,
+        arm,
+        period_ns,
+    )?)
+}
