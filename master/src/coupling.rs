@@ -422,6 +422,9 @@ pub struct MasterCoupling {
     sent: Vec<(u64, [f64; 3])>,
     /// The newest feedback reports the slave's safe stop.
     slave_stopped: bool,
+    /// The device stopped answering (`MasterTeleop`): the rendering fades out until its
+    /// readings are fresh again.
+    device_stale: bool,
     /// The master has faded out, started a new ledger and acknowledges the safe stop
     /// until the slave is active again.
     acking: bool,
@@ -467,6 +470,7 @@ impl MasterCoupling {
             hold_s: 0.0,
             sent: vec![(0, [0.0; 3]); SENT_HISTORY],
             slave_stopped: false,
+            device_stale: false,
             acking: false,
             safe_stops_seen: 0,
             p,
@@ -530,6 +534,12 @@ impl MasterCoupling {
             self.handover_n[1] * k,
             self.handover_n[2] * k,
         ]
+    }
+
+    /// The device has stopped answering (true) or answers again (false): while it is silent
+    /// the rendered force fades out as it does when feedback stops.
+    pub fn set_device_stale(&mut self, stale: bool) {
+        self.device_stale = stale;
     }
 
     /// The master is acknowledging the slave's safe stop (it has faded out and started a new
@@ -608,7 +618,7 @@ impl MasterCoupling {
         } else {
             p.feedback_timeout_ms
         };
-        self.fade = if silent_ms > timeout_ms || self.slave_stopped {
+        self.fade = if silent_ms > timeout_ms || self.slave_stopped || self.device_stale {
             (self.fade - rate).max(0.0)
         } else {
             (self.fade + rate).min(1.0)

@@ -90,6 +90,10 @@ pub struct MasterRunSummary {
     pub gate: GateCounters,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
+    /// Cycles the haptic device had stopped answering (no fresh reading for 2 cycles:
+    /// `h4_master::teleop::DEVICE_STALE_CYCLES`); the rendered force fades out through them.
+    #[serde(default)]
+    pub device_stale_cycles: u64,
     /// Largest force rendered to the operator, N.
     pub max_rendered_force_n: f64,
     /// Largest change of the rendered force from one cycle to the next, N.
@@ -314,6 +318,7 @@ where
     s.feedback_invalid = gate.rejected() - gate.stale;
     s.gate = *gate;
     s.link_errors = side.counters().link_errors;
+    s.device_stale_cycles = side.counters().device_stale_cycles;
     s.force_transparency_err_pct = stats.transparency_err_pct();
     let (sent, arrived) = link_stats.totals();
     s.feedback_lost = sent.saturating_sub(arrived);

@@ -176,6 +176,9 @@ pub struct MasterTeleopCounters {
     pub link_errors: u64,
     /// Commands published.
     pub commands_published: u64,
+    /// Cycles the device had not answered for [`DEVICE_STALE_CYCLES`] cycles or more (its
+    /// reading's time did not move on): the rendered force fades out through them.
+    pub device_stale_cycles: u64,
 }
 
 /// What one master cycle did (plain data, no allocation).
@@ -204,6 +207,9 @@ pub struct MasterTeleop<D: HapticDevice> {
     coupling: MasterCoupling,
     round_trip: RoundTrip,
     counters: MasterTeleopCounters,
+    /// The time of the device's last reading, and the cycles in a row it has not moved on.
+    last_reading_ns: Option<u64>,
+    stale_cycles: u32,
 }
 
 impl<D: HapticDevice> MasterTeleop<D> {
@@ -221,6 +227,8 @@ impl<D: HapticDevice> MasterTeleop<D> {
             coupling: MasterCoupling::new(cfg.coupling_params()),
             round_trip: RoundTrip::new(),
             counters: MasterTeleopCounters::default(),
+            last_reading_ns: None,
+            stale_cycles: 0,
         }
     }
 
@@ -323,6 +331,17 @@ impl<D: HapticDevice> MasterTeleop<D> {
     ) -> MasterCycle {
         self.device.begin_cycle(now_ns, dt_s);
         let dev = self.device.read();
+        if self.last_reading_ns == Some(dev.time_ns) {
+            self.stale_cycles = self.stale_cycles.saturating_add(1);
+        } else {
+            self.stale_cycles = 0;
+        }
+        self.last_reading_ns = Some(dev.time_ns);
+        let stale = self.stale_cycles >= DEVICE_STALE_CYCLES;
+        if stale {
+            self.counters.device_stale_cycles += 1;
+        }
+        self.coupling.set_device_stale(stale);
         let fresh = self.receive(link, now_ns);
         let step = self.coupling.step(&dev, now_ns, dt_s);
         let rendered_wrench = self.device.write_wrench(&step.wrench);
@@ -346,18 +365,31 @@ impl<D: HapticDevice> MasterTeleop<D> {
 /// Most feedback messages taken from the link in one cycle.
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 
+/// Cycles in a row without a fresh device reading (its time not moving on) after which the
+/// device counts as silent and the rendered force fades out.
+pub const DEVICE_STALE_CYCLES: u32 = 2;
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::device::PrincipalMasses;
     use h4_transport::inproc;
 
-    /// A handle held still (the test needs no physics).
-    struct StillHandle;
+    /// A handle held still (the test needs no physics); its readings' time moves on by
+    /// 1 ms a read unless `frozen`.
+    #[derive(Default)]
+    struct StillHandle {
+        time_ns: u64,
+        frozen: bool,
+    }
 
     impl HapticDevice for StillHandle {
         fn read(&mut self) -> DeviceState {
+            if !self.frozen {
+                self.time_ns += 1_000_000;
+            }
             DeviceState {
+                time_ns: self.time_ns,
                 effective_mass_kg: 0.5,
                 principal_masses: PrincipalMasses::isotropic(0.5),
                 ..DeviceState::default()
@@ -366,6 +398,50 @@ mod tests {
         fn write_wrench(&mut self, wrench: &[f64; 4]) -> [f64; 4] {
             *wrench
         }
+    }
+
+    /// A device whose readings stop moving on fades the rendering out, counted from its
+    /// second stale cycle; fresh again, it fades back in. Control: a fresh device keeps
+    /// the fade at 1 with the same feedback.
+    #[test]
+    fn a_silent_device_fades_the_rendering_out() {
+        let run = |freeze_at: Option<u64>| {
+            let mut ep = MasterTeleop::new(&config(0), StillHandle::default());
+            let (mut master_end, mut slave_end) = inproc::pair(1024);
+            let mut fades = Vec::new();
+            for k in 1..=450u64 {
+                let t_ns = k * 1_000_000;
+                ep.device_mut().frozen = freeze_at.is_some_and(|f| (f..f + 200).contains(&k));
+                slave_end
+                    .publish(&Feedback {
+                        seq: k,
+                        send_time_ns: t_ns,
+                        state: SlaveState::Active as u8,
+                        ..Feedback::default()
+                    })
+                    .unwrap();
+                fades.push(ep.step(&mut master_end, t_ns, 1e-3).step.fade);
+                while slave_end.try_recv().unwrap().is_some() {}
+            }
+            (fades, ep.counters().device_stale_cycles)
+        };
+        let (fresh, fresh_stale) = run(None);
+        assert_eq!(fresh_stale, 0);
+        assert!(
+            fresh[100..].iter().all(|&f| f == 1.0),
+            "{:?}",
+            &fresh[100..110]
+        );
+        let (frozen, stale) = run(Some(150));
+        // Frozen from cycle 150: its first read is still new (cycle 149's time + 0), then
+        // stale from the second; 200 frozen cycles, the first one not stale.
+        assert_eq!(stale, 199);
+        assert!(
+            frozen[148] == 1.0 && frozen[170] < 1.0,
+            "fading from the second stale cycle"
+        );
+        assert_eq!(frozen[240], 0.0, "faded out while the device is silent");
+        assert_eq!(frozen[449], 1.0, "faded back in once it answers again");
     }
 
     fn config(arm_id: u16) -> MasterTeleopConfig {
@@ -384,7 +460,7 @@ mod tests {
     /// feedback that echoes a command is one round trip.
     #[test]
     fn speaks_for_its_arm_and_measures_round_trips() {
-        let mut ep = MasterTeleop::new(&config(3), StillHandle);
+        let mut ep = MasterTeleop::new(&config(3), StillHandle::default());
         let (mut master_end, mut slave_end) = inproc::pair(16);
         let mut t_ns = 0;
         for _ in 0..5 {

@@ -120,6 +120,9 @@ pub struct SlaveRunSummary {
     pub safe_stops: u64,
     /// Of those, the safe stops a spindle stall started (a cutting arm).
     pub spindle_stall_stops: u64,
+    /// Of those, the safe stops a driver that stopped answering started (no fresh reading
+    /// for 2 cycles: `h4_slave::teleop::DRIVER_STALE_CYCLES`).
+    pub driver_stale_stops: u64,
     /// Silence when the watchdog tripped, ms on the slave's clock (of the trip where the
     /// silence most exceeded the loop's own lateness).
     pub safe_stop_entry_silence_ms: f64,
@@ -165,6 +168,7 @@ impl SlaveRunSummary {
         self.link_errors = k.link_errors;
         self.safe_stops = k.safe_stops;
         self.spindle_stall_stops = k.spindle_stall_stops;
+        self.driver_stale_stops = k.driver_stale_stops;
         self.repairs = k.repairs;
         self.gate = *gate;
     }

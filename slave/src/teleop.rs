@@ -219,13 +219,18 @@ pub struct TeleopCounters {
     pub commands_rejected_by_controller: u64,
     /// Link errors while receiving or publishing.
     pub link_errors: u64,
-    /// Times the watchdog or a spindle stall put the arm into its safe state.
+    /// Times the watchdog, a spindle stall or a silent driver put the arm into its safe
+    /// state.
     pub safe_stops: u64,
     /// Silence when the watchdog tripped (largest over all trips), ms.
     pub safe_stop_entry_silence_ms: f64,
     /// Of those, the safe stops the arm's spindle stall started (the master's
     /// acknowledgement is refused while the spindle stays stalled).
     pub spindle_stall_stops: u64,
+    /// Of those, the safe stops a driver that stopped answering started: its reading's time
+    /// did not move on for [`DRIVER_STALE_CYCLES`] cycles (the master's acknowledgement is
+    /// refused until the readings are fresh again).
+    pub driver_stale_stops: u64,
     /// Times a master was paired again after a safe stop (each on the master's
     /// acknowledgement, `CMD_FLAG_ACK_SAFE_STOP`).
     pub repairs: u64,
@@ -300,6 +305,9 @@ pub struct SlaveTeleop<A: ArmDriver> {
     known_surface: Option<([f64; 3], [f64; 3])>,
     seq: u64,
     counters: TeleopCounters,
+    /// The time of the driver's last reading, and the cycles in a row it has not moved on.
+    last_reading_ns: Option<u64>,
+    stale_cycles: u32,
 }
 
 impl<A: ArmDriver> SlaveTeleop<A> {
@@ -382,6 +390,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             known_surface: None,
             seq: 0,
             counters: TeleopCounters::default(),
+            last_reading_ns: None,
+            stale_cycles: 0,
             p,
         })
     }
@@ -446,15 +456,24 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
-        let stalled = self.ctrl.params().spindle_stall_safe_stop && self.arm.spindle_stalled();
-        if stalled && self.state == SlaveState::Active {
+        let silent = self.driver_silent(&reading);
+        if silent && self.state != SlaveState::SafeStop {
+            // The arm stopped answering: what the controller would act on is old.
+            self.ctrl.safe_stop_at_once();
+            self.state = SlaveState::SafeStop;
+            self.counters.safe_stops += 1;
+            self.counters.driver_stale_stops += 1;
+        }
+        let stalled =
+            silent || self.ctrl.params().spindle_stall_safe_stop && self.arm.spindle_stalled();
+        if stalled && !silent && self.state == SlaveState::Active {
             // The spindle stopped under load: feeding on would wedge the tool into the part.
             self.ctrl.safe_stop_at_once();
             self.state = SlaveState::SafeStop;
             self.counters.safe_stops += 1;
             self.counters.spindle_stall_stops += 1;
         }
-        if stalled && self.state == SlaveState::SafeStop {
+        if stalled && !silent && self.state == SlaveState::SafeStop {
             // Still stalled once the stop holds: lift further until the spindle runs.
             self.ctrl.lift_stalled_tool();
         }
@@ -497,6 +516,18 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             command_seq,
             reading,
         }
+    }
+
+    /// Whether the driver has stopped answering: the time of its reading has not moved on for
+    /// [`DRIVER_STALE_CYCLES`] cycles in a row.
+    fn driver_silent(&mut self, reading: &crate::arm::ArmReading) -> bool {
+        if self.last_reading_ns == Some(reading.time_ns) {
+            self.stale_cycles = self.stale_cycles.saturating_add(1);
+        } else {
+            self.stale_cycles = 0;
+        }
+        self.last_reading_ns = Some(reading.time_ns);
+        self.stale_cycles >= DRIVER_STALE_CYCLES
     }
 
     /// Drains the link through the receive gate; returns whether a valid command arrived
@@ -1030,6 +1061,10 @@ fn depth_mm(h: &HeldContact, x: &[f64; 3]) -> f64 {
 const ENERGY_POWER_MARGIN: f64 = 4.0;
 
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;
+
+/// Cycles in a row without a fresh reading (the reading's time not moving on) after which
+/// the driver counts as silent and the slave goes to its safe stop.
+pub const DRIVER_STALE_CYCLES: u32 = 2;
 
 #[cfg(test)]
 mod tests {

@@ -147,7 +147,8 @@ mod tests {
     use std::path::Path;
 
     fn wall_push(set: &[&str]) -> SessionConfig {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sessions/wall-push.toml");
         let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
         crate::session::load(&path, &set).expect("wall-push")
     }

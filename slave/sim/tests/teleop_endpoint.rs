@@ -263,3 +263,92 @@ fn bad_commands_are_counted_not_followed() {
             | RejectReason::OutOfRange.bit()
     );
 }
+
+/// The simulated arm whose driver can stop answering: frozen, it repeats its last reading
+/// (its time no longer moves on).
+struct FreezingArm {
+    arm: SimArm,
+    frozen: bool,
+    last: Option<ArmReading>,
+}
+
+impl ArmDriver for FreezingArm {
+    fn read(&mut self) -> ArmReading {
+        match (self.frozen, self.last) {
+            (true, Some(r)) => r,
+            _ => {
+                let r = self.arm.read();
+                self.last = Some(r);
+                r
+            }
+        }
+    }
+    fn command(&mut self, actuators_mm: &[f64; 4]) {
+        self.arm.command(actuators_mm);
+    }
+    fn advance(&mut self, dt_ns: u64) {
+        self.arm.advance(dt_ns);
+    }
+}
+
+/// A driver that stops answering (no fresh reading for 2 cycles) puts the slave in its safe
+/// stop at its second stale cycle, counted; the master cannot clear it while the driver
+/// stays silent, and can once it answers again. Control: the same run without the freeze
+/// never stops.
+#[test]
+fn a_silent_driver_safe_stops_until_it_answers_again() {
+    let run = |freeze: bool| {
+        let (p, ctrl, arm) = parts(true);
+        let arm = FreezingArm {
+            arm,
+            frozen: false,
+            last: None,
+        };
+        let mut ep = SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap();
+        let (mut master, mut slave) = inproc::pair(64);
+        let (mut now, mut seq) = (0, 0);
+        let mut states = Vec::new();
+        for k in 0..1200 {
+            ep.arm_mut().frozen = freeze && (300..600).contains(&k);
+            seq += 1;
+            let mut c = command(seq, now, -251.0);
+            if k >= 400 {
+                // The master acknowledges the safe stop from here on.
+                c.flags |= CMD_FLAG_ACK_SAFE_STOP;
+                c.energy_in_j = 1e-4;
+            }
+            master.publish(&c).unwrap();
+            let out = ep.step(&mut slave, now, 1e-3);
+            while master.try_recv().unwrap().is_some() {}
+            ep.arm_mut().advance(PERIOD_NS);
+            now += PERIOD_NS;
+            states.push(out.state);
+        }
+        (states, *ep.counters())
+    };
+    let (states, k) = run(false);
+    assert!(states[10..].iter().all(|s| *s == SlaveState::Active));
+    assert_eq!((k.safe_stops, k.driver_stale_stops), (0, 0));
+
+    let (states, k) = run(true);
+    assert_eq!(
+        states[300],
+        SlaveState::Active,
+        "the first repeated reading is one cycle old"
+    );
+    assert_eq!(
+        states[301],
+        SlaveState::SafeStop,
+        "the second trips the safe stop"
+    );
+    assert!(
+        states[301..600].iter().all(|s| *s == SlaveState::SafeStop),
+        "acks refused while silent"
+    );
+    assert_eq!(
+        states[1199],
+        SlaveState::Active,
+        "re-paired once the driver answers"
+    );
+    assert_eq!((k.safe_stops, k.driver_stale_stops, k.repairs), (1, 1, 1));
+}

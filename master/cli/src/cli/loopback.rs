@@ -846,7 +846,7 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         return Err(hint);
     };
     let profile = if profile == "debug" { "dev" } else { profile };
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../Cargo.toml");
     eprintln!(
         "h4-master: building h4-slave ({profile} profile) next to {}",
         exe.display()
@@ -857,7 +857,7 @@ pub fn find_slave_binary(explicit: Option<&Path>) -> Result<PathBuf, String> {
         .args([
             "build",
             "-p",
-            "h4-slave",
+            "h4-slave-cli",
             "--bin",
             "h4-slave",
             "--profile",
@@ -908,7 +908,8 @@ mod tests {
 
     #[test]
     fn verdict_flags_starved_loops_and_the_slaves_force_limit() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sessions/wall-push.toml");
         let cfg = session::load(&path, &[]).expect("wall-push session");
         let (m, s) = summaries(5, 2000);
         let ok = combine(&cfg, 2.0, false, m, s);

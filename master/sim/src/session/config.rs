@@ -431,7 +431,8 @@ mod tests {
     /// Each section names its own fields, under the section's dotted path, with the range.
     #[test]
     fn sections_name_their_fields() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/wall-push.toml");
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sessions/wall-push.toml");
         assert!(load(&path, &[]).is_ok());
         for (set, field) in [
             ("environment.tilt_deg=61", "environment.tilt_deg"),
