@@ -491,3 +491,103 @@ fn core_and_telemetry_modules_import_in_one_direction() {
         Some(vec!["a".to_string(), "b".to_string(), "c".to_string()])
     );
 }
+
+/// What docs/architecture.md names that does not exist: each crate's modules (the Modules
+/// table: `src/<module>.rs` or `src/<module>/mod.rs` under the crate's folder of the first
+/// table), each type it names (defined as a struct, enum, trait or type in the workspace's
+/// sources), and every path it names (a backticked token with a `/`).
+fn architecture_misses(doc: &str) -> Vec<String> {
+    let mut folder_of = std::collections::BTreeMap::new();
+    let mut misses = Vec::new();
+    let ticks = |cell: &str| -> Vec<String> {
+        cell.split('`')
+            .skip(1)
+            .step_by(2)
+            .map(|t| t.trim().to_string())
+            .collect()
+    };
+    let mut text = String::new();
+    for c in CRATES {
+        let mut files = Vec::new();
+        rust_files(&repo().join(c).join("src"), &mut files);
+        for f in files {
+            text.push_str(&std::fs::read_to_string(f).unwrap_or_default());
+        }
+    }
+    let mut krate = String::new();
+    for line in doc.lines().filter(|l| l.starts_with('|')) {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        if cells.len() < 4 {
+            continue;
+        }
+        let (a, b) = (ticks(cells[1]), ticks(cells[2]));
+        // The crates table: | `folder/` | `crate` | role |
+        if a.len() == 1 && a[0].ends_with('/') && b.len() == 1 && b[0].starts_with("h4-") {
+            folder_of.insert(b[0].clone(), a[0].trim_end_matches('/').to_string());
+            continue;
+        }
+        // The modules table: | `crate` (or empty: the row above's) | `modules` | what |
+        match a.first() {
+            Some(c) if c.starts_with("h4-") => krate = c.clone(),
+            Some(_) => continue,
+            None if cells[1].is_empty() && !krate.is_empty() => {}
+            None => continue,
+        }
+        let Some(folder) = folder_of.get(&krate) else {
+            continue;
+        };
+        let src = repo().join(folder).join("src");
+        for m in &b {
+            let is_module = m.chars().all(|c| c.is_ascii_lowercase() || c == '_');
+            if is_module
+                && !src.join(format!("{m}.rs")).exists()
+                && !src.join(m).join("mod.rs").exists()
+            {
+                misses.push(format!("{krate}: no module {m} in {}", src.display()));
+            }
+        }
+        for t in ticks(cells[3]).iter().chain(&b) {
+            let is_type = t.len() > 1
+                && t.chars().next().is_some_and(|c| c.is_ascii_uppercase())
+                && t.chars().all(|c| c.is_ascii_alphanumeric());
+            if is_type
+                && !["struct", "enum", "trait", "type"]
+                    .iter()
+                    .any(|k| text.contains(&format!("{k} {t}")))
+            {
+                misses.push(format!("{krate}: no type {t}"));
+            }
+        }
+    }
+    for line in doc.lines() {
+        for t in ticks(line) {
+            let looks_like_path = t.contains('/')
+                && !t.contains(' ')
+                && !t.contains("::")
+                && (t.ends_with('/') || t.rsplit('/').next().is_some_and(|f| f.contains('.')));
+            if looks_like_path
+                && !repo().join(&t).exists()
+                && !repo().join("docs").join(&t).exists()
+            {
+                misses.push(format!("no path {t}"));
+            }
+        }
+    }
+    if folder_of.is_empty() {
+        misses.push("no crates table".to_string());
+    }
+    misses
+}
+
+/// docs/architecture.md matches the code: every module, type and path it names exists.
+/// Negative control: a module, a type and a path that do not exist are caught.
+#[test]
+fn the_architecture_names_only_what_exists() {
+    let doc = std::fs::read_to_string(repo().join("docs/architecture.md")).unwrap();
+    let misses = architecture_misses(&doc);
+    assert!(misses.is_empty(), "docs/architecture.md: {misses:#?}");
+    let bad =
+        format!("{doc}\n| `h4-slave` | `no_such_module` | `NoSuchType` in `slave/no/such.rs` |\n");
+    let misses = architecture_misses(&bad);
+    assert_eq!(misses.len(), 3, "{misses:#?}");
+}
