@@ -249,51 +249,26 @@ impl Section for ScaleConfig {
     }
 }
 
-/// Parameters of the coupling.
+/// Parameters of the coupling: the session's `[coupling]`, `[scale]` and `[passivity]`
+/// sections as given (one struct per section, not copied field by field), and what the
+/// endpoint adds.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CouplingParams {
-    /// Mode.
-    pub mode: CouplingMode,
-    /// Slave motion per master motion (translation).
-    pub motion_scale: f64,
-    /// Master force per slave force.
-    pub force_scale: f64,
+    /// The `[coupling]` section.
+    pub config: CouplingConfig,
+    /// The `[scale]` section: slave motion per master motion, master force per slave force.
+    pub scale: ScaleConfig,
+    /// The master port's passivity controller settings (`[passivity]`; the observer always
+    /// runs, the controller when `enabled`).
+    pub passivity_params: PassivityParams,
     /// The slave's workspace (targets are mapped into it).
     pub slave_workspace: Workspace,
     /// Slave pose that corresponds to the master's start pose.
     pub slave_anchor_pose: [f64; 4],
-    /// Largest force rendered, N.
-    pub force_limit_n: f64,
     /// Largest slave speed commanded, mm/s (below the slave's speed limit).
     pub slave_speed_limit_mm_per_s: f64,
-    /// Feedback silence after which the rendered force fades, ms.
-    pub feedback_timeout_ms: f64,
-    /// Time the fade takes, ms.
-    pub fade_ms: f64,
-    /// Passivity controller on (the observer always runs).
-    pub passivity: bool,
-    /// The master port's passivity controller settings (damping cap, release, reserve).
-    pub passivity_params: PassivityParams,
-    /// Force-guided: stiffness of the virtual spring the operator pushes, N/mm.
-    pub guide_stiffness_n_per_mm: f64,
-    /// Force-guided: largest set-point, N.
-    pub guide_setpoint_max_n: f64,
-    /// Force-guided: how far beyond the surface the slave's approach target lies, mm.
-    pub guide_approach_depth_mm: f64,
-    /// Local damping the master renders against the handle's velocity, N·s/mm (position–
-    /// force mode; passive, not part of the link's two-port).
-    pub master_damping_n_s_per_mm: f64,
-    /// Extra local damping while the slave reports a contact, N·s/mm.
-    pub contact_damping_n_s_per_mm: f64,
-    /// The local damping stays on while the feedback is lost (`coupling.brake_on_loss`).
-    pub brake_on_loss: bool,
-    /// Cut-off of the low-pass on the rendered slave force, Hz (0: unfiltered).
-    pub force_filter_hz: f64,
-    /// Force-guided: share of the cutting resistance along the feed rendered (× the force
-    /// scale).
-    pub feed_force_gain: f64,
-    /// Model-mediated rendering (position–force): the master renders a local model of the
-    /// slave's contact instead of the delayed measured force.
+    /// Model-mediated rendering (position–force), the contact model's parameters from the
+    /// section's `model*` keys.
     pub model: ModelParams,
     /// Arm id in the commands.
     pub arm_id: u16,
@@ -313,25 +288,12 @@ impl CouplingParams {
         arm_id: u16,
     ) -> Self {
         CouplingParams {
-            mode: c.mode,
-            motion_scale: scale.motion,
-            force_scale: scale.force,
+            config: *c,
+            scale: *scale,
+            passivity_params: *passivity,
             slave_workspace,
             slave_anchor_pose,
-            force_limit_n: c.force_limit_n,
             slave_speed_limit_mm_per_s,
-            feedback_timeout_ms: c.feedback_timeout_ms,
-            fade_ms: c.fade_ms,
-            passivity: passivity.enabled,
-            passivity_params: *passivity,
-            guide_stiffness_n_per_mm: c.guide_stiffness_n_per_mm,
-            guide_setpoint_max_n: c.guide_setpoint_max_n,
-            guide_approach_depth_mm: c.guide_approach_depth_mm,
-            master_damping_n_s_per_mm: c.master_damping_n_s_per_mm,
-            contact_damping_n_s_per_mm: c.contact_damping_n_s_per_mm,
-            brake_on_loss: c.brake_on_loss,
-            force_filter_hz: c.force_filter_hz,
-            feed_force_gain: c.feed_force_gain,
             model: ModelParams {
                 enabled: c.model,
                 stiffness_max_n_per_mm: c.model_stiffness_max_n_per_mm,
@@ -489,7 +451,7 @@ impl MasterCoupling {
 
     /// κ = force scale / motion scale: slave energy × κ = master energy.
     pub fn kappa(&self) -> f64 {
-        self.p.force_scale / self.p.motion_scale
+        self.p.scale.force / self.p.scale.motion
     }
 
     /// The offset added to this cycle's slave target by the contact model
@@ -528,7 +490,8 @@ impl MasterCoupling {
             return [0.0; 3];
         }
         let k = self.handover_fade;
-        self.handover_fade = (self.handover_fade - dt_s * 1e3 / self.p.fade_ms.max(1e-3)).max(0.0);
+        self.handover_fade =
+            (self.handover_fade - dt_s * 1e3 / self.p.config.fade_ms.max(1e-3)).max(0.0);
         [
             self.handover_n[0] * k,
             self.handover_n[1] * k,
@@ -610,13 +573,13 @@ impl MasterCoupling {
         let silent_ms = self
             .last_feedback_ns
             .map_or(f64::INFINITY, |t| now_ns.saturating_sub(t) as f64 * 1e-6);
-        let rate = dt_s * 1e3 / p.fade_ms.max(1e-3);
+        let rate = dt_s * 1e3 / p.config.fade_ms.max(1e-3);
         // The local model needs no fresh feedback to render the contact: it holds through
         // a longer silence than the delayed force would.
-        let timeout_ms = if p.mode == CouplingMode::PositionForce && p.model.enabled {
+        let timeout_ms = if p.config.mode == CouplingMode::PositionForce && p.model.enabled {
             p.model.hold_ms
         } else {
-            p.feedback_timeout_ms
+            p.config.feedback_timeout_ms
         };
         self.fade = if silent_ms > timeout_ms || self.slave_stopped || self.device_stale {
             (self.fade - rate).max(0.0)
@@ -674,11 +637,11 @@ impl MasterCoupling {
         let mut t = [0.0; 4];
         let mut vel = [0.0; 3];
         for i in 0..3 {
-            t[i] = anchor[i] + p.motion_scale * (handle_pose[i] - self.handle_anchor_pose[i]);
-            vel[i] = p.motion_scale * handle_velocity[i];
+            t[i] = anchor[i] + p.scale.motion * (handle_pose[i] - self.handle_anchor_pose[i]);
+            vel[i] = p.scale.motion * handle_velocity[i];
         }
         t[3] = anchor[3] + (handle_pose[3] - self.handle_anchor_pose[3]);
-        if p.mode == CouplingMode::ForceGuided {
+        if p.config.mode == CouplingMode::ForceGuided {
             // Along the normal the slave's force loop rules: keep the target's normal
             // component at the anchor's, beyond the surface by the approach depth.
             let n = self.normal;
@@ -686,7 +649,7 @@ impl MasterCoupling {
             let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
             let vn = vel[0] * n[0] + vel[1] * n[1] + vel[2] * n[2];
             for i in 0..3 {
-                t[i] -= n[i] * (dn + p.guide_approach_depth_mm);
+                t[i] -= n[i] * (dn + p.config.guide_approach_depth_mm);
                 vel[i] -= n[i] * vn;
             }
         }
@@ -715,11 +678,11 @@ impl MasterCoupling {
             // moves out only at the plane rate (no force step).
             self.model.reset_used();
         }
-        let k_max_slave = p.model.stiffness_max_n_per_mm / (p.force_scale * p.motion_scale);
+        let k_max_slave = p.model.stiffness_max_n_per_mm / (p.scale.force * p.scale.motion);
         let d = [target[0], target[1], target[2]];
         // What the model's update may put into the handle this cycle: a share of the
         // observer's surplus (none without a surplus), in slave units.
-        let budget_n_mm = if p.passivity {
+        let budget_n_mm = if p.passivity_params.enabled {
             let share = p.passivity_params.drift_energy_share;
             (self.port.observed_j() - p.passivity_params.energy_reserve_j).max(0.0) * share * 1e3
                 / (self.kappa() * self.fade.max(1e-3))
@@ -733,7 +696,7 @@ impl MasterCoupling {
         // measured friction, tried, made the handle wander sideways).
         let mut link_force = [0.0; 3];
         for (lf, fi) in link_force.iter_mut().zip(f.iter()) {
-            *lf = p.force_scale * fi * self.fade;
+            *lf = p.scale.force * fi * self.fade;
         }
         let o = self.model.offset_mm();
         if o != [0.0; 3] {
@@ -754,7 +717,7 @@ impl MasterCoupling {
     /// high-frequency content are not rendered; a filter is passive-neutral here since the
     /// port observes the force actually applied).
     fn filter_force(&mut self, link_force: &mut [f64; 3], dt_s: f64) {
-        let hz = self.p.force_filter_hz;
+        let hz = self.p.config.force_filter_hz;
         if hz > 0.0 {
             let a = 1.0 - (-2.0 * std::f64::consts::PI * hz * dt_s).exp();
             for (f, lf) in self.filtered_n.iter_mut().zip(link_force.iter_mut()) {
@@ -768,8 +731,8 @@ impl MasterCoupling {
     /// `contact_damping_n_s_per_mm` while the newest feedback reports a contact held by the
     /// slave's force loop.
     fn local_damping(&self) -> f64 {
-        self.p.master_damping_n_s_per_mm
-            + self.contact_damping_share * self.p.contact_damping_n_s_per_mm
+        self.p.config.master_damping_n_s_per_mm
+            + self.contact_damping_share * self.p.config.contact_damping_n_s_per_mm
     }
 
     /// The contact damping's share: towards whether the newest feedback reports a contact
@@ -780,7 +743,7 @@ impl MasterCoupling {
             w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 1e-6
         });
         let target = if contact { 1.0 } else { 0.0 };
-        let rate = dt_s * 1e3 / self.p.fade_ms.max(1e-3);
+        let rate = dt_s * 1e3 / self.p.config.fade_ms.max(1e-3);
         let d = (target - self.contact_damping_share).clamp(-rate, rate);
         self.contact_damping_share += d;
     }
@@ -790,7 +753,7 @@ impl MasterCoupling {
     /// push; damping only dissipates), faded with the feedback only when
     /// `coupling.brake_on_loss` is off.
     fn brake(&self) -> f64 {
-        if self.p.brake_on_loss && self.feedback.is_some() {
+        if self.p.config.brake_on_loss && self.feedback.is_some() {
             1.0
         } else {
             self.fade
@@ -865,7 +828,7 @@ impl MasterCoupling {
         self.port.mass_estimate_kg = (dev.effective_mass_kg > 0.0).then_some(dev.effective_mass_kg);
         let frac = p.passivity_params.damping_step_fraction;
         self.port.damping_step_limit_n_s_per_mm = if frac > 0.0 && dev.effective_mass_kg > 0.0 {
-            let share = if p.mode == CouplingMode::PositionForce && !self.clutched {
+            let share = if p.config.mode == CouplingMode::PositionForce && !self.clutched {
                 self.brake()
             } else {
                 0.0
@@ -898,7 +861,7 @@ impl MasterCoupling {
         let e = [vel[0] / speed, vel[1] / speed, vel[2] / speed];
         let w = fb.wrench_measured;
         let along = (w[0] * e[0] + w[1] * e[1] + w[2] * e[2]).min(0.0);
-        let k = self.p.force_scale * self.p.feed_force_gain * self.fade * along;
+        let k = self.p.scale.force * self.p.config.feed_force_gain * self.fade * along;
         [k * e[0], k * e[1], k * e[2]]
     }
 
@@ -925,15 +888,16 @@ impl MasterCoupling {
             let limited;
             (target, vel, limited) = self.slave_from_master(&dev.pose, &handle_velocity);
             step.workspace_limited = limited;
-            if p.mode == CouplingMode::PositionForce && p.model.enabled && self.model.valid() {
+            if p.config.mode == CouplingMode::PositionForce && p.model.enabled && self.model.valid()
+            {
                 (link_force, target, offset) = self.model_rendering(target, dt_s);
-            } else if p.mode == CouplingMode::PositionForce
+            } else if p.config.mode == CouplingMode::PositionForce
                 && let Some(fb) = &self.feedback
             {
                 for (lf, w) in link_force.iter_mut().zip(fb.wrench_measured.iter()) {
-                    *lf = p.force_scale * w * self.fade;
+                    *lf = p.scale.force * w * self.fade;
                 }
-            } else if p.mode == CouplingMode::ForceGuided && p.feed_force_gain > 0.0 {
+            } else if p.config.mode == CouplingMode::ForceGuided && p.config.feed_force_gain > 0.0 {
                 link_force = self.feed_resistance(&vel);
             }
         }
@@ -955,7 +919,7 @@ impl MasterCoupling {
             link_force,
             handle_velocity,
             hold_s,
-            p.passivity && self.fade > 0.0,
+            p.passivity_params.enabled && self.fade > 0.0,
         );
         let mut force = pc.force_n;
         for (f, h) in force.iter_mut().zip(handover.iter()) {
@@ -963,7 +927,7 @@ impl MasterCoupling {
         }
         self.port_force_n = pc.force_n;
         self.brake_extra_n = [0.0; 3];
-        if p.mode == CouplingMode::PositionForce && !self.clutched {
+        if p.config.mode == CouplingMode::PositionForce && !self.clutched {
             // The local damping: faded with the feedback, except that the brake
             // (`brake_on_loss`) keeps it on while the feedback is lost; the brake's share
             // beyond the fade is not the link's (see `brake_extra_n`).
@@ -979,22 +943,22 @@ impl MasterCoupling {
             *e += h;
         }
         // Force-guided: the local virtual spring sets the set-point.
-        if p.mode == CouplingMode::ForceGuided && !self.clutched {
+        if p.config.mode == CouplingMode::ForceGuided && !self.clutched {
             let n = self.normal;
             let a = self.handle_anchor_pose;
             let depth = -((dev.pose[0] - a[0]) * n[0]
                 + (dev.pose[1] - a[1]) * n[1]
                 + (dev.pose[2] - a[2]) * n[2]);
-            let spring = (p.guide_stiffness_n_per_mm * depth)
-                .clamp(0.0, p.force_scale * p.guide_setpoint_max_n);
+            let spring = (p.config.guide_stiffness_n_per_mm * depth)
+                .clamp(0.0, p.scale.force * p.config.guide_setpoint_max_n);
             for i in 0..3 {
                 force[i] += spring * n[i];
             }
-            step.setpoint_n = spring / p.force_scale;
+            step.setpoint_n = spring / p.scale.force;
         }
         let fmag = norm3(&force);
-        if fmag > p.force_limit_n {
-            let s = p.force_limit_n / fmag;
+        if fmag > p.config.force_limit_n {
+            let s = p.config.force_limit_n / fmag;
             for f in force.iter_mut() {
                 *f *= s;
             }
@@ -1019,10 +983,10 @@ impl MasterCoupling {
         // Position–force: all of the applied force (the local damping included, except the
         // brake's share beyond the fade) is the master port's. Force-guided: the local spring is not the link's, and the link
         // renders nothing.
-        let link = if self.p.mode == CouplingMode::PositionForce {
+        let link = if self.p.config.mode == CouplingMode::PositionForce {
             let e = self.brake_extra_n;
             [applied[0] - e[0], applied[1] - e[1], applied[2] - e[2]]
-        } else if self.p.feed_force_gain > 0.0 {
+        } else if self.p.config.feed_force_gain > 0.0 {
             // Force-guided: the port's force (the feed resistance after the passivity
             // controller), not the local spring's.
             self.port_force_n
@@ -1040,7 +1004,7 @@ impl MasterCoupling {
         let mode = if self.clutched {
             Mode::Hold
         } else {
-            match self.p.mode {
+            match self.p.config.mode {
                 CouplingMode::PositionForce => Mode::Position,
                 CouplingMode::ForceGuided => Mode::ForceGuided,
             }

@@ -244,7 +244,7 @@ where
     s.realtime = realtime;
     let mut rt =
         RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
-    let mut stats = RenderStats::new(side.coupling().params().force_scale);
+    let mut stats = RenderStats::new(side.coupling().params().scale.force);
     let mut link_stats = crate::link_stats::LossMeter::new();
     rt.run(|cx| {
         let now = cx.now_ns;
