@@ -6,7 +6,8 @@
 //! jitter, loss, duplication, reordering and blackouts ([`impaired`]: the same on a real process's
 //! link, `--impair`); [`gate::Gate`] is the check every
 //! receiver puts in front of its control loop. `open` (with both middleware features) opens
-//! a process's end from its command-line options.
+//! a process's end from its command-line options. [`ros2`] is the ROS 2 wire format over
+//! rmw_zenoh (CDR, type hashes, key expressions; pure, no session).
 //!
 //! Publishing and receiving never block and allocate nothing per message.
 
@@ -19,6 +20,7 @@ pub mod inproc;
 #[cfg(all(feature = "iceoryx2", feature = "zenoh"))]
 pub mod open;
 pub mod playout;
+pub mod ros2;
 #[cfg(feature = "zenoh")]
 pub mod zenoh;
 
