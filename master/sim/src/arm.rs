@@ -17,7 +17,7 @@ use nalgebra::{Matrix4, Vector4};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of the simulated master arm.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MasterArmConfig {
     /// Geometry of the master arm (an H-4 family arm), mm.
