@@ -75,6 +75,11 @@ impl Default for MasterArmConfig {
 impl Section for MasterArmConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let f = |name: &str| format!("{prefix}{name}");
+        if h4_shared::config::recording() {
+            for (_, field, requirement) in H4Params::RULES {
+                h4_shared::config::record_rule(&f(&format!("geometry.{field}")), requirement);
+            }
+        }
         self.geometry
             .validate()
             .map_err(|e| ConfigError::OutOfRange {
