@@ -33,7 +33,7 @@ pub use crate::contact_model::{ContactModel, ModelParams};
 use crate::device::DeviceState;
 
 /// Coupling mode.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum CouplingMode {
     /// The slave follows the master's pose; the master renders the slave's force.
@@ -43,7 +43,7 @@ pub enum CouplingMode {
 }
 
 /// The coupling.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CouplingConfig {
     /// `position-force` or `force-guided`.
@@ -80,6 +80,7 @@ pub struct CouplingConfig {
     /// surface) rendered at the handle, × `scale.force`, through the master port's
     /// passivity controller (0 to 1; 0: nothing from the slave is rendered).
     #[serde(skip_serializing_if = "is_zero")]
+    #[schemars(!skip_serializing_if)]
     pub feed_force_gain: f64,
     /// Model-mediated rendering (position–force): a local model of the slave's contact.
     pub model: bool,
@@ -124,7 +125,7 @@ impl Default for CouplingConfig {
 }
 
 /// Motion and force scaling.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ScaleConfig {
     /// Slave translation per master translation.

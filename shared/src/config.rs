@@ -7,6 +7,7 @@
 
 use std::path::Path;
 
+use schemars::JsonSchema;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
@@ -67,6 +68,145 @@ pub trait Section {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError>;
 }
 
+/// What a check allows a field: a closed range, or a rule in words.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Allowed {
+    /// `min ≤ value ≤ max` (and finite), as [`check_range`] checks it.
+    Range {
+        /// Smallest value allowed.
+        min: f64,
+        /// Largest value allowed.
+        max: f64,
+    },
+    /// A requirement stated in words (`must be finite and > 0`), as [`record_rule`] states it.
+    Rule(String),
+}
+
+/// One check a validation ran, recorded by [`record_ranges`]: the field as the check named
+/// it, what it allows and the unit it states.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RangeRecord {
+    /// The field's dotted path as checked, indices included (`slave.arm.actuator_stiffness_n_per_mm[2]`).
+    pub field: String,
+    /// What the check allows.
+    pub allowed: Allowed,
+    /// The unit as the check states it, with any note in parentheses (`mm (≥ the minimum)`;
+    /// empty for a dimensionless value or a rule).
+    pub unit: String,
+}
+
+impl RangeRecord {
+    /// The field with its indices collapsed (see [`collapse_indices`]): every element of an
+    /// array is one row of the reference.
+    pub fn collapsed_field(&self) -> String {
+        collapse_indices(&self.field)
+    }
+
+    /// The note the check put after the field's name in parentheses
+    /// (`track.direction (length)` → `length`), if any.
+    pub fn field_note(&self) -> Option<&str> {
+        let (_, note) = self.field.split_once(" (")?;
+        Some(note.strip_suffix(')').unwrap_or(note))
+    }
+}
+
+/// A checked field's path as the reference lists it: a note after it in parentheses is cut
+/// off, each index `[2]` becomes `[]`, and trailing `[]`s are dropped, so
+/// `arm.actuator_stiffness_n_per_mm[2]` → `arm.actuator_stiffness_n_per_mm`,
+/// `fixtures.corridor.path_mm[3][1]` → `fixtures.corridor.path_mm` and
+/// `force.steps[0].time_s` → `force.steps[].time_s`.
+pub fn collapse_indices(field: &str) -> String {
+    let path = match field.split_once(" (") {
+        Some((path, _)) => path,
+        None => field,
+    };
+    let mut out = String::with_capacity(path.len());
+    let mut rest = path;
+    while let Some(open) = rest.find('[') {
+        out.push_str(&rest[..open]);
+        let after = &rest[open + 1..];
+        match after.find(']') {
+            Some(close) if after[..close].bytes().all(|b| b.is_ascii_digit()) => {
+                out.push_str("[]");
+                rest = &after[close + 1..];
+            }
+            _ => {
+                out.push('[');
+                rest = after;
+            }
+        }
+    }
+    out.push_str(rest);
+    while out.ends_with("[]") {
+        out.truncate(out.len() - 2);
+    }
+    out
+}
+
+thread_local! {
+    /// The checks recorded on this thread while [`record_ranges`] runs (`None`: not recording).
+    static RECORDED: std::cell::RefCell<Option<Vec<RangeRecord>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Whether [`record_ranges`] is recording on this thread (a caller that would build a field
+/// name only for [`record_rule`] asks first).
+pub fn recording() -> bool {
+    RECORDED
+        .try_with(|cell| cell.try_borrow().is_ok_and(|slot| slot.is_some()))
+        .unwrap_or(false)
+}
+
+/// Adds one record if recording is on; `make` runs only then (nothing is built otherwise).
+fn record(make: impl FnOnce() -> RangeRecord) {
+    let _ = RECORDED.try_with(|cell| {
+        if let Ok(mut slot) = cell.try_borrow_mut()
+            && let Some(records) = slot.as_mut()
+        {
+            records.push(make());
+        }
+    });
+}
+
+/// Records a requirement in words on `field` (a check that is not a range, e.g. a geometry's
+/// `|e| < R`) while [`record_ranges`] runs; does nothing otherwise.
+pub fn record_rule(field: &str, rule: &str) {
+    record(|| RangeRecord {
+        field: field.to_string(),
+        allowed: Allowed::Rule(rule.to_string()),
+        unit: String::new(),
+    });
+}
+
+/// Runs `f` (a validation) with recording on and returns its result with every check it
+/// ran, in order: each [`check_range`] call (its field, min, max and unit) and each
+/// [`record_rule`]. Recording is per thread; outside `f` nothing is recorded and the checks
+/// cost one thread-local test. The reference (`h4-master config-reference`) takes the ranges
+/// from here rather than from a copy.
+pub fn record_ranges<R>(f: impl FnOnce() -> R) -> (R, Vec<RangeRecord>) {
+    /// Puts the recorder back as it was, also if `f` panics.
+    struct Restore(Option<Option<Vec<RangeRecord>>>);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            if let Some(outer) = self.0.take() {
+                let _ = RECORDED.try_with(|cell| {
+                    if let Ok(mut slot) = cell.try_borrow_mut() {
+                        *slot = outer;
+                    }
+                });
+            }
+        }
+    }
+    let outer = RECORDED.with(|cell| cell.replace(Some(Vec::new())));
+    let restore = Restore(Some(outer));
+    let out = f();
+    let records = RECORDED
+        .with(|cell| cell.borrow_mut().take())
+        .unwrap_or_default();
+    drop(restore);
+    (out, records)
+}
+
 /// Checks `min ≤ value ≤ max` (and finiteness) for the field at `field`.
 pub fn check_range(
     field: &str,
@@ -75,6 +215,11 @@ pub fn check_range(
     max: f64,
     unit: &str,
 ) -> Result<(), ConfigError> {
+    record(|| RangeRecord {
+        field: field.to_string(),
+        allowed: Allowed::Range { min, max },
+        unit: unit.to_string(),
+    });
     if value.is_finite() && value >= min && value <= max {
         Ok(())
     } else {
@@ -199,7 +344,7 @@ pub fn apply_override(table: &mut toml::Table, arg: &str) -> Result<(), ConfigEr
 }
 
 /// Kinematic geometry as configured: a named preset, or explicit parameters.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, untagged)]
 pub enum GeometryConfig {
     /// `geometry = "prototype"` (R 400, e 143, c 20, d 20 mm) or `"alt"` (R 300, e 100, c 15, d 25 mm).
@@ -209,7 +354,7 @@ pub enum GeometryConfig {
 }
 
 /// Named parameter sets.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum GeometryPreset {
     /// The paper's prototype.
@@ -230,7 +375,7 @@ impl GeometryConfig {
 }
 
 /// One arm: geometry, actuator stiffness and workspace limits.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ArmConfig {
     /// Geometry: `"prototype"`, `"alt"`, or a table `{ leg_length_mm, e_mm, c_mm, d_mm }`.
@@ -246,7 +391,7 @@ pub struct ArmConfig {
 
 /// The tool beyond the force sensor, identified from free-space poses (`h4-slave identify`):
 /// its weight and inertia load the sensor; the controller subtracts them.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ToolModel {
     /// Whether the fields below were identified (false: the controller compensates nothing
@@ -310,6 +455,11 @@ impl Section for ArmConfig {
     /// Checks the geometry, the actuator stiffness and the workspace limits, naming fields
     /// under `prefix` (e.g. `"arm."`).
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
+        if recording() {
+            for (_, field, requirement) in H4Params::RULES {
+                record_rule(&format!("{prefix}geometry.{field}"), requirement);
+            }
+        }
         self.geometry.params().validate().map_err(|e| match e {
             KinError::InvalidParameter {
                 name,
@@ -455,6 +605,57 @@ mod tests {
         let err = parse::<ArmConfig>("\n\nbogus = 1\n", "arm.toml", &["geometry=\"alt\"".into()])
             .unwrap_err();
         assert!(text_has(&err, "line 3"), "{err}");
+    }
+
+    #[test]
+    fn the_recorder_sees_every_check_only_while_on() {
+        // Off: nothing is kept, the checks behave as before.
+        assert!(!recording());
+        assert!(check_range("a", 5.0, 0.0, 10.0, "mm").is_ok());
+        let (result, records) = record_ranges(|| {
+            assert!(recording());
+            ArmConfig::default().validate()
+        });
+        assert!(result.is_ok());
+        assert!(!recording());
+        let stiffness: Vec<&RangeRecord> = records
+            .iter()
+            .filter(|r| r.collapsed_field() == "actuator_stiffness_n_per_mm")
+            .collect();
+        assert_eq!(stiffness.len(), 4, "{records:?}");
+        assert_eq!(stiffness[2].field, "actuator_stiffness_n_per_mm[2]");
+        assert_eq!(
+            stiffness[2].allowed,
+            Allowed::Range {
+                min: 1.0,
+                max: 1e6
+            }
+        );
+        assert_eq!(stiffness[2].unit, "N/mm");
+        assert!(records.iter().any(|r| r.field == "geometry.e_mm"
+            && matches!(&r.allowed, Allowed::Rule(t) if t.contains("|e| < R"))));
+        // A failing check is recorded too; the records stop where the validation stops.
+        let (result, records) = record_ranges(|| check_range("x.y[3]", -1.0, 0.0, 1.0, "s"));
+        assert!(result.is_err());
+        assert_eq!(records.len(), 1);
+        // Nothing leaks out of the recording.
+        let (_, records) = record_ranges(|| ());
+        assert!(records.is_empty());
+    }
+
+    #[test]
+    fn indices_collapse_to_one_field() {
+        assert_eq!(collapse_indices("arm.stroke_max_mm[3]"), "arm.stroke_max_mm");
+        assert_eq!(collapse_indices("fixtures.corridor.path_mm[12][1]"), "fixtures.corridor.path_mm");
+        assert_eq!(collapse_indices("force.steps[0].time_s"), "force.steps[].time_s");
+        assert_eq!(collapse_indices("track.direction (length)"), "track.direction");
+        assert_eq!(collapse_indices("plain"), "plain");
+        let r = RangeRecord {
+            field: "track.direction (length)".into(),
+            allowed: Allowed::Range { min: 0.0, max: 1.0 },
+            unit: String::new(),
+        };
+        assert_eq!(r.field_note(), Some("length"));
     }
 
     fn text_has(err: &ConfigError, needle: &str) -> bool {

@@ -148,7 +148,7 @@ impl KinError {
 }
 
 /// Geometry of one H-4 family arm.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct H4Params {
     /// Leg length R, mm.
@@ -190,25 +190,25 @@ impl H4Params {
         Ok(p)
     }
 
+    /// What [`H4Params::validate`] requires of each parameter: its symbol, its field and the
+    /// requirement in words, in the order they are checked.
+    pub const RULES: [(&'static str, &'static str, &'static str); 4] = [
+        ("R", "leg_length_mm", "must be finite and > 0"),
+        ("e", "e_mm", "must be finite, non-zero and |e| < R"),
+        ("c", "c_mm", "must be finite and > 0"),
+        ("d", "d_mm", "must be finite and >= 0"),
+    ];
+
     /// Checks that the parameters describe a mechanism the formulas can handle.
     pub fn validate(&self) -> Result<(), KinError> {
-        let checks: [(&'static str, f64, bool, &'static str); 4] = [
-            (
-                "R",
-                self.leg_length_mm,
-                self.leg_length_mm > 0.0,
-                "must be finite and > 0",
-            ),
-            (
-                "e",
-                self.e_mm,
-                self.e_mm != 0.0 && self.e_mm.abs() < self.leg_length_mm,
-                "must be finite, non-zero and |e| < R",
-            ),
-            ("c", self.c_mm, self.c_mm > 0.0, "must be finite and > 0"),
-            ("d", self.d_mm, self.d_mm >= 0.0, "must be finite and >= 0"),
+        let values = [self.leg_length_mm, self.e_mm, self.c_mm, self.d_mm];
+        let oks = [
+            self.leg_length_mm > 0.0,
+            self.e_mm != 0.0 && self.e_mm.abs() < self.leg_length_mm,
+            self.c_mm > 0.0,
+            self.d_mm >= 0.0,
         ];
-        for (name, value, ok, requirement) in checks {
+        for (((name, _, requirement), value), ok) in Self::RULES.into_iter().zip(values).zip(oks) {
             if !value.is_finite() || !ok {
                 return Err(KinError::InvalidParameter {
                     name,
@@ -491,7 +491,7 @@ impl ActuatorStiffness {
 }
 
 /// The limits of the usable workspace, on top of the mathematical validity of a pose.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct WorkspaceLimits {
     /// Largest |theta| allowed, rad (must be < π/2).

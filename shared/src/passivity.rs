@@ -31,7 +31,7 @@ use crate::config::{ConfigError, check_range};
 const J_PER_N_MM: f64 = 1e-3;
 
 /// Passivity control settings (`passivity.*` in session files), the same on both sides.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PassivityParams {
     /// Passivity controllers on both ports (`false`: observers only).

@@ -72,7 +72,7 @@ pub struct TeleopParams {
 /// the round trip"). The slave cannot measure `T` (only the master sees the round trip), so
 /// the deployment tells it, `round_trip_ms` (0: not told), and the spring softens to
 /// `min(stiffness_n_per_mm, stiffness_delay_n_s_per_mm / T)`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ContactHandover {
     /// Hand-over on.

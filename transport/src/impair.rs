@@ -21,7 +21,7 @@ use crate::{Link, LinkError};
 const NS_PER_MS: f64 = 1e6;
 
 /// What to do to the messages of one direction of a link.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ImpairmentConfig {
     /// Constant one-way delay, ms (0 to 10 000).
@@ -101,6 +101,12 @@ impl ImpairmentConfig {
             3_600_000.0,
             "ms",
         )?;
+        if h4_shared::config::recording() {
+            h4_shared::config::record_rule(
+                &f("blackout_ms"),
+                "less than blackout_every_ms when both are set",
+            );
+        }
         if self.blackout_ms > 0.0
             && self.blackout_every_ms > 0.0
             && self.blackout_ms >= self.blackout_every_ms

@@ -44,7 +44,7 @@ const BINS: usize = 1024;
 const NS_PER_MS: f64 = 1e6;
 
 /// The playout buffer's settings (`slave.playout`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlayoutConfig {
     /// Hold messages to even out the link's jitter (false: hand each on as it arrives).

@@ -34,6 +34,10 @@ enum Command {
     /// (rendered vs slave force, passivity observers, the link's round trip and losses; force
     /// against the set-point band), metrics.json and index.html.
     Report(h4_slave_sim::report::ReportArgs),
+    /// Write the configuration reference (docs/configuration.md): every field of the arm,
+    /// experiment and session files with its type, unit, range, default and description,
+    /// from the code's schemas and checks; `--check FILE` exits 1 if FILE is stale.
+    ConfigReference(cli::config_reference::ConfigReferenceArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -45,6 +49,7 @@ fn main() -> std::process::ExitCode {
         Command::Loopback(args) => args.run(),
         Command::Matrix(args) => args.run(),
         Command::SlaveConfig(args) => args.run(),
+        Command::ConfigReference(args) => args.run(),
         Command::Report(args) => args
             .run()
             .map(|_| std::process::ExitCode::SUCCESS)

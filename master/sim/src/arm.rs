@@ -17,7 +17,7 @@ use nalgebra::{Matrix4, Vector4};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of the simulated master arm.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MasterArmConfig {
     /// Geometry of the master arm (an H-4 family arm), mm.
@@ -75,6 +75,11 @@ impl Default for MasterArmConfig {
 impl Section for MasterArmConfig {
     fn validate_at(&self, prefix: &str) -> Result<(), ConfigError> {
         let f = |name: &str| format!("{prefix}{name}");
+        if h4_shared::config::recording() {
+            for (_, field, requirement) in H4Params::RULES {
+                h4_shared::config::record_rule(&f(&format!("geometry.{field}")), requirement);
+            }
+        }
         self.geometry
             .validate()
             .map_err(|e| ConfigError::OutOfRange {

@@ -8,10 +8,14 @@
 //! * [`session`]: the lockstep whole-session simulation, its summary and stability detector.
 //! * [`plausible`]: settings the coupling cannot render stably (`scale.force` against the
 //!   force limit and the master's passive stiffness), refused before a run.
+//! * [`config_reference`]: `docs/configuration.md`, every configuration field with its unit,
+//!   range, default and sentence, from the types' schemas and checks (`h4-master
+//!   config-reference`).
 //! * [`matrix`]: the delay matrix, sessions over wall × round trip × jitter × loss × force
 //!   scale, and its verdicts (`h4-master matrix`, `tests/delay_matrix.rs`).
 
 pub mod arm;
+pub mod config_reference;
 pub mod hand;
 pub mod matrix;
 pub mod operator;

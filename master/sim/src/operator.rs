@@ -16,7 +16,7 @@ use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// One segment of a scripted intent.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IntentSegment {
     /// When the segment starts, s (segments in time order).
@@ -67,7 +67,7 @@ pub struct ReplayPoint {
 }
 
 /// The hand's parameters.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HandConfig {
     /// Mass of the hand and forearm that moves with the handle, kg.

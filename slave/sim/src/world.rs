@@ -10,7 +10,7 @@ use crate::plant::{PlantConfig, SensorConfig, SimArm, SimError, SurfaceConfig};
 use h4_slave::controller::{ControllerParams, FixturesConfig, SlaveController};
 
 /// The slave-side sections of a simulation: arm, surface, sensor, plant, controller.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SlaveWorld {
     /// The arm: geometry, the actuator stiffness the controller assumes, workspace.

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 pub const CORRIDOR_POINTS_MAX: usize = 64;
 
 /// A floor the tool point is never commanded below (`fixtures.depth_floor`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DepthFloor {
     /// The floor's height, base (workpiece) frame, mm.
@@ -33,7 +33,7 @@ pub struct DepthFloor {
 }
 
 /// A corridor around a planned path in x, y (`fixtures.corridor`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CorridorConfig {
     /// The path's points `[x_mm, y_mm]`, base (workpiece) frame (2 to 64).
@@ -43,7 +43,7 @@ pub struct CorridorConfig {
 }
 
 /// A rectangle in x, y the tool point is kept within (`fixtures.region`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RegionConfig {
     /// The rectangle's corner with the smallest x and y, `[x_mm, y_mm]`, base (workpiece)
@@ -54,7 +54,7 @@ pub struct RegionConfig {
 }
 
 /// The turntable-synchronous mode (`fixtures.turntable_sync`; needs `cutting.turntable`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TurntableSync {
     /// The table's commanded speed, rad/s (−50 to 50; positive: counter-clockwise seen from
@@ -82,7 +82,7 @@ fn default_radius_range() -> [f64; 2] {
 }
 
 /// The fixtures (`fixtures.*`); none by default.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct FixturesConfig {
     /// The depth floor.
@@ -111,11 +111,15 @@ impl FixturesConfig {
     /// The turntable-synchronous mode needs a turntable (`has_turntable`): the error names
     /// `{prefix}turntable_sync`.
     pub fn check_turntable(&self, prefix: &str, has_turntable: bool) -> Result<(), ConfigError> {
+        const NEEDS: &str = "only with a [cutting.turntable] section";
+        if h4_shared::config::recording() {
+            h4_shared::config::record_rule(&format!("{prefix}turntable_sync"), NEEDS);
+        }
         if self.turntable_sync.is_some() && !has_turntable {
             return Err(ConfigError::OutOfRange {
                 field: format!("{prefix}turntable_sync"),
                 value: "set without a turntable".to_string(),
-                allowed: "only with a [cutting.turntable] section".to_string(),
+                allowed: NEEDS.to_string(),
             });
         }
         Ok(())
@@ -134,6 +138,12 @@ impl Section for FixturesConfig {
             )?;
         }
         if let Some(c) = &self.corridor {
+            if h4_shared::config::recording() {
+                h4_shared::config::record_rule(
+                    &format!("{prefix}corridor.path_mm"),
+                    &format!("2 to {CORRIDOR_POINTS_MAX} points"),
+                );
+            }
             let n = c.path_mm.len();
             if !(2..=CORRIDOR_POINTS_MAX).contains(&n) {
                 return Err(ConfigError::OutOfRange {

@@ -4,7 +4,7 @@ use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// Tuning of the controller (`controller.*` in experiment files).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControllerParams {
     /// Use the arm's compliance matrix Λ(x) (deflection-corrected pose, arm compliance in
@@ -92,11 +92,13 @@ pub struct ControllerParams {
     /// point's tangential part, 1/s (0 to 100; 0: the motion along the surface follows the
     /// commanded velocity only, and its ramps let the point drift from the master's).
     #[serde(skip_serializing_if = "is_zero")]
+    #[schemars(!skip_serializing_if)]
     pub track_position_gain_per_s: f64,
     /// In contact: the fastest motion along the surface, mm/s (0 to 1e4; 0: none but
     /// `max_speed_mm_per_s`). A cutter's feed limit (feed per tooth × flutes × spindle
     /// speed): a tool pulled along faster than it can cut is rammed into the stock.
     #[serde(skip_serializing_if = "is_zero")]
+    #[schemars(!skip_serializing_if)]
     pub max_feed_mm_per_s: f64,
     /// Contact detection: the force along the approach must exceed this many standard
     /// deviations of the sensor's noise (measured while taring) besides

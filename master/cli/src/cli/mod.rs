@@ -1,5 +1,6 @@
 //! The subcommands.
 
+pub mod config_reference;
 pub mod loopback;
 pub mod matrix;
 pub mod plausible;

@@ -23,7 +23,7 @@ use h4_master::coupling::{CouplingConfig, ScaleConfig};
 use h4_master::teleop::MasterTeleopConfig;
 
 /// Which loop a host stall freezes (`host.stalls`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum StallSide {
     /// Both loops at once (a frozen virtual machine).
@@ -40,7 +40,7 @@ pub enum StallSide {
 /// project's virtual machines stall for 3–66 ms a few times a minute
 /// (`docs/processes.md`). The simulated clock, the physics and the link keep their 1 ms
 /// steps; a stalled loop runs its next cycle after the stall, seeing what moved.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HostConfig {
     /// Length of each stall, ms (0: none).
@@ -87,7 +87,7 @@ impl Section for HostConfig {
 }
 
 /// The surface the slave touches.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct EnvironmentConfig {
     /// `resin` (200 N/mm), `steel` (2000 N/mm) or `aluminium` (1000 N/mm).
@@ -156,7 +156,7 @@ impl EnvironmentConfig {
 pub type PassivityConfig = PassivityParams;
 
 /// The operator.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct OperatorConfig {
     /// The hand.
@@ -181,7 +181,7 @@ impl OperatorConfig {
 }
 
 /// The slave side.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SlaveConfig {
     /// The slave arm.
@@ -215,7 +215,7 @@ impl Default for SlaveConfig {
 }
 
 /// One session, as read from a TOML file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SessionConfig {
     /// Free-text name.

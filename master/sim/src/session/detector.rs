@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::DT_S;
 
 /// The stability detector.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
     /// Contact force above which the tool counts as in contact, N.

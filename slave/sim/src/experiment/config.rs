@@ -12,7 +12,7 @@ use crate::world::SlaveWorld;
 use h4_slave::controller::{ControllerParams, FixturesConfig};
 
 /// One set-point change.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ForceStep {
     /// When, s after the first contact.
@@ -22,7 +22,7 @@ pub struct ForceStep {
 }
 
 /// The force set-point and its steps.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ForceConfig {
     /// Contact force set-point, N.
@@ -33,7 +33,7 @@ pub struct ForceConfig {
 }
 
 /// Motion along the surface.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TrackConfig {
     /// Tracking speed along the surface, mm/s (21 cm/min = 3.5 mm/s).
@@ -55,7 +55,7 @@ fn default_start_delay() -> f64 {
 }
 
 /// The approach from free space.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ApproachConfig {
     /// Start this far above the contact point (along +z), mm.
@@ -79,7 +79,7 @@ impl Default for ApproachConfig {
 }
 
 /// How the summary judges the run.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SummaryConfig {
     /// The steady phase starts this long after the first contact or a step, s.
@@ -103,7 +103,7 @@ impl Default for SummaryConfig {
 /// The targets the run is judged against (`h4-slave experiment` exits 1 when one is
 /// missed); the true force staying at or below `controller.force_limit_n` and the tool
 /// touching its surface are always required.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TargetsConfig {
     /// Largest `force_error_p99_n` (steady tracking), N.
@@ -153,7 +153,7 @@ impl Section for TargetsConfig {
 }
 
 /// One experiment, as read from a TOML file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ExperimentConfig {
     /// Free-text name.

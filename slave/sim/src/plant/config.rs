@@ -4,7 +4,7 @@ use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// The mechanical and servo parameters of the simulated arm.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlantConfig {
     /// Plant actuator stiffness = the controller's assumed stiffness × this (0.1 to 10).

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use h4_slave::filter::Butterworth2;
 
 /// What each sample of the sensor's A/D reads of the load.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum AdcAperture {
     /// The load at the sample's instant (a fast A/D: no lag of its own; a load with content
@@ -25,7 +25,7 @@ pub enum AdcAperture {
 }
 
 /// The force/torque sensor's imperfections and its digital filter.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SensorConfig {
     /// Standard deviation of the Gaussian noise on each force axis per sample, N.

@@ -18,7 +18,7 @@ pub struct Material {
 }
 
 /// Named materials (values and sources in `docs/slave-simulation.md`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum MaterialPreset {
     /// Cast epoxy/polyurethane tooling resin block on its fixture.
@@ -133,7 +133,7 @@ impl Surface {
 }
 
 /// Shape of a configured surface.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum ShapeKind {
     /// A plane, tilted about y by `tilt_deg`.
@@ -145,7 +145,7 @@ pub enum ShapeKind {
 }
 
 /// A horizontal axis.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Axis {
     /// The robot's x axis.
@@ -156,7 +156,7 @@ pub enum Axis {
 
 /// The surface section (`surface.*`): a body the controller does not know, placed so the
 /// tool first touches it at `contact_point_mm`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SurfaceConfig {
     /// `plane`, `cylinder` or `sphere`.

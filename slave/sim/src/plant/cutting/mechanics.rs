@@ -39,7 +39,7 @@ const TOUCH_MM: f64 = 2e-3;
 const R_MIN_FRACTION: f64 = 0.2;
 
 /// Specific cutting coefficients of a work material, N/mm² (sources in `docs/cutting.md`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CuttingCoefficients {
     /// Tangential, N/mm².

@@ -49,7 +49,7 @@ const NEAR_STALL_TORQUE_FRACTION: f64 = 0.5;
 const REMOVAL_UPDATE_MAX_S: f64 = 0.05;
 
 /// The workpiece and the tool (`cutting.*` in a slave world or a session file).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CuttingConfig {
     /// The centre of the block's top face, workpiece frame, mm.

@@ -4,7 +4,7 @@ use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// The end of the mill.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum ToolKind {
     /// A hemispherical end of the tool's radius.
@@ -15,7 +15,7 @@ pub enum ToolKind {
 
 /// An end mill turning clockwise seen from the spindle (M03). Its tip is the arm's tool
 /// point; its axis is the machine's vertical z.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Tool {
     /// Ball or flat end.

@@ -19,7 +19,7 @@ use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
 /// The turntable (`cutting.turntable` in a slave world or a session file).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TurntableConfig {
     /// The table's axis (x, y), base frame, mm (−1e4 to 1e4).
