@@ -522,20 +522,20 @@ impl<'a> Walk<'a> {
                 .and_then(Value::as_str)
                 .unwrap_or("")
                 .to_string();
-            let (alternatives, nullable) = alternatives(self.root, prop, 0);
-            let objects: Vec<&'a Value> = alternatives
+            let (alts, nullable) = alternatives(self.root, prop, 0);
+            let objects: Vec<&'a Value> = alts
                 .iter()
                 .copied()
                 .filter(|a| has_properties(a))
                 .collect();
-            if !objects.is_empty() && objects.len() == alternatives.len() {
+            if !objects.is_empty() && objects.len() == alts.len() {
                 // A table, or an optional one.
                 for o in objects {
                     self.object(o, &child, false, child_default, depth + 1);
                 }
                 continue;
             }
-            if let [only] = alternatives.as_slice()
+            if let [only] = alts.as_slice()
                 && let Some(items) = table_items(self.root, *only)
             {
                 // An array of tables.
@@ -634,9 +634,9 @@ fn table_items<'a>(root: &'a Value, s: &'a Value) -> Option<&'a Value> {
 
 /// The type of a key as the reference writes it.
 fn type_name(root: &Value, s: &Value, depth: usize) -> String {
-    let (alternatives, nullable) = alternatives(root, s, depth);
+    let (alts, nullable) = alternatives(root, s, depth);
     let mut names: Vec<String> = Vec::new();
-    for a in alternatives {
+    for a in alts {
         let name = single_type_name(root, a, depth + 1);
         if !names.contains(&name) {
             names.push(name);
