@@ -108,7 +108,9 @@ fn leaf_keys(table: &toml::Table, at: &KeyPath, out: &mut Vec<KeyPath>) {
                 here.push((key.clone(), None));
                 leaf_keys(inner, &here, out);
             }
-            toml::Value::Array(items) if !items.is_empty() && items.iter().all(|i| i.is_table()) => {
+            toml::Value::Array(items)
+                if !items.is_empty() && items.iter().all(|i| i.is_table()) =>
+            {
                 for (i, item) in items.iter().enumerate() {
                     if let toml::Value::Table(inner) = item {
                         let mut each = at.clone();
@@ -223,7 +225,11 @@ fn session_files_set_only_what_differs_from_the_defaults() {
     config::apply_override(&mut table, "passivity.enabled=true").unwrap();
     config::apply_override(&mut table, "link.delay_ms=0.0").unwrap();
     let redundant = keys_at_their_default(&table, "wall-push.toml");
-    assert_eq!(redundant, ["link.delay_ms", "passivity.enabled"], "{redundant:?}");
+    assert_eq!(
+        redundant,
+        ["link.delay_ms", "passivity.enabled"],
+        "{redundant:?}"
+    );
 }
 
 /// Issue 30's key targets, not met without changing defaults: the intent segments' required

@@ -130,12 +130,21 @@ fn known_fields_have_their_checked_ranges() {
     assert_eq!(row(session, "operator.intent[].move_s").default, "`1`");
     assert_eq!(row(session, "operator.intent[].at_s").default, "required");
     assert_eq!(row(session, "cutting.tool.radius_mm").range, "0.5 – 10");
-    assert_eq!(row(session, "fixtures.depth_floor.z_mm").default, "required");
-    assert_eq!(row(experiment, "force.steps[].setpoint_n").default, "required");
+    assert_eq!(
+        row(session, "fixtures.depth_floor.z_mm").default,
+        "required"
+    );
+    assert_eq!(
+        row(experiment, "force.steps[].setpoint_n").default,
+        "required"
+    );
     assert!(row(experiment, "track.direction").range.contains("length"));
     assert!(row(arm, "geometry.e_mm").range.contains("|e| < R"));
     assert_eq!(row(arm, "geometry").default, "`\"prototype\"`");
-    assert_eq!(row(session, "master.geometry.leg_length_mm").default, "`300`");
+    assert_eq!(
+        row(session, "master.geometry.leg_length_mm").default,
+        "`300`"
+    );
     assert!(
         rendered.contains("only with a [cutting.turntable] section"),
         "no note on fixtures.turntable_sync"
@@ -156,7 +165,12 @@ fn every_check_names_a_key_and_every_row_has_a_sentence() {
         let mut n = 0;
         for r in f.rows() {
             let s = r.sentence.trim();
-            assert!(!s.is_empty() && s != "—", "{}: {} has no sentence", f.title, r.path);
+            assert!(
+                !s.is_empty() && s != "—",
+                "{}: {} has no sentence",
+                f.title,
+                r.path
+            );
             assert!(!r.ty.is_empty(), "{}: {} has no type", f.title, r.path);
             n += 1;
         }
@@ -193,9 +207,7 @@ fn leaves(root: &Value, s: &Value, path: &str, out: &mut Vec<String>, depth: usi
             if a.get("type").and_then(Value::as_str) == Some("null") {
                 continue;
             }
-            if a.get("properties").is_some()
-                || a.get("anyOf").is_some()
-                || a.get("oneOf").is_some()
+            if a.get("properties").is_some() || a.get("anyOf").is_some() || a.get("oneOf").is_some()
             {
                 leaves(root, a, path, out, depth + 1);
             } else {
@@ -268,7 +280,10 @@ fn every_leaf_of_the_schemas_is_in_the_document() {
         "cutting.turntable.bandwidth_hz",
         "fixtures.corridor.path_mm",
     ] {
-        assert!(session.iter().any(|p| p == known), "the walk misses {known}");
+        assert!(
+            session.iter().any(|p| p == known),
+            "the walk misses {known}"
+        );
     }
     assert!(!rendered.contains("| `coupling.no_such_key` |"));
 }

@@ -624,13 +624,7 @@ mod tests {
             .collect();
         assert_eq!(stiffness.len(), 4, "{records:?}");
         assert_eq!(stiffness[2].field, "actuator_stiffness_n_per_mm[2]");
-        assert_eq!(
-            stiffness[2].allowed,
-            Allowed::Range {
-                min: 1.0,
-                max: 1e6
-            }
-        );
+        assert_eq!(stiffness[2].allowed, Allowed::Range { min: 1.0, max: 1e6 });
         assert_eq!(stiffness[2].unit, "N/mm");
         assert!(records.iter().any(|r| r.field == "geometry.e_mm"
             && matches!(&r.allowed, Allowed::Rule(t) if t.contains("|e| < R"))));
@@ -645,10 +639,22 @@ mod tests {
 
     #[test]
     fn indices_collapse_to_one_field() {
-        assert_eq!(collapse_indices("arm.stroke_max_mm[3]"), "arm.stroke_max_mm");
-        assert_eq!(collapse_indices("fixtures.corridor.path_mm[12][1]"), "fixtures.corridor.path_mm");
-        assert_eq!(collapse_indices("force.steps[0].time_s"), "force.steps[].time_s");
-        assert_eq!(collapse_indices("track.direction (length)"), "track.direction");
+        assert_eq!(
+            collapse_indices("arm.stroke_max_mm[3]"),
+            "arm.stroke_max_mm"
+        );
+        assert_eq!(
+            collapse_indices("fixtures.corridor.path_mm[12][1]"),
+            "fixtures.corridor.path_mm"
+        );
+        assert_eq!(
+            collapse_indices("force.steps[0].time_s"),
+            "force.steps[].time_s"
+        );
+        assert_eq!(
+            collapse_indices("track.direction (length)"),
+            "track.direction"
+        );
         assert_eq!(collapse_indices("plain"), "plain");
         let r = RangeRecord {
             field: "track.direction (length)".into(),

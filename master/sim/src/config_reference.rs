@@ -324,7 +324,10 @@ pub fn render() -> Result<String, String> {
             }
             out.push_str(&format!("\n## {}: {}\n\n", file.title, table.heading()));
             for note in &table.notes {
-                out.push_str(&format!("Checked on the whole section: {}.\n\n", cell(note)));
+                out.push_str(&format!(
+                    "Checked on the whole section: {}.\n\n",
+                    cell(note)
+                ));
             }
             if table.rows.is_empty() {
                 continue;
@@ -523,11 +526,8 @@ impl<'a> Walk<'a> {
                 .unwrap_or("")
                 .to_string();
             let (alts, nullable) = alternatives(self.root, prop, 0);
-            let objects: Vec<&'a Value> = alts
-                .iter()
-                .copied()
-                .filter(|a| has_properties(a))
-                .collect();
+            let objects: Vec<&'a Value> =
+                alts.iter().copied().filter(|a| has_properties(a)).collect();
             if !objects.is_empty() && objects.len() == alts.len() {
                 // A table, or an optional one.
                 for o in objects {
@@ -536,7 +536,7 @@ impl<'a> Walk<'a> {
                 continue;
             }
             if let [only] = alts.as_slice()
-                && let Some(items) = table_items(self.root, *only)
+                && let Some(items) = table_items(self.root, only)
             {
                 // An array of tables.
                 self.object(items, &child, true, None, depth + 1);
@@ -866,10 +866,16 @@ mod tests {
             first_sentence("Servo rate, Hz (1000 to 100000; the paper's ran 20 kHz. Yes).\nMore."),
             "Servo rate, Hz (1000 to 100000; the paper's ran 20 kHz. Yes)."
         );
-        assert_eq!(first_sentence("A value, e.g. 1.5 mm. Next."), "A value, e.g. 1.5 mm.");
+        assert_eq!(
+            first_sentence("A value, e.g. 1.5 mm. Next."),
+            "A value, e.g. 1.5 mm."
+        );
         assert_eq!(first_sentence("See `a.b`. Next."), "See `a.b`.");
         assert_eq!(first_sentence("No stop"), "No stop");
-        assert_eq!(first_sentence("Reads ([`AdcAperture`])."), "Reads (`AdcAperture`).");
+        assert_eq!(
+            first_sentence("Reads ([`AdcAperture`])."),
+            "Reads (`AdcAperture`)."
+        );
     }
 
     #[test]
@@ -879,7 +885,10 @@ mod tests {
         assert_eq!(number(3.6e6), "3.6e6");
         assert_eq!(number(-0.5), "-0.5");
         assert_eq!(number(1e-6), "1e-6");
-        assert_eq!(split_note("mm (≥ the minimum)"), ("mm", Some("≥ the minimum")));
+        assert_eq!(
+            split_note("mm (≥ the minimum)"),
+            ("mm", Some("≥ the minimum"))
+        );
         assert_eq!(split_note("(probability)"), ("", Some("probability")));
         assert_eq!(split_note("N/(mm·s)"), ("N/(mm·s)", None));
         assert_eq!(split_note(""), ("", None));

@@ -23,7 +23,9 @@ use h4_master::coupling::{CouplingConfig, ScaleConfig};
 use h4_master::teleop::MasterTeleopConfig;
 
 /// Which loop a host stall freezes (`host.stalls`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum StallSide {
     /// Both loops at once (a frozen virtual machine).

@@ -11,7 +11,9 @@ use serde::{Deserialize, Serialize};
 use h4_slave::filter::Butterworth2;
 
 /// What each sample of the sensor's A/D reads of the load.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum AdcAperture {
     /// The load at the sample's instant (a fast A/D: no lag of its own; a load with content
