@@ -7,7 +7,8 @@
 //!    the slave runs (cycles, feedback the master accepts), every reading its controller
 //!    got is one the recorded arm gave (its recording's `actuators_mm` and `wrench_sensor`
 //!    are pairs of the first recording's), and past the recording's end the driver stops
-//!    answering: the slave is in its safe stop, counted as `driver_stale_stops` = 1.
+//!    answering: the slave ends in its safe stop, counted as `driver_stale_stops` (every
+//!    safe stop of the run is the driver's).
 //!    Control: the first run, on the simulated arm, has no stale stop.
 //! 3. A replay of a file that is not MCAP is refused before the run (exit 2, its reason).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -115,8 +116,12 @@ fn a_recorded_arm_plays_back_against_the_master() {
         u(&s["gate"], "accepted") > 1000,
         "the master's commands reached it: {s}"
     );
-    assert_eq!(u(&s, "driver_stale_stops"), 1, "{s}");
-    assert!(u(&s, "safe_stops") >= 1, "{s}");
+    // Past the recording's end the driver is silent (a gap of 2 cycles or more in the
+    // recording, where the recorded loop missed deadlines, is one too, and the master re-pairs
+    // after it): every safe stop here is the driver's, and the run ends in one.
+    assert!(u(&s, "driver_stale_stops") >= 1, "{s}");
+    assert_eq!(u(&s, "safe_stops"), u(&s, "driver_stale_stops"), "{s}");
+    assert_eq!(s["final_state"], "SafeStop", "{s}");
     let recorded: BTreeSet<[u64; 8]> = recorded.into_iter().collect();
     let played = readings(Path::new(&out));
     assert!(played.len() > 3000);
