@@ -99,6 +99,21 @@ impl Default for RunOptions {
     }
 }
 
+impl RunOptions {
+    /// The endpoint's parameters these options give (arm id, watchdog, restart silence,
+    /// passivity, contact hand-over; the rest the endpoint's defaults).
+    pub fn teleop_params(&self) -> crate::teleop::TeleopParams {
+        crate::teleop::TeleopParams {
+            arm_id: self.arm_id,
+            watchdog_ms: self.watchdog_ms,
+            restart_silence_ms: self.restart_silence_ms,
+            passivity: self.passivity,
+            contact: self.contact,
+            ..crate::teleop::TeleopParams::default()
+        }
+    }
+}
+
 /// How many safe-stop start times a slave run's summary keeps.
 pub const SAFE_STOP_TIMES_MAX: usize = 64;
 

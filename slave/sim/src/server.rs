@@ -8,8 +8,9 @@
 use std::path::PathBuf;
 
 use h4_shared::wire::{Command, Feedback};
+use h4_slave::controller::SlaveController;
 use h4_slave::server::{Diagnostics, RunOptions, ServerError, SlaveRunSummary};
-use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError, TeleopParams};
+use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError};
 use h4_telemetry::sink::{Outputs, OutputsError};
 use h4_transport::Link;
 use serde::{Deserialize, Serialize};
@@ -166,25 +167,23 @@ pub fn run<L: Link<Feedback, Command>>(
     Ok(s)
 }
 
-/// The slave's endpoint over the simulated arm of `cfg`, which starts `approach.gap_mm` above
+/// The simulated arm of `cfg` and its controller; the arm starts `approach.gap_mm` above
 /// the surface's contact point.
+pub fn sim_parts(cfg: &ExperimentConfig) -> Result<(SimArm, SlaveController), SimError> {
+    let p = cfg.surface.contact_point_mm;
+    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
+    cfg.world().build(start, cfg.seed)
+}
+
+/// The slave's endpoint over the simulated arm of `cfg` ([`sim_parts`]).
 pub fn build_teleop(
     cfg: &ExperimentConfig,
     opts: &RunOptions,
     period_ns: u64,
 ) -> Result<SlaveTeleop<SimArm>, SimServerError> {
-    let p = cfg.surface.contact_point_mm;
-    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let (arm, ctrl) = cfg.world().build(start, cfg.seed)?;
+    let (arm, ctrl) = sim_parts(cfg)?;
     Ok(SlaveTeleop::new(
-        TeleopParams {
-            arm_id: opts.arm_id,
-            watchdog_ms: opts.watchdog_ms,
-            restart_silence_ms: opts.restart_silence_ms,
-            passivity: opts.passivity,
-            contact: opts.contact,
-            ..TeleopParams::default()
-        },
+        opts.teleop_params(),
         ctrl,
         arm,
         period_ns,

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use h4_shared::clock::MonotonicClock;
 use h4_shared::passivity::PassivityParams;
 use h4_slave::server::{self, NoDiagnostics, RunOptions};
-use h4_slave::teleop::{ContactHandover, SlaveTeleop, TeleopParams};
+use h4_slave::teleop::{ContactHandover, SlaveTeleop};
 use h4_slave_sim::experiment::ExperimentConfig;
 use h4_slave_sim::replay::ReplayArm;
 use h4_slave_sim::server::{RunOutputs, SimRunSummary};
@@ -229,27 +229,10 @@ fn run_replay<L: h4_transport::Link<h4_shared::wire::Feedback, h4_shared::wire::
     let arm = ReplayArm::open(file).map_err(|e| format!("--replay {e}"))?;
     // The controller of the world file (its arm, tool, limits and fixtures); the simulated
     // arm built beside it is not used.
-    let p = cfg.surface.contact_point_mm;
-    let start = h4_shared::Pose::new(p[0], p[1], p[2] + cfg.approach.gap_mm, 0.0);
-    let (_, ctrl) = cfg
-        .world()
-        .build(start, cfg.seed)
-        .map_err(|e| format!("controller: {e}"))?;
+    let (_, ctrl) = h4_slave_sim::server::sim_parts(cfg).map_err(|e| format!("controller: {e}"))?;
     let period_ns = opts.period_ns.max(1);
-    let mut teleop = SlaveTeleop::new(
-        TeleopParams {
-            arm_id: opts.arm_id,
-            watchdog_ms: opts.watchdog_ms,
-            restart_silence_ms: opts.restart_silence_ms,
-            passivity: opts.passivity,
-            contact: opts.contact,
-            ..TeleopParams::default()
-        },
-        ctrl,
-        arm,
-        period_ns,
-    )
-    .map_err(|e| e.to_string())?;
+    let mut teleop =
+        SlaveTeleop::new(opts.teleop_params(), ctrl, arm, period_ns).map_err(|e| e.to_string())?;
     let sink = Outputs::<server::CycleRecord>::start(
         outputs.record.as_deref(),
         outputs.foxglove_ws.as_deref(),
