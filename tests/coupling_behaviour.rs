@@ -17,6 +17,13 @@ fn load(name: &str, overrides: &[&str]) -> SessionConfig {
     session::load(&dir.join(name), &o).unwrap()
 }
 
+/// [`load`] with `--unsafe-test-override`: a negative control that turns a safety layer off.
+fn load_unsafe(name: &str, overrides: &[&str]) -> SessionConfig {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions");
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    session::load_with(&dir.join(name), &o, true).unwrap()
+}
+
 fn seg(
     at_s: f64,
     target_mm: [f64; 3],
@@ -439,7 +446,7 @@ fn first_touch_stays_below_the_limit_at_any_approach_speed() {
     // force down is those layers, not the throw being gentle.
     for delay in ["0", "25"] {
         let d = format!("link.delay_ms={delay}");
-        let mut cfg = load(
+        let mut cfg = load_unsafe(
             "wall-push.toml",
             &[
                 "environment.stiffness_n_per_mm=2000",

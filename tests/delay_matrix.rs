@@ -147,7 +147,7 @@ fn matrix_meets_the_issue_targets() {
 
 /// Seeds 1–6 over the scale-0.5 matrix: the guarantees in every cell (true force ≤ 80 N,
 /// rendered ≤ 30 N, both observers ≥ −1 mJ), and the worst cell of each criterion reported
-/// (`--nocapture`). Met since 2026-12-02: 3 of 2304 cells had broken the force guarantee
+/// (`--nocapture`). Met since 2026-12-02: 3 of the 1536 cells had broken the force guarantee
 /// (81.8–87.8 N on steel, a touch while jittered commands rang the arm) until wall-push's
 /// trajectory limit came down to 10 000 mm/s² (docs/sessions.md). ≈ 35 s.
 #[test]
@@ -156,6 +156,8 @@ fn seeds_1_to_6_worst_cell() {
     let cases: Vec<Case> = (1..=6)
         .flat_map(|seed| shipped_cases(seed, false))
         .collect();
+    // The count docs/results.md and docs/sessions.md state.
+    assert_eq!(cases.len(), 1536);
     let sums = run_all(&cases);
     println!("{}", worst_report(&cases, &some(&sums)));
     let failed: Vec<String> = cases

@@ -142,6 +142,7 @@ fn the_bare_coupling_on_steel_is_judged_unstable() {
             "0",
             "--losses",
             "none",
+            "--unsafe-test-override",
             "--set",
             "passivity.enabled=false",
             "--set",

@@ -129,6 +129,7 @@ fn loopback_verdict_catches_an_unprotected_stiff_contact() {
         "10".into(),
         "--set".into(),
         "environment.stiffness_n_per_mm=2000".into(),
+        "--unsafe-test-override".into(),
         "--set".into(),
         "passivity.enabled=false".into(),
         "--set".into(),

@@ -97,6 +97,7 @@ fn an_unstable_sim_says_why() {
         &[
             "sim",
             WALL_PUSH,
+            "--unsafe-test-override",
             "--set",
             "passivity.enabled=false",
             "--set",

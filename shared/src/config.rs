@@ -387,6 +387,126 @@ pub struct ArmConfig {
     /// The tool beyond the force sensor as `h4-slave identify` estimated it (the
     /// controller's gravity and inertia compensation uses it).
     pub tool: ToolModel,
+    /// The arm's ratings: the limits the slave's safety monitor enforces whatever the
+    /// controller, a session file, `--set` or the master asks for (those may lower them,
+    /// never raise them).
+    pub ratings: ArmRatings,
+}
+
+/// The arm's ratings (`[ratings]` of an arm file): what the arm, its sensor and its
+/// controller are rated for. The slave's safety monitor (`h4_slave::safety`) trips the arm
+/// into its safe stop when one is broken; the controller's own limits must lie within them.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ArmRatings {
+    /// Largest contact force, N: the controller's `force_limit_n` may be lower, never
+    /// higher; the monitor trips when the sensed force stays above the limit in effect for
+    /// 2 cycles, or exceeds 1.2 × it once (1 to 1000).
+    pub force_limit_n: f64,
+    /// Largest speed of the tool point, mm/s: the controller's `max_speed_mm_per_s` may be
+    /// lower, never higher; the monitor trips on a measured speed above
+    /// `speed_trip_share` × this (0.1 to 1000).
+    pub max_speed_mm_per_s: f64,
+    /// The monitor trips on a measured tool speed above this share of
+    /// `max_speed_mm_per_s` (1 to 5: the measured speed overshoots the commanded one).
+    pub speed_trip_share: f64,
+    /// How far the measured pose may leave the workspace (`workspace.*`: singular distance,
+    /// rail clearance, strokes) before the monitor trips, mm (0 to 100).
+    pub workspace_margin_mm: f64,
+    /// How far |theta| may exceed `workspace.theta_max_rad` before the monitor trips, rad
+    /// (0 to 0.5).
+    pub workspace_margin_rad: f64,
+    /// Largest speed of each actuator on its rail, mm/s (1 to 1e5).
+    pub actuator_speed_max_mm_per_s: f64,
+    /// The force/torque sensor's range on each force axis, N: a reading at or beyond it is
+    /// saturated (1 to 1e5).
+    pub sensor_range_n: f64,
+    /// A sensor whose reading repeats bit for bit for this many cycles in a row (while
+    /// the encoders' readings are fresh) is frozen (1 to 1000).
+    pub sensor_freeze_cycles: u32,
+    /// Largest proportional gain (`controller.kp`) the controller is stable with on this
+    /// arm, on every surface it is rated for (0 to 10).
+    pub kp_max: f64,
+    /// Largest integral gain (`controller.ki_per_s`) the controller is stable with on this
+    /// arm, 1/s (0 to 1000).
+    pub ki_max_per_s: f64,
+}
+
+impl Default for ArmRatings {
+    /// The prototype's ratings (config/arms/prototype.toml).
+    fn default() -> Self {
+        ArmRatings {
+            force_limit_n: 80.0,
+            max_speed_mm_per_s: 100.0,
+            speed_trip_share: 1.5,
+            workspace_margin_mm: 5.0,
+            workspace_margin_rad: 0.05,
+            actuator_speed_max_mm_per_s: 1000.0,
+            sensor_range_n: 145.0,
+            sensor_freeze_cycles: 2,
+            kp_max: 1.0,
+            ki_max_per_s: 120.0,
+        }
+    }
+}
+
+impl ArmRatings {
+    /// `self` with no rating above `ceiling`'s (a session's copy of the arm may lower the
+    /// arm file's ratings, never raise them): the first rating that does, by name.
+    pub fn check_within(&self, ceiling: &ArmRatings, prefix: &str) -> Result<(), ConfigError> {
+        let pairs: [(&str, f64, f64); 8] = [
+            ("force_limit_n", self.force_limit_n, ceiling.force_limit_n),
+            (
+                "max_speed_mm_per_s",
+                self.max_speed_mm_per_s,
+                ceiling.max_speed_mm_per_s,
+            ),
+            (
+                "speed_trip_share",
+                self.speed_trip_share,
+                ceiling.speed_trip_share,
+            ),
+            (
+                "workspace_margin_mm",
+                self.workspace_margin_mm,
+                ceiling.workspace_margin_mm,
+            ),
+            (
+                "workspace_margin_rad",
+                self.workspace_margin_rad,
+                ceiling.workspace_margin_rad,
+            ),
+            (
+                "actuator_speed_max_mm_per_s",
+                self.actuator_speed_max_mm_per_s,
+                ceiling.actuator_speed_max_mm_per_s,
+            ),
+            ("kp_max", self.kp_max, ceiling.kp_max),
+            ("ki_max_per_s", self.ki_max_per_s, ceiling.ki_max_per_s),
+        ];
+        for (name, value, max) in pairs {
+            if value > max {
+                return Err(ConfigError::OutOfRange {
+                    field: format!("{prefix}{name}"),
+                    value: value.to_string(),
+                    allowed: format!(
+                        "at most the arm's rating {max} (a session may lower a rating, never raise it)"
+                    ),
+                });
+            }
+        }
+        if self.sensor_freeze_cycles > ceiling.sensor_freeze_cycles {
+            return Err(ConfigError::OutOfRange {
+                field: format!("{prefix}sensor_freeze_cycles"),
+                value: self.sensor_freeze_cycles.to_string(),
+                allowed: format!(
+                    "at most the arm's rating {} (a session may lower a rating, never raise it)",
+                    ceiling.sensor_freeze_cycles
+                ),
+            });
+        }
+        Ok(())
+    }
 }
 
 /// The tool beyond the force sensor, identified from free-space poses (`h4-slave identify`):
@@ -426,6 +546,7 @@ impl Default for ArmConfig {
             actuator_stiffness_n_per_mm: [100.0; 4],
             workspace: WorkspaceLimits::default(),
             tool: ToolModel::default(),
+            ratings: ArmRatings::default(),
         }
     }
 }
@@ -553,6 +674,23 @@ impl Section for ArmConfig {
                 1e4,
                 "mm",
             )?;
+        }
+        let r = &self.ratings;
+        #[rustfmt::skip]
+        let checks: [(&str, f64, f64, f64, &str); 10] = [
+            ("force_limit_n", r.force_limit_n, 1.0, 1000.0, "N"),
+            ("max_speed_mm_per_s", r.max_speed_mm_per_s, 0.1, 1000.0, "mm/s"),
+            ("speed_trip_share", r.speed_trip_share, 1.0, 5.0, ""),
+            ("workspace_margin_mm", r.workspace_margin_mm, 0.0, 100.0, "mm"),
+            ("workspace_margin_rad", r.workspace_margin_rad, 0.0, 0.5, "rad"),
+            ("actuator_speed_max_mm_per_s", r.actuator_speed_max_mm_per_s, 1.0, 1e5, "mm/s"),
+            ("sensor_range_n", r.sensor_range_n, 1.0, 1e5, "N"),
+            ("sensor_freeze_cycles", f64::from(r.sensor_freeze_cycles), 1.0, 1000.0, "cycles"),
+            ("kp_max", r.kp_max, 0.0, 10.0, ""),
+            ("ki_max_per_s", r.ki_max_per_s, 0.0, 1000.0, "1/s"),
+        ];
+        for (name, value, min, max, unit) in checks {
+            check_range(&format!("{prefix}ratings.{name}"), value, min, max, unit)?;
         }
         Ok(())
     }

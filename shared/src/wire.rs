@@ -271,8 +271,11 @@ pub const FAULT_CONTACT_LOST: u16 = 1 << 3;
 pub const FAULT_SENSOR: u16 = 1 << 4;
 /// Fault flag: the control loop missed deadlines.
 pub const FAULT_DEADLINE_MISS: u16 = 1 << 5;
-/// All fault flags this version defines.
-pub const FAULT_FLAGS_KNOWN: u16 = (1 << 6) - 1;
+/// Fault flag: the safety monitor tripped the arm into its safe stop (latched until the master
+/// re-arms it; the reason is in the slave's summary, `safety_trips`).
+pub const FAULT_SAFETY_TRIP: u16 = 1 << 6;
+/// Every fault flag this protocol defines.
+pub const FAULT_FLAGS_KNOWN: u16 = (1 << 7) - 1;
 
 /// Master → slave, once per master cycle.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -6,6 +6,8 @@
 //! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
 //!   implicit force control with online environment-stiffness estimation, safe stop).
 //! * [`filter`]: the low-pass filters the controller (and the simulated sensor) use.
+//! * [`safety`]: [`safety::SafetyMonitor`], the arm's ratings enforced between the
+//!   controller and the driver every cycle.
 //! * [`teleop`]: [`teleop::SlaveTeleop`], the slave's per-cycle teleoperation endpoint
 //!   (gate, watchdog and safe stop, passivity port, controller, feedback).
 //! * [`server`]: the slave as a real-time process on a link (`h4-slave run`), generic over
@@ -17,5 +19,6 @@
 pub mod arm;
 pub mod controller;
 pub mod filter;
+pub mod safety;
 pub mod server;
 pub mod teleop;

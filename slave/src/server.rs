@@ -79,6 +79,8 @@ pub struct RunOptions {
     /// After a stop request, keep cycling (commands ignored) for at most this long until the
     /// arm is in its safe state with the force released, s.
     pub shutdown_limit_s: f64,
+    /// The arm's ratings, the safety monitor and `--unsafe-test-override`.
+    pub safety: crate::teleop::SafetyParams,
 }
 
 impl Default for RunOptions {
@@ -95,6 +97,7 @@ impl Default for RunOptions {
             progress: h4_telemetry::progress::ProgressConfig::off(),
             duration_s: None,
             shutdown_limit_s: 2.0,
+            safety: crate::teleop::SafetyParams::default(),
         }
     }
 }
@@ -109,6 +112,7 @@ impl RunOptions {
             restart_silence_ms: self.restart_silence_ms,
             passivity: self.passivity,
             contact: self.contact,
+            safety: self.safety,
             ..crate::teleop::TeleopParams::default()
         }
     }
@@ -150,6 +154,12 @@ pub struct SlaveRunSummary {
     pub safe_stop_times_ns: Vec<u64>,
     /// Times a master was paired after a safe stop.
     pub repairs: u64,
+    /// The safety monitor's trips by reason (each also one of `safe_stops`).
+    pub safety_trips: crate::safety::SafetyTrips,
+    /// The run had `--unsafe-test-override` (a safety layer may have been off).
+    pub unsafe_test_override: bool,
+    /// The safety monitor ran (off only with `--unsafe-test-override`).
+    pub safety_monitor: bool,
     /// Largest true contact force, N: the driver's diagnostics' (the simulated arm's true
     /// force), or the measured force's magnitude when the driver has none (a real arm).
     pub max_force_n: f64,
@@ -185,6 +195,7 @@ impl SlaveRunSummary {
         self.spindle_stall_stops = k.spindle_stall_stops;
         self.driver_stale_stops = k.driver_stale_stops;
         self.repairs = k.repairs;
+        self.safety_trips = k.safety_trips;
         self.gate = *gate;
     }
 }
@@ -323,6 +334,8 @@ where
         RtLoop::new(period_ns, opts.spin_ns, opts.duration_s).with_progress(progress.handle());
     let mut s = SlaveRunSummary {
         force_limit_n: teleop.controller().params().force_limit_n,
+        unsafe_test_override: opts.safety.unsafe_test_override,
+        safety_monitor: opts.safety.monitor,
         // Allocated whole before the loop: recording a trip allocates nothing.
         safe_stop_times_ns: Vec::with_capacity(SAFE_STOP_TIMES_MAX),
         realtime,

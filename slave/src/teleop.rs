@@ -27,7 +27,8 @@ use h4_shared::vec3::norm3;
 use h4_shared::watchdog::Watchdog;
 use h4_shared::wire::{
     CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
-    FAULT_FORCE_LIMIT, Feedback, Mode, PROTOCOL_VERSION, SlaveState,
+    FAULT_FORCE_LIMIT, FAULT_SAFETY_TRIP, FAULT_SENSOR, Feedback, Mode, PROTOCOL_VERSION,
+    SlaveState,
 };
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate, GateCounters};
@@ -35,6 +36,7 @@ use serde::Serialize;
 
 use crate::arm::ArmDriver;
 use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
+use crate::safety::{SafetyLimits, SafetyMonitor, SafetyTrips, TripReason};
 
 /// Settings of the endpoint.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,6 +55,32 @@ pub struct TeleopParams {
     pub speed_margin: f64,
     /// Contact hand-over: in position mode, the slave's own force loop holds a contact.
     pub contact: ContactHandover,
+    /// The arm's ratings, the safety monitor and the override of the safety layers.
+    pub safety: SafetyParams,
+}
+
+/// The safety layers' settings: the arm's ratings (from its arm file) that the monitor
+/// enforces, and the override that alone may turn a safety layer off.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SafetyParams {
+    /// The arm's ratings (`[ratings]` of the arm file).
+    pub ratings: h4_shared::config::ArmRatings,
+    /// The safety monitor runs (off only with `unsafe_test_override`).
+    pub monitor: bool,
+    /// `--unsafe-test-override`: passivity off, the spindle-stall stop off, the monitor off
+    /// and controller gains beyond the arm's stable range are accepted (for the negative
+    /// controls that show what the layers prevent). Never raises a rating.
+    pub unsafe_test_override: bool,
+}
+
+impl Default for SafetyParams {
+    fn default() -> Self {
+        SafetyParams {
+            ratings: h4_shared::config::ArmRatings::default(),
+            monitor: true,
+            unsafe_test_override: false,
+        }
+    }
 }
 
 /// Contact hand-over (position mode): when the slave meets a surface, its force controller
@@ -191,6 +219,7 @@ impl Default for TeleopParams {
             passivity: PassivityParams::default(),
             speed_margin: 0.9,
             contact: ContactHandover::default(),
+            safety: SafetyParams::default(),
         }
     }
 }
@@ -207,6 +236,40 @@ pub enum TeleopError {
         value: f64,
         /// What is allowed.
         allowed: &'static str,
+    },
+    /// A limit above the arm's rating (no setting may raise a rating).
+    #[error(
+        "teleop endpoint: {field} = {value} is above the arm's rating {rating} (ratings.{field} of the arm file): a setting may lower a rating, never raise it"
+    )]
+    AboveRating {
+        /// The setting.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+        /// The arm's rating.
+        rating: f64,
+    },
+    /// A controller gain outside the range the controller is stable in on this arm.
+    #[error(
+        "teleop endpoint: controller.{field} = {value} is outside the range the controller is stable in on this arm (0 to {max}, ratings.{rating} of the arm file); only --unsafe-test-override accepts it"
+    )]
+    UnstableGain {
+        /// The gain.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+        /// The largest stable value.
+        max: f64,
+        /// The rating's name.
+        rating: &'static str,
+    },
+    /// A safety layer turned off without the override.
+    #[error(
+        "teleop endpoint: {layer} is a safety layer: it may be turned off only with --unsafe-test-override"
+    )]
+    SafetyLayerOff {
+        /// The setting that turns it off.
+        layer: &'static str,
     },
 }
 
@@ -241,6 +304,8 @@ pub struct TeleopCounters {
     pub new_pairings: u64,
     /// Feedback messages published.
     pub feedback_published: u64,
+    /// The safety monitor's trips by reason (each also a safe stop).
+    pub safety_trips: SafetyTrips,
 }
 
 /// What one cycle did (plain data, no allocation).
@@ -305,9 +370,13 @@ pub struct SlaveTeleop<A: ArmDriver> {
     known_surface: Option<([f64; 3], [f64; 3])>,
     seq: u64,
     counters: TeleopCounters,
-    /// The time of the driver's last reading, and the cycles in a row it has not moved on.
-    last_reading_ns: Option<u64>,
-    stale_cycles: u32,
+    /// The safety monitor.
+    monitor: SafetyMonitor,
+    /// The trip that put the arm into its safe stop (cleared on re-arm).
+    tripped_by: Option<TripReason>,
+    /// The monitor kept last cycle's command from the arm: the controller starts again from
+    /// the arm's pose.
+    withheld: bool,
 }
 
 impl<A: ArmDriver> SlaveTeleop<A> {
@@ -360,7 +429,10 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             1.0,
             "0 to 1",
         )?;
+        check_safety(&p, ctrl.params())?;
         let watchdog_ns = ((p.watchdog_ms * 1e6) as u64).saturating_sub(period_ns);
+        let ctrl_ws = &ctrl.workspace().clone();
+        let ctrl_force_limit_n = ctrl.params().force_limit_n;
         let cp = ctrl.params();
         let limits = CommandLimits {
             workspace: *ctrl.workspace(),
@@ -390,8 +462,13 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             known_surface: None,
             seq: 0,
             counters: TeleopCounters::default(),
-            last_reading_ns: None,
-            stale_cycles: 0,
+            monitor: SafetyMonitor::new(SafetyLimits::new(
+                p.safety.ratings,
+                *ctrl_ws,
+                ctrl_force_limit_n,
+            )),
+            tripped_by: None,
+            withheld: false,
             p,
         })
     }
@@ -456,13 +533,16 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> TeleopCycle {
         let reading = self.arm.read();
-        let silent = self.driver_silent(&reading);
+        let silent = self.monitor.observe_time(&reading);
         if silent && self.state != SlaveState::SafeStop {
             // The arm stopped answering: what the controller would act on is old.
             self.ctrl.safe_stop_at_once();
             self.state = SlaveState::SafeStop;
             self.counters.safe_stops += 1;
             self.counters.driver_stale_stops += 1;
+            self.counters.safety_trips.count(TripReason::DriverSilent);
+            self.tripped_by = Some(TripReason::DriverSilent);
+            self.faults |= FAULT_SAFETY_TRIP;
         }
         let stalled =
             silent || self.ctrl.params().spindle_stall_safe_stop && self.arm.spindle_stalled();
@@ -477,7 +557,10 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             // Still stalled once the stop holds: lift further until the spindle runs.
             self.ctrl.lift_stalled_tool();
         }
-        let (fresh, acked) = self.receive(link, now_ns, stalled);
+        // A sensor fault the monitor saw last cycle refuses the acknowledgement as a stall
+        // does.
+        let sensor_fault = self.p.safety.monitor && self.monitor.persistent_fault().is_some();
+        let (fresh, acked) = self.receive(link, now_ns, stalled || sensor_fault);
         let (repaired, tripped) = self.watch(fresh, acked, now_ns);
         let intent = self.follow(dt_s);
         let port = self.shape_command(&intent, dt_s);
@@ -487,9 +570,44 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             command: port.command,
         };
         self.ctrl.observe_turntable(self.arm.turntable_rad());
+        if self.withheld {
+            self.ctrl.resync_to_arm();
+        }
         let out = self.ctrl.step(&input, dt_s);
         self.flag_faults(&out);
-        self.arm.command(&out.actuators_cmd_mm);
+        // The safety monitor, between the controller and the arm: a trip keeps this
+        // cycle's command from the arm (it holds the last one) and starts the safe stop.
+        let force = [
+            out.wrench_measured[0],
+            out.wrench_measured[1],
+            out.wrench_measured[2],
+        ];
+        let trip = if self.p.safety.monitor {
+            self.monitor.check(&reading, silent, force, dt_s)
+        } else {
+            None
+        };
+        if self.monitor.persistent_fault().is_some() && self.p.safety.monitor {
+            self.faults |= FAULT_SENSOR;
+        } else {
+            self.faults &= !FAULT_SENSOR;
+        }
+        // The command is kept from the arm in the trip's cycle and while a sensor fault lasts
+        // (what the controller acts on is not to be trusted); otherwise the safe stop's own
+        // commands (backing away, retract, hold) reach it.
+        let hold_command = match trip {
+            Some(TripReason::DriverSilent) => false,
+            Some(reason) => {
+                let entering = self.tripped_by.is_none() || self.state != SlaveState::SafeStop;
+                self.safety_trip(reason);
+                entering || reason.persistent()
+            }
+            None => false,
+        };
+        self.withheld = hold_command;
+        if !hold_command {
+            self.arm.command(&out.actuators_cmd_mm);
+        }
         if let Some(a) = self.ctrl.turntable_command_rad(dt_s) {
             self.arm.command_turntable(a);
         }
@@ -518,16 +636,26 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         }
     }
 
-    /// Whether the driver has stopped answering: the time of its reading has not moved on for
-    /// [`DRIVER_STALE_CYCLES`] cycles in a row.
-    fn driver_silent(&mut self, reading: &crate::arm::ArmReading) -> bool {
-        if self.last_reading_ns == Some(reading.time_ns) {
-            self.stale_cycles = self.stale_cycles.saturating_add(1);
-        } else {
-            self.stale_cycles = 0;
+    /// A trip of the safety monitor: the safe stop at once (force set-point zero, back away
+    /// along the sensed force, retract, hold), counted by reason. In a safe stop already
+    /// (a watchdog's, holding the contact force), the stop turns to backing away at once.
+    /// Counted once per entry into the safe stop.
+    fn safety_trip(&mut self, reason: TripReason) {
+        self.ctrl.safety_trip();
+        if self.state != SlaveState::SafeStop || self.tripped_by.is_none() {
+            self.counters.safety_trips.count(reason);
+            if self.state != SlaveState::SafeStop {
+                self.counters.safe_stops += 1;
+            }
+            self.tripped_by = Some(reason);
         }
-        self.last_reading_ns = Some(reading.time_ns);
-        self.stale_cycles >= DRIVER_STALE_CYCLES
+        self.state = SlaveState::SafeStop;
+        self.faults |= FAULT_SAFETY_TRIP;
+    }
+
+    /// The monitor's trip that put the arm into its safe stop, until the master re-arms it.
+    pub fn tripped_by(&self) -> Option<TripReason> {
+        self.tripped_by
     }
 
     /// Drains the link through the receive gate; returns whether a valid command arrived
@@ -596,6 +724,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             self.watchdog.feed(now_ns);
             if self.state == SlaveState::SafeStop {
                 self.ctrl.clear_safe_stop();
+                self.tripped_by = None;
+                self.faults &= !FAULT_SAFETY_TRIP;
                 self.counters.repairs += 1;
                 repaired = true;
                 // Re-pair with no jump: re-anchor on the next command.
@@ -1063,8 +1193,64 @@ const ENERGY_POWER_MARGIN: f64 = 4.0;
 const MAX_RECEIVED_PER_CYCLE: usize = 4096;
 
 /// Cycles in a row without a fresh reading (the reading's time not moving on) after which
-/// the driver counts as silent and the slave goes to its safe stop.
-pub const DRIVER_STALE_CYCLES: u32 = 2;
+/// the driver counts as silent and the slave goes to its safe stop (the safety monitor's).
+pub use crate::safety::DRIVER_STALE_CYCLES;
+
+/// The safety layers a configuration asks for: no limit above the arm's rating (whatever
+/// the override), and without `--unsafe-test-override` no gain beyond the arm's stable
+/// range and no safety layer (passivity, the spindle-stall stop, the monitor) off.
+fn check_safety(
+    p: &TeleopParams,
+    cp: &crate::controller::ControllerParams,
+) -> Result<(), TeleopError> {
+    let r = &p.safety.ratings;
+    for (field, value, rating) in [
+        ("force_limit_n", cp.force_limit_n, r.force_limit_n),
+        (
+            "max_speed_mm_per_s",
+            cp.max_speed_mm_per_s,
+            r.max_speed_mm_per_s,
+        ),
+    ] {
+        if value.is_nan() || value > rating {
+            return Err(TeleopError::AboveRating {
+                field,
+                value,
+                rating,
+            });
+        }
+    }
+    if p.safety.unsafe_test_override {
+        return Ok(());
+    }
+    for (field, value, max, rating) in [
+        ("kp", cp.kp, r.kp_max, "kp_max"),
+        ("ki_per_s", cp.ki_per_s, r.ki_max_per_s, "ki_max_per_s"),
+    ] {
+        if value.is_nan() || value > max {
+            return Err(TeleopError::UnstableGain {
+                field,
+                value,
+                max,
+                rating,
+            });
+        }
+    }
+    let off = [
+        (!p.passivity.enabled, "passivity.enabled = false"),
+        (
+            !cp.spindle_stall_safe_stop,
+            "controller.spindle_stall_safe_stop = false",
+        ),
+        (!p.safety.monitor, "the safety monitor off"),
+    ];
+    for (is_off, layer) in off {
+        if is_off {
+            return Err(TeleopError::SafetyLayerOff { layer });
+        }
+    }
+    Ok(())
+}
 
 #[cfg(test)]
 mod tests {

@@ -230,6 +230,16 @@ pub fn read_summary<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, St
     serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// Whether `overrides` turn a safety layer off (a negative control): the processes then run
+/// with `--unsafe-test-override`.
+pub fn is_control(overrides: &[String]) -> bool {
+    overrides.iter().any(|o| {
+        o == "passivity.enabled=false"
+            || o == "slave.controller.spindle_stall_safe_stop=false"
+            || o == "slave.safety_monitor=false"
+    })
+}
+
 /// The slave's world and passivity files of `session` with `overrides`
 /// (`h4-master slave-config`), for `h4-slave run --config W --passivity-config P`.
 pub fn slave_config(
@@ -243,6 +253,9 @@ pub fn slave_config(
     let passivity = scratch.path(&format!("{tag}-passivity.toml"));
     let mut cmd = Command::new(master);
     cmd.arg("slave-config").arg(session);
+    if is_control(overrides) {
+        cmd.arg("--unsafe-test-override");
+    }
     for o in overrides {
         cmd.arg("--set").arg(o);
     }
@@ -384,8 +397,13 @@ impl Pair {
             .arg(&slave_record)
             .args(["--fifo-priority", "10"])
             .args(&spec.slave_args);
+
         let mut mc = wrap(false, master_bin);
         mc.arg("run").arg("--config").arg(spec.session);
+        if is_control(&spec.overrides) {
+            sc.arg("--unsafe-test-override");
+            mc.arg("--unsafe-test-override");
+        }
         for o in &spec.overrides {
             mc.arg("--set").arg(o);
         }

@@ -277,6 +277,8 @@ pub struct Matrix {
     pub session: PathBuf,
     /// `--set` overrides applied after each cell's own (they win).
     pub extra: Vec<String>,
+    /// `--unsafe-test-override`: a cell may turn a safety layer off (the negative controls).
+    pub unsafe_test_override: bool,
 }
 
 /// The limits the guarantees are judged against, from the session file.
@@ -304,14 +306,23 @@ impl Matrix {
         Matrix {
             session: session.to_path_buf(),
             extra: extra.to_vec(),
+            unsafe_test_override: false,
         }
+    }
+
+    /// The matrix with `--unsafe-test-override` (each cell's summary says so).
+    pub fn with_unsafe_test_override(mut self, on: bool) -> Self {
+        self.unsafe_test_override = on;
+        self
     }
 
     /// The session of one cell.
     pub fn config(&self, c: &Case) -> Result<SessionConfig, SessionError> {
         let mut o = c.overrides();
         o.extend(self.extra.iter().cloned());
-        session::load(&self.session, &o)
+        // A case with passivity off is a negative control (built in code: the command's
+        // grid has none): it runs with the override, and its summary says so.
+        session::load_with(&self.session, &o, self.unsafe_test_override || !c.passivity)
     }
 
     /// Runs one cell.
@@ -388,19 +399,23 @@ impl Matrix {
 /// observers ≥ −1 mJ.
 pub fn safety_misses(s: &Summary, l: &Limits) -> Vec<String> {
     let mut m = Vec::new();
-    if s.max_force_n > l.slave_force_limit_n {
+    // A NaN fails every check.
+    if s.diverged {
+        m.push("diverged (a state went non-finite)".to_string());
+    }
+    if s.max_force_n.is_nan() || s.max_force_n > l.slave_force_limit_n {
         m.push(format!(
             "true force {:.1} N > {}",
             s.max_force_n, l.slave_force_limit_n
         ));
     }
-    if s.max_master_force_n > l.render_limit_n + 1e-9 {
+    if s.max_master_force_n.is_nan() || s.max_master_force_n > l.render_limit_n + 1e-9 {
         m.push(format!(
             "rendered {:.1} N > {}",
             s.max_master_force_n, l.render_limit_n
         ));
     }
-    if s.energy_min_j < -1e-3 {
+    if s.energy_min_j.is_nan() || s.energy_min_j < -1e-3 {
         m.push(format!("observer {:.2} mJ < -1", s.energy_min_j * 1e3));
     }
     m
@@ -576,6 +591,34 @@ pub fn worst_report(cases: &[Case], sums: &[Option<Summary>]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cell whose peak force, rendered force or observer is NaN, or that diverged, fails
+    /// the guarantees (`f64::max` used to drop a NaN and a diverging cell passed); the
+    /// control, the same short run as it came, passes.
+    #[test]
+    fn a_nan_or_diverged_cell_fails_the_guarantees() {
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sessions/wall-push.toml");
+        let cfg = session::load(&path, &["duration_s=0.5".to_string()]).expect("session");
+        let l = Limits::of(&cfg);
+        let s = session::run(&cfg, None).expect("run");
+        assert!(
+            safety_misses(&s, &l).is_empty(),
+            "{:?}",
+            safety_misses(&s, &l)
+        );
+        let bad: [fn(&mut Summary); 4] = [
+            |s| s.max_force_n = f64::NAN,
+            |s| s.max_master_force_n = f64::NAN,
+            |s| s.energy_min_j = f64::NAN,
+            |s| s.diverged = true,
+        ];
+        for (i, f) in bad.iter().enumerate() {
+            let mut b = s.clone();
+            f(&mut b);
+            assert!(!safety_misses(&b, &l).is_empty(), "case {i} passed");
+        }
+    }
 
     #[test]
     fn walls_and_losses_parse_by_name_and_number() {

@@ -278,6 +278,22 @@ impl SlaveController {
         true
     }
 
+    /// A safe stop for the safety monitor's trip: whatever the controller was doing (a
+    /// watchdog's safe stop holding the contact force included), the force set-point goes to
+    /// zero and the arm backs away along the measured force until it is below the contact
+    /// threshold, retracts by `safe_stop_retract_mm` and holds.
+    pub fn safety_trip(&mut self) {
+        self.safe.start(false, 0.0, 0.0, 0.0);
+        self.position.stop();
+    }
+
+    /// The arm did not get the last command (the safety monitor kept it): the next step
+    /// starts the command again from where the encoders say the arm is, so that nothing the
+    /// controller planned meanwhile reaches the arm as a jump.
+    pub fn resync_to_arm(&mut self) {
+        self.initialised = false;
+    }
+
     fn start_safe_stop(&mut self, hold_s: f64) {
         if !self.safe.active() {
             self.safe.start(

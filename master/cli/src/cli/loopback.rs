@@ -79,6 +79,12 @@ pub struct LoopbackArgs {
     /// each picks a free port; both are printed on stderr).
     #[command(flatten)]
     pub live: h4_telemetry::live::LiveArgs,
+    /// Accept a safety layer turned off (`passivity.enabled=false`,
+    /// `slave.controller.spindle_stall_safe_stop=false`, `slave.safety_monitor=false`) and
+    /// controller gains beyond the arm's stable range: for negative controls only. The
+    /// summary says so (`unsafe_test_override`). No rating of the arm can be raised.
+    #[arg(long)]
+    pub unsafe_test_override: bool,
 }
 
 /// What `loopback` prints.
@@ -152,8 +158,8 @@ impl LoopbackArgs {
         h4_telemetry::rt::realtime_preflight(self.realtime, self.fifo_priority, false, LABEL)?;
         let config =
             h4_shared::paths::default_config(self.config.as_deref(), super::SESSION, "--config")?;
-        let cfg =
-            session::load(&config, &self.set).map_err(|e| format!("{}: {e}", config.display()))?;
+        let cfg = session::load_with(&config, &self.set, self.unsafe_test_override)
+            .map_err(|e| format!("{}: {e}", config.display()))?;
         super::plausible::check_session(&cfg, LABEL)?;
         let parts = self.record.as_deref().map(RecordingParts::next_to);
         self.check_outputs(parts.as_ref())?;
@@ -181,6 +187,7 @@ impl LoopbackArgs {
             wait_for_slave_s: 20.0,
             live: self.live.clone(),
             prechecked: true,
+            unsafe_test_override: self.unsafe_test_override,
         };
         // The slave is told to stop the moment the master's loop ends, before its watchdog
         // sees the master's silence.
@@ -326,6 +333,12 @@ impl SlaveChild {
             .stderr(Stdio::piped());
         if let Some(p) = parts {
             cmd.arg("--record").arg(&p.slave);
+        }
+        if args.unsafe_test_override {
+            cmd.arg("--unsafe-test-override");
+        }
+        if !cfg.slave.safety_monitor {
+            cmd.arg("--no-safety-monitor");
         }
         if let Some(d) = &args.out {
             cmd.arg("--out").arg(d);
@@ -601,12 +614,16 @@ pub struct SlaveConfigArgs {
     /// --contact-config`; none without it).
     #[arg(long)]
     pub contact: Option<PathBuf>,
+    /// Accept a session that turns a safety layer off (for negative controls: the slave
+    /// must then run with `--unsafe-test-override` too).
+    #[arg(long)]
+    pub unsafe_test_override: bool,
 }
 
 impl SlaveConfigArgs {
     /// Writes both files.
     pub fn run(self) -> Result<ExitCode, String> {
-        let cfg = session::load(&self.session, &self.set)
+        let cfg = session::load_with(&self.session, &self.set, self.unsafe_test_override)
             .map_err(|e| format!("{}: {e}", self.session.display()))?;
         write_slave_config(&cfg, &self.world, &self.passivity, self.contact.as_deref())?;
         Ok(ExitCode::SUCCESS)

@@ -54,6 +54,12 @@ pub struct MatrixArgs {
     /// Where the table and the heat maps go (created if missing).
     #[arg(long, default_value = "out/matrix")]
     pub out: PathBuf,
+    /// Accept a safety layer turned off (`passivity.enabled=false`,
+    /// `slave.controller.spindle_stall_safe_stop=false`, `slave.safety_monitor=false`) and
+    /// controller gains beyond the arm's stable range: for negative controls only. The
+    /// summary says so (`unsafe_test_override`). No rating of the arm can be raised.
+    #[arg(long)]
+    pub unsafe_test_override: bool,
 }
 
 fn round_trip_ms(text: &str) -> Result<f64, String> {
@@ -97,7 +103,8 @@ impl MatrixArgs {
             &self.round_trips,
             self.seed,
         );
-        let m = Matrix::new(&session, &self.set);
+        let m =
+            Matrix::new(&session, &self.set).with_unsafe_test_override(self.unsafe_test_override);
         let limits = m.limits(&cases)?;
         std::fs::create_dir_all(&self.out)
             .map_err(|e| format!("--out {}: {e}", self.out.display()))?;

@@ -55,6 +55,12 @@ pub struct RunArgs {
     /// preflight, the plausibility of the session): they are not repeated.
     #[arg(skip)]
     pub prechecked: bool,
+    /// Accept a safety layer turned off (`passivity.enabled=false`,
+    /// `slave.controller.spindle_stall_safe_stop=false`, `slave.safety_monitor=false`) and
+    /// controller gains beyond the arm's stable range: for negative controls only. The
+    /// summary says so (`unsafe_test_override`). No rating of the arm can be raised.
+    #[arg(long)]
+    pub unsafe_test_override: bool,
 }
 
 impl RunArgs {
@@ -84,8 +90,8 @@ impl RunArgs {
         };
         let path =
             h4_shared::paths::default_config(self.config.as_deref(), super::SESSION, "--config")?;
-        let cfg =
-            session::load(&path, &self.set).map_err(|e| format!("{}: {e}", path.display()))?;
+        let cfg = session::load_with(&path, &self.set, self.unsafe_test_override)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
         if !self.prechecked {
             super::plausible::check_session(&cfg, label)?;
         }

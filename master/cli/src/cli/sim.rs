@@ -28,6 +28,12 @@ pub struct SimArgs {
     /// A cutting session writes the part here: `height.png`, `part.stl`, `deviation.png`.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Accept a safety layer turned off (`passivity.enabled=false`,
+    /// `slave.controller.spindle_stall_safe_stop=false`, `slave.safety_monitor=false`) and
+    /// controller gains beyond the arm's stable range: for negative controls only. The
+    /// summary says so (`unsafe_test_override`). No rating of the arm can be raised.
+    #[arg(long)]
+    pub unsafe_test_override: bool,
 }
 
 impl SimArgs {
@@ -37,7 +43,8 @@ impl SimArgs {
     pub fn run(self) -> Result<ExitCode, String> {
         h4_telemetry::process::install_stop_handlers()
             .map_err(|e| format!("signal handlers: {e}"))?;
-        let cfg = session::load(&self.session, &self.set).map_err(|e| e.to_string())?;
+        let cfg = session::load_with(&self.session, &self.set, self.unsafe_test_override)
+            .map_err(|e| e.to_string())?;
         super::plausible::check_session(&cfg, LABEL)?;
         if let Some(p) = &self.summary {
             h4_telemetry::process::check_writable("--summary", p)?;

@@ -200,6 +200,9 @@ pub struct SlaveConfig {
     pub contact: ContactHandover,
     /// The playout (jitter) buffer on the slave's command link.
     pub playout: PlayoutConfig,
+    /// The slave's safety monitor (`h4_slave::safety`: the arm's ratings enforced between
+    /// the controller and the arm); `false` is refused without `--unsafe-test-override`.
+    pub safety_monitor: bool,
 }
 
 impl Default for SlaveConfig {
@@ -212,6 +215,7 @@ impl Default for SlaveConfig {
             command_timeout_ms: 20.0,
             contact: ContactHandover::default(),
             playout: PlayoutConfig::default(),
+            safety_monitor: true,
         }
     }
 }
@@ -266,9 +270,66 @@ pub struct SessionConfig {
     /// The shape the session should cut, against which the part is judged.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cut_target: Option<CutTarget>,
+    /// `--unsafe-test-override` was given: the slave accepts a safety layer turned off
+    /// (passivity, the spindle-stall stop, the monitor) and gains beyond the arm's stable
+    /// range. Not a key of the file: only the command-line flag (or a test) sets it.
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub unsafe_test_override: bool,
 }
 
 impl SessionConfig {
+    /// Without `unsafe_test_override`: every safety layer on (`passivity.enabled`,
+    /// `slave.controller.spindle_stall_safe_stop`, `slave.safety_monitor`) and the
+    /// controller's gains within the arm's stable range (`slave.arm.ratings.kp_max`,
+    /// `ki_max_per_s`). The slave's endpoint checks the same when it is built.
+    pub fn check_safety_layers(&self) -> Result<(), ConfigError> {
+        if self.unsafe_test_override {
+            return Ok(());
+        }
+        let flag = "only with --unsafe-test-override (a safety layer may be off only for a \
+                    negative control)";
+        for (off, field) in [
+            (!self.passivity.enabled, "passivity.enabled"),
+            (
+                !self.slave.controller.spindle_stall_safe_stop,
+                "slave.controller.spindle_stall_safe_stop",
+            ),
+            (!self.slave.safety_monitor, "slave.safety_monitor"),
+        ] {
+            if off {
+                return Err(ConfigError::OutOfRange {
+                    field: field.to_string(),
+                    value: "false".to_string(),
+                    allowed: format!("true; false {flag}"),
+                });
+            }
+        }
+        let r = &self.slave.arm.ratings;
+        let c = &self.slave.controller;
+        for (field, value, max, rating) in [
+            ("slave.controller.kp", c.kp, r.kp_max, "kp_max"),
+            (
+                "slave.controller.ki_per_s",
+                c.ki_per_s,
+                r.ki_max_per_s,
+                "ki_max_per_s",
+            ),
+        ] {
+            if value > max {
+                return Err(ConfigError::OutOfRange {
+                    field: field.to_string(),
+                    value: value.to_string(),
+                    allowed: format!(
+                        "0 to {max}, the range the controller is stable in on this arm \
+                         (slave.arm.ratings.{rating}); beyond it {flag}"
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// The slave's world (arm, surface, sensor, plant, controller) as the slave's own
     /// sections: what the simulated slave and `h4-slave run` are built from.
     pub fn slave_world(&self) -> SlaveWorld {
@@ -400,6 +461,27 @@ impl Validate for SessionConfig {
         self.master.validate_at("master.")?;
         self.operator.validate_at("operator.")?;
         self.slave.validate_at("slave.")?;
+        // The arm's ratings: a session may lower them, never raise them; the controller's
+        // limits lie within them.
+        let ratings = &self.slave.arm.ratings;
+        ratings.check_within(
+            &h4_shared::config::ArmRatings::default(),
+            "slave.arm.ratings.",
+        )?;
+        check_range(
+            "slave.controller.force_limit_n",
+            self.slave.controller.force_limit_n,
+            1.0,
+            ratings.force_limit_n,
+            "N (up to slave.arm.ratings.force_limit_n, the arm's rating)",
+        )?;
+        check_range(
+            "slave.controller.max_speed_mm_per_s",
+            self.slave.controller.max_speed_mm_per_s,
+            0.1,
+            ratings.max_speed_mm_per_s,
+            "mm/s (up to slave.arm.ratings.max_speed_mm_per_s, the arm's rating)",
+        )?;
         self.detector.validate_at("detector.")?;
         if let Some(c) = &self.cutting {
             c.validate_at("cutting.")?;
@@ -414,9 +496,25 @@ impl Validate for SessionConfig {
 }
 
 /// Loads a session file with `--set` overrides; a relative `operator.replay_file` is
-/// resolved against the session file's directory.
+/// resolved against the session file's directory. A safety layer turned off or a gain
+/// beyond the arm's stable range is refused ([`SessionConfig::check_safety_layers`]): only
+/// [`load_with`] and `--unsafe-test-override` accept them.
 pub fn load(path: &Path, overrides: &[String]) -> Result<SessionConfig, SessionError> {
+    load_with(path, overrides, false)
+}
+
+/// [`load`], with `unsafe_test_override` (`--unsafe-test-override`): the session may turn
+/// a safety layer off (passivity, the spindle-stall stop, the safety monitor) and ask for
+/// gains beyond the arm's stable range, for the negative controls; the summary says so. No
+/// rating may be raised either way.
+pub fn load_with(
+    path: &Path,
+    overrides: &[String],
+    unsafe_test_override: bool,
+) -> Result<SessionConfig, SessionError> {
     let mut cfg: SessionConfig = h4_shared::config::load(path, overrides)?;
+    cfg.unsafe_test_override = unsafe_test_override;
+    cfg.check_safety_layers()?;
     if let Some(rf) = &cfg.operator.replay_file
         && rf.is_relative()
         && let Some(dir) = path.parent()

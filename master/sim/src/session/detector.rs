@@ -241,6 +241,13 @@ pub struct Summary {
     pub master_saw_safe_stops: u64,
     /// Re-engagements after a safe stop (each on the master's acknowledgement).
     pub repairs: u64,
+    /// A state of the run went non-finite (NaN or infinite): the run is unstable and fails
+    /// every safety verdict.
+    pub diverged: bool,
+    /// The slave's safety monitor's trips by reason (each also one of `slave_safe_stops`).
+    pub safety_trips: h4_slave::safety::SafetyTrips,
+    /// The session ran with `--unsafe-test-override` (a safety layer may have been off).
+    pub unsafe_test_override: bool,
     /// The cut and the part, in a cutting session (`docs/cutting.md`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub cutting: Option<super::cutting::CutSummary>,
@@ -423,6 +430,20 @@ pub(super) struct RunFacts {
     pub(super) master_saw_safe_stops: u64,
     /// Re-engagements after a safe stop.
     pub(super) repairs: u64,
+    /// The monitor's trips.
+    pub(super) safety_trips: h4_slave::safety::SafetyTrips,
+    /// `--unsafe-test-override`.
+    pub(super) unsafe_test_override: bool,
+}
+
+/// The larger of `a` and `b`, NaN if either is (a diverged run's peak is NaN, never a
+/// number that passes a limit).
+fn nan_max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
 }
 
 /// Window of [`Summary::master_force_chatter_n`], cycles (1 ms each).
@@ -617,8 +638,9 @@ impl Evaluator {
             return;
         }
         self.energy_min = self.energy_min.min(s.observed_min_j);
-        self.max_force = self.max_force.max(s.true_force_n);
-        self.max_master = self.max_master.max(s.master_force_n);
+        // A NaN stays (`f64::max` would drop it and a diverging run would pass).
+        self.max_force = nan_max(self.max_force, s.true_force_n);
+        self.max_master = nan_max(self.max_master, s.master_force_n);
         if let Some(p) = self.prev_master_n {
             let d = [
                 s.master_force_vec_n[0] - p[0],
@@ -692,6 +714,7 @@ impl Evaluator {
         fin: &RunFacts,
     ) -> Summary {
         let d = self.det;
+        let diverged = self.diverged;
         let win = (d.window_s / DT_S).round() as usize;
         let gap = (d.contact_gap_s / DT_S).round() as usize;
         let (episodes, bounces) = contact_episodes(&self.force_n, d.contact_threshold_n, gap);
@@ -742,13 +765,13 @@ impl Evaluator {
                 d.settle_s, d.impact_force_n, d.bounce_gap_s, d.bounce_limit
             ));
         }
-        if self.energy_min < -d.energy_tolerance_j {
+        if self.energy_min.is_nan() || self.energy_min < -d.energy_tolerance_j {
             reasons.push(format!(
                 "energy: observer reached {:.4} J < -{} J",
                 self.energy_min, d.energy_tolerance_j
             ));
         }
-        if self.max_force > d.force_limit_n {
+        if self.max_force.is_nan() || self.max_force > d.force_limit_n {
             reasons.push(format!(
                 "force: contact force {:.1} N > {} N",
                 self.max_force, d.force_limit_n
@@ -823,6 +846,9 @@ impl Evaluator {
             slave_safe_stops: fin.slave_safe_stops,
             master_saw_safe_stops: fin.master_saw_safe_stops,
             repairs: fin.repairs,
+            diverged,
+            safety_trips: fin.safety_trips,
+            unsafe_test_override: fin.unsafe_test_override,
             cutting: None,
         }
     }

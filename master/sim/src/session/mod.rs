@@ -46,7 +46,7 @@ impl std::ops::Deref for SimMasterCycle {
 }
 pub use config::{
     EnvironmentConfig, HostConfig, OperatorConfig, PassivityConfig, SessionConfig, SlaveConfig,
-    StallSide, load,
+    StallSide, load, load_with,
 };
 pub use detector::{DetectorConfig, Summary};
 pub use run::{Session, run, run_with_outputs};

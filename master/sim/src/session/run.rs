@@ -127,6 +127,11 @@ impl Session {
                 passivity: cfg.passivity,
                 speed_margin: 0.9,
                 contact: cfg.slave.contact,
+                safety: h4_slave::teleop::SafetyParams {
+                    ratings: cfg.slave.arm.ratings,
+                    monitor: cfg.slave.safety_monitor,
+                    unsafe_test_override: cfg.unsafe_test_override,
+                },
             },
             ctrl,
             arm,
@@ -358,6 +363,8 @@ impl Session {
             slave_safe_stops: self.slave.counters().safe_stops,
             master_saw_safe_stops: self.master.coupling().safe_stops_seen,
             repairs: self.slave.counters().repairs,
+            safety_trips: self.slave.counters().safety_trips,
+            unsafe_test_override: self.cfg.unsafe_test_override,
         };
         let mut summary = ev.finish(
             self.cfg.name.clone(),

@@ -60,6 +60,15 @@ pub struct RunArgs {
     /// The live view.
     #[command(flatten)]
     pub live: h4_telemetry::live::LiveArgs,
+    /// Accept a safety layer turned off (the world's `controller.spindle_stall_safe_stop =
+    /// false`, `enabled = false` in the passivity file, `--no-safety-monitor`) and controller
+    /// gains beyond the arm's stable range: for negative controls only. The summary says so
+    /// (`unsafe_test_override`). No rating of the arm can be raised.
+    #[arg(long)]
+    pub unsafe_test_override: bool,
+    /// Run without the safety monitor (only with `--unsafe-test-override`).
+    #[arg(long)]
+    pub no_safety_monitor: bool,
     /// No valid command for this long puts the arm in its safe state, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
@@ -186,6 +195,11 @@ impl RunArgs {
             realtime,
             progress: h4_telemetry::progress::ProgressConfig::from_env(LABEL),
             duration_s: self.run.duration_s,
+            safety: h4_slave::teleop::SafetyParams {
+                ratings: cfg.arm.ratings,
+                monitor: !self.no_safety_monitor,
+                unsafe_test_override: self.unsafe_test_override,
+            },
             ..RunOptions::default()
         };
         let outputs = RunOutputs {
