@@ -17,5 +17,6 @@
 pub mod arm;
 pub mod controller;
 pub mod filter;
+pub mod ros2;
 pub mod server;
 pub mod teleop;

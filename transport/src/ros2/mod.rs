@@ -22,6 +22,9 @@
 pub mod cdr;
 pub mod keys;
 pub mod msgs;
+#[cfg(feature = "zenoh")]
+pub mod node;
+pub mod telemetry;
 pub mod type_hash;
 pub mod units;
 

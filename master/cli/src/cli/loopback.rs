@@ -79,6 +79,10 @@ pub struct LoopbackArgs {
     /// each picks a free port; both are printed on stderr).
     #[command(flatten)]
     pub live: h4_telemetry::live::LiveArgs,
+    /// ROS 2: both processes publish their CRTK topics (`--ros2-ns` names the slave's
+    /// namespace; the master keeps `/h4_master`; docs/ros2.md).
+    #[command(flatten)]
+    pub ros2: h4_transport::ros2::node::Ros2Args,
 }
 
 /// What `loopback` prints.
@@ -180,6 +184,10 @@ impl LoopbackArgs {
             },
             wait_for_slave_s: 20.0,
             live: self.live.clone(),
+            ros2: h4_transport::ros2::node::Ros2Args {
+                ros2_ns: None,
+                ..self.ros2.clone()
+            },
             prechecked: true,
         };
         // The slave is told to stop the moment the master's loop ends, before its watchdog
@@ -319,6 +327,7 @@ impl SlaveChild {
             .arg("--watchdog-ms")
             .arg(args.watchdog_ms.to_string())
             .args(playout_args(&cfg.slave.playout))
+            .args(args.ros2.to_args())
             .arg("--parent-pid")
             .arg(std::process::id().to_string())
             .stdin(Stdio::null())
