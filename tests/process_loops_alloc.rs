@@ -57,18 +57,25 @@ fn slave_opts(duration_s: f64) -> RunOptions {
     }
 }
 
-/// The live view on: its per-cycle hand-off is on the measured thread too.
+/// The live view on: its per-cycle hand-off is on the measured thread too; so is the
+/// `--ros2` hand-off (the cycle written into the publishing thread's cell).
 fn live_master() -> h4_master_sim::server::RunOutputs {
     h4_master_sim::server::RunOutputs {
         foxglove_ws: Some("127.0.0.1:0".into()),
+        ros2: Some(std::sync::Arc::new(
+            h4_transport::ros2::telemetry::LatestCell::new(),
+        )),
         ..Default::default()
     }
 }
 
-/// The live view on (the slave's).
+/// The live view and the `--ros2` hand-off on (the slave's).
 fn live_slave() -> h4_slave_sim::server::RunOutputs {
     h4_slave_sim::server::RunOutputs {
         foxglove_ws: Some("127.0.0.1:0".into()),
+        ros2: Some(std::sync::Arc::new(
+            h4_transport::ros2::telemetry::LatestCell::new(),
+        )),
         ..Default::default()
     }
 }

@@ -23,5 +23,6 @@ pub mod contact_model;
 pub mod coupling;
 pub mod device;
 pub mod link_stats;
+pub mod ros2;
 pub mod server;
 pub mod teleop;

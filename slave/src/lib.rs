@@ -20,5 +20,6 @@ pub mod arm;
 pub mod controller;
 pub mod filter;
 pub mod safety;
+pub mod ros2;
 pub mod server;
 pub mod teleop;

@@ -390,63 +390,87 @@ pub fn unix_now_ns() -> u64 {
 pub fn python_with_mcap() -> &'static Path {
     static PYTHON: OnceLock<PathBuf> = OnceLock::new();
     PYTHON.get_or_init(|| {
-        let imports_mcap = |python: &Path| {
-            Proc::new(python)
-                .args(["-c", "import mcap.reader, zstandard, lz4"])
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .status()
-                .is_ok_and(|s| s.success())
-        };
-        if let Some(python) = std::env::var_os("H4_TEST_PYTHON") {
-            return PathBuf::from(python);
-        }
-        let system = PathBuf::from("python3");
-        if imports_mcap(&system) {
-            return system;
-        }
-        let venv = profile_dir()
-            .parent()
-            .expect("target dir")
-            .join("python-mcap");
-        let python = venv.join("bin").join("python3");
-        if !imports_mcap(&python) {
-            let _ = std::fs::remove_dir_all(&venv);
-            // A step of making the environment: run it, fail the test with its stderr.
-            let step = |cmd: &mut Proc, what: &str| {
-                let out = cmd.output().expect(what);
-                assert!(
-                    out.status.success(),
-                    "{what} into {} failed (PyPI reachable?):\n{}",
-                    venv.display(),
-                    String::from_utf8_lossy(&out.stderr)
-                );
-            };
-            step(
-                Proc::new("python3").args(["-m", "venv"]).arg(&venv),
-                "python3 -m venv",
-            );
-            step(
-                Proc::new(&python)
-                    .args([
-                        "-m",
-                        "pip",
-                        "install",
-                        "--quiet",
-                        "--disable-pip-version-check",
-                    ])
-                    .arg("-r")
-                    .arg(workspace().join("tests").join("python-requirements.txt")),
-                "installing tests/python-requirements.txt",
-            );
-            assert!(
-                imports_mcap(&python),
-                "{} cannot import mcap",
-                python.display()
-            );
-        }
-        python
+        python_venv(
+            "python-mcap",
+            "python-requirements.txt",
+            "import mcap.reader, zstandard, lz4",
+            Some("H4_TEST_PYTHON"),
+        )
     })
+}
+
+/// A Python interpreter that imports Python eclipse-zenoh and rosbags (the outside ROS 2 peer
+/// of `tests/ros2_peer.rs`): `H4_TEST_PYTHON_ROS2` if set, else `python3` when it has both,
+/// else a virtual environment in `target/` made once with
+/// `tests/python-ros2-requirements.txt` (pinned, from PyPI).
+pub fn python_with_zenoh_rosbags() -> &'static Path {
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON.get_or_init(|| {
+        python_venv(
+            "python-ros2",
+            "python-ros2-requirements.txt",
+            "import zenoh, rosbags.typesys",
+            Some("H4_TEST_PYTHON_ROS2"),
+        )
+    })
+}
+
+/// `env` if set, else `python3` if it runs `imports`, else the virtual environment
+/// `target/<venv_name>` made (once) with `tests/<requirements>`.
+fn python_venv(venv_name: &str, requirements: &str, imports: &str, env: Option<&str>) -> PathBuf {
+    let runs_imports = |python: &Path| {
+        Proc::new(python)
+            .args(["-c", imports])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if let Some(python) = env.and_then(std::env::var_os) {
+        return PathBuf::from(python);
+    }
+    let system = PathBuf::from("python3");
+    if runs_imports(&system) {
+        return system;
+    }
+    let venv = profile_dir().parent().expect("target dir").join(venv_name);
+    let python = venv.join("bin").join("python3");
+    if !runs_imports(&python) {
+        let _ = std::fs::remove_dir_all(&venv);
+        // A step of making the environment: run it, fail the test with its stderr.
+        let step = |cmd: &mut Proc, what: &str| {
+            let out = cmd.output().expect(what);
+            assert!(
+                out.status.success(),
+                "{what} into {} failed (PyPI reachable?):\n{}",
+                venv.display(),
+                String::from_utf8_lossy(&out.stderr)
+            );
+        };
+        step(
+            Proc::new("python3").args(["-m", "venv"]).arg(&venv),
+            "python3 -m venv",
+        );
+        step(
+            Proc::new(&python)
+                .args([
+                    "-m",
+                    "pip",
+                    "install",
+                    "--quiet",
+                    "--disable-pip-version-check",
+                ])
+                .arg("-r")
+                .arg(workspace().join("tests").join(requirements)),
+            "installing the Python requirements",
+        );
+        assert!(
+            runs_imports(&python),
+            "{} cannot run {imports:?}",
+            python.display()
+        );
+    }
+    python
 }
 
 /// Opens MCAP files with the public Python reader (`mcap` package, `make_reader`) and returns,

@@ -10,6 +10,7 @@ use h4_master::teleop::MasterTeleop;
 use h4_shared::wire::{Command, Feedback};
 use h4_telemetry::sink::Outputs;
 use h4_transport::Link;
+use h4_transport::ros2::telemetry::MasterSample;
 
 use crate::hand::SimHandDevice;
 use crate::session::SessionConfig;
@@ -21,6 +22,9 @@ pub struct RunOutputs {
     pub record: Option<PathBuf>,
     /// Serve the live view here (`--foxglove-ws HOST:PORT`).
     pub foxglove_ws: Option<String>,
+    /// With `--ros2`: the cell the ROS 2 publishing thread reads (each cycle is written
+    /// into it, `h4_master::ros2::Ros2Tee`).
+    pub ros2: Option<std::sync::Arc<h4_transport::ros2::telemetry::LatestCell<MasterSample>>>,
 }
 
 /// The master's endpoint of a session file, for `arm_id` (the master's sections only: no
@@ -74,7 +78,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
     at_loop_end: impl FnOnce(),
 ) -> Result<MasterRunSummary, MasterRunError> {
     let mut side = master_teleop(cfg, opts.arm_id)?;
-    let sink = outputs(out, opts)?;
+    let sink = h4_master::ros2::Ros2Tee::new(outputs(out, opts)?, out.ros2.clone());
     h4_master::server::run_then(&mut side, sink, opts, link, at_loop_end)
 }
 

@@ -13,6 +13,7 @@ use h4_slave::server::{Diagnostics, RunOptions, ServerError, SlaveRunSummary};
 use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError};
 use h4_telemetry::sink::{Outputs, OutputsError};
 use h4_transport::Link;
+use h4_transport::ros2::telemetry::{LatestCell, SlaveSample};
 use serde::{Deserialize, Serialize};
 
 use crate::cut::{CutCycle, CutTeleop};
@@ -31,6 +32,9 @@ pub struct RunOutputs {
     /// When the arm cuts: write the machined part here at the end (`height.png`,
     /// `part.stl`, `deviation.png` with a `cut_target`; `--out DIR`).
     pub out_dir: Option<PathBuf>,
+    /// With `--ros2`: the cell the ROS 2 publishing thread reads (each cycle is written
+    /// into it, `h4_slave::ros2::Ros2Tee`).
+    pub ros2: Option<std::sync::Arc<LatestCell<SlaveSample>>>,
 }
 
 /// What a run on the simulated arm reports: the product's summary, and the cut's fields
@@ -148,6 +152,7 @@ pub fn run<L: Link<Feedback, Command>>(
         teleop.cut_cycle().map(|_| ("/slave/cut", "h4.CutCycle")),
         1e9 / period_ns as f64,
     )?;
+    let sink = h4_slave::ros2::Ros2Tee::new(sink, outputs.ros2.clone());
     let mut diag = SimDiagnostics::new(&teleop, opts.duration_s, period_ns);
     let slave = h4_slave::server::run(&mut teleop, &mut diag, sink, opts, link)?;
     let mut s = SimRunSummary {

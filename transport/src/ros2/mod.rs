@@ -1,4 +1,4 @@
-//! ROS 2 over rmw_zenoh, without a ROS installation: the wire format (issue 35, first step).
+//! ROS 2 over rmw_zenoh, without a ROS installation: the wire format and publishing (issue 35).
 //!
 //! A ROS 2 node using `rmw_zenoh_cpp` publishes each message as a Zenoh `put` of its CDR
 //! encoding on a key expression made of the domain, topic, DDS type name and type hash, with a
@@ -17,11 +17,16 @@
 //!
 //! `transport/tests/ros2_*.rs` check it, against byte strings and hashes produced by rosbags
 //! (`tests/data/make_ros2_vectors.py`) and the examples in rmw_zenoh's `docs/design.md`.
-//! Publishing (the thread, the `--ros2` flags) is a later step; `docs/ros2.md` has the plan.
+//! Publishing: [`telemetry`] (the samples the 1 kHz loop leaves in a [`telemetry::LatestCell`]
+//! and their messages, pure) and `node` (feature `zenoh`: the node's session, tokens,
+//! publishers and the decimating publishing thread, with the `--ros2` flags).
 
 pub mod cdr;
 pub mod keys;
 pub mod msgs;
+#[cfg(feature = "zenoh")]
+pub mod node;
+pub mod telemetry;
 pub mod type_hash;
 pub mod units;
 

@@ -85,6 +85,10 @@ pub struct LoopbackArgs {
     /// summary says so (`unsafe_test_override`). No rating of the arm can be raised.
     #[arg(long)]
     pub unsafe_test_override: bool,
+    /// ROS 2: both processes publish their CRTK topics (`--ros2-ns` names the slave's
+    /// namespace; the master keeps `/h4_master`; docs/ros2.md).
+    #[command(flatten)]
+    pub ros2: h4_transport::ros2::node::Ros2Args,
 }
 
 /// What `loopback` prints.
@@ -186,6 +190,10 @@ impl LoopbackArgs {
             },
             wait_for_slave_s: 20.0,
             live: self.live.clone(),
+            ros2: h4_transport::ros2::node::Ros2Args {
+                ros2_ns: None,
+                ..self.ros2.clone()
+            },
             prechecked: true,
             unsafe_test_override: self.unsafe_test_override,
         };
@@ -326,6 +334,7 @@ impl SlaveChild {
             .arg("--watchdog-ms")
             .arg(args.watchdog_ms.to_string())
             .args(playout_args(&cfg.slave.playout))
+            .args(args.ros2.to_args())
             .arg("--parent-pid")
             .arg(std::process::id().to_string())
             .stdin(Stdio::null())

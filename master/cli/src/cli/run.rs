@@ -11,6 +11,8 @@ use h4_telemetry::rt::LoopArgs;
 use h4_telemetry::rt::RealtimePlan;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
+use h4_transport::ros2::node::{self as ros2_node, Ros2Args};
+use h4_transport::ros2::telemetry::LatestCell;
 
 /// The haptic device `h4-master run` renders on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -48,6 +50,9 @@ pub struct RunArgs {
     /// The live view.
     #[command(flatten)]
     pub live: h4_telemetry::live::LiveArgs,
+    /// ROS 2 (`--ros2`, docs/ros2.md).
+    #[command(flatten)]
+    pub ros2: Ros2Args,
     /// Wait this long for the slave's first feedback before the operator's script starts, s.
     #[arg(long, default_value_t = 10.0)]
     pub wait_for_slave_s: f64,
@@ -106,16 +111,45 @@ impl RunArgs {
             wait_for_slave_s: self.wait_for_slave_s,
             ..MasterRunOptions::default()
         };
+        let ros2_cfg = self
+            .ros2
+            .node_config(h4_transport::ros2::Ros2Names::MASTER_NAMESPACE, "h4_master")
+            .map_err(|e| e.to_string())?;
+        let ros2_cell = ros2_cfg
+            .as_ref()
+            .map(|_| std::sync::Arc::new(LatestCell::new()));
+        let publishing = match (&ros2_cfg, &ros2_cell) {
+            (Some(c), Some(cell)) => Some(
+                ros2_node::spawn_publisher(c, std::sync::Arc::clone(cell))
+                    .map_err(|e| format!("--ros2: {e}"))?,
+            ),
+            _ => None,
+        };
         let out = RunOutputs {
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
+            ros2: ros2_cell,
         };
-        match self.device {
+        let summary = match self.device {
             DeviceKind::Sim => {
                 h4_master_sim::server::run_then(&cfg, &opts, &out, link, at_loop_end)
                     .map_err(|e| e.to_string())
             }
+        };
+        if let (Some(p), Some(c)) = (publishing, &ros2_cfg) {
+            let r = p.stop();
+            eprintln!(
+                "{label}: ROS 2: {} samples, {} messages on {} (domain {}, via {}), {} errors, {} loop writes skipped",
+                r.samples,
+                r.messages,
+                c.names.namespace(),
+                c.domain_id,
+                c.connect,
+                r.errors,
+                r.loop_writes_skipped
+            );
         }
+        summary
     }
 
     /// Runs the master process; prints and writes the summary, then its verdict line.

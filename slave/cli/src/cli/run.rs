@@ -15,6 +15,8 @@ use h4_telemetry::sink::Outputs;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 use h4_transport::playout::{Playout, PlayoutConfig};
+use h4_transport::ros2::node::{self as ros2_node, Ros2Args};
+use h4_transport::ros2::telemetry::LatestCell;
 
 /// The arm driver `h4-slave run` runs on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -69,6 +71,9 @@ pub struct RunArgs {
     /// Run without the safety monitor (only with `--unsafe-test-override`).
     #[arg(long)]
     pub no_safety_monitor: bool,
+    /// ROS 2 (`--ros2`, docs/ros2.md).
+    #[command(flatten)]
+    pub ros2: Ros2Args,
     /// No valid command for this long puts the arm in its safe state, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
@@ -202,10 +207,25 @@ impl RunArgs {
             },
             ..RunOptions::default()
         };
+        let ros2_cfg = self
+            .ros2
+            .node_config(h4_transport::ros2::Ros2Names::SLAVE_NAMESPACE, "h4_slave")
+            .map_err(|e| e.to_string())?;
+        let ros2_cell = ros2_cfg
+            .as_ref()
+            .map(|_| std::sync::Arc::new(LatestCell::new()));
+        let publishing = match (&ros2_cfg, &ros2_cell) {
+            (Some(c), Some(cell)) => Some(
+                ros2_node::spawn_publisher(c, std::sync::Arc::clone(cell))
+                    .map_err(|e| format!("--ros2: {e}"))?,
+            ),
+            _ => None,
+        };
         let outputs = RunOutputs {
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
             out_dir: self.out.clone(),
+            ros2: ros2_cell,
         };
         let summary = match (self.arm, &self.replay) {
             (ArmKind::Sim, None) => h4_slave_sim::server::run(&cfg, &opts, &outputs, &mut link)
@@ -214,6 +234,9 @@ impl RunArgs {
             (ArmKind::Sim, Some(_)) => return Err("--replay needs --arm replay".to_string()),
             (ArmKind::Replay, None) => return Err("--arm replay needs --replay FILE".to_string()),
         };
+        if let (Some(p), Some(c)) = (publishing, &ros2_cfg) {
+            ros2_line(LABEL, c, &p.stop());
+        }
         h4_telemetry::process::emit_summary(&summary, self.run.summary.as_deref())?;
         let interrupted = self.run.duration_s.is_some() && h4_telemetry::process::signal_received();
         h4_telemetry::progress::verdict_line(LABEL, &in_words(&summary, interrupted));
@@ -256,12 +279,27 @@ fn run_replay<L: h4_transport::Link<h4_shared::wire::Feedback, h4_shared::wire::
         1e9 / period_ns as f64,
     )
     .map_err(|e| e.to_string())?;
+    let sink = h4_slave::ros2::Ros2Tee::new(sink, outputs.ros2.clone());
     let slave = server::run(&mut teleop, &mut NoDiagnostics, sink, opts, link)
         .map_err(|e| e.to_string())?;
     Ok(SimRunSummary {
         slave,
         cutting: None,
     })
+}
+
+/// The line on stderr of a run with `--ros2`: what the publishing thread published.
+pub fn ros2_line(label: &str, c: &ros2_node::NodeConfig, r: &ros2_node::PublishReport) {
+    eprintln!(
+        "{label}: ROS 2: {} samples, {} messages on {} (domain {}, via {}), {} errors, {} loop writes skipped",
+        r.samples,
+        r.messages,
+        c.names.namespace(),
+        c.domain_id,
+        c.connect,
+        r.errors,
+        r.loop_writes_skipped
+    );
 }
 
 /// The slave run's line: how it ended, then its figures.

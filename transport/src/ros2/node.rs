@@ -1,0 +1,451 @@
+//! A ROS 2 node over Zenoh, as rmw_zenoh speaks it (feature `zenoh`; issue 35, publishing).
+//!
+//! [`Ros2Node::open`] opens the node's own Zenoh session (separate from the teleoperation
+//! link): a peer, as rmw_zenoh's nodes are, that connects to `--ros2-connect` (default
+//! `tcp/localhost:7447`, the router `ros2 run rmw_zenoh_cpp rmw_zenohd` listens on) and
+//! listens on a loopback ephemeral port only; multicast scouting off. It declares the node's
+//! liveliness token and, per publisher, the publisher's token (`MP`, [`super::keys`]), so
+//! `ros2 node list` / `ros2 topic list` see them. Each publication is a `put` of the CDR
+//! payload on the topic's key expression with the 33-byte attachment (sequence number from
+//! 1, source timestamp, the publisher's GID).
+//!
+//! [`spawn_publisher`] starts the decimating thread: every `1/rate_hz` it takes the newest
+//! sample the loop left in a [`LatestCell`] and, if it is new, publishes it on each of the
+//! sample's topics. The 1 kHz loop only writes the cell; everything Zenoh does (and
+//! allocates) happens on this thread.
+//!
+//! The GID: rmw_zenoh hashes the endpoint's liveliness token with XXH3-128; we take the first
+//! 16 bytes of its SHA-256 (unique per endpoint just the same; subscribers only compare GIDs).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use ::zenoh::Wait;
+use ::zenoh::liveliness::LivelinessToken;
+use ::zenoh::pubsub::Publisher;
+use ::zenoh::qos::CongestionControl;
+use ::zenoh::{Config, Session};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use super::keys::{Attachment, Distro, EntityKind, GID_LEN, KeyError, NodeInfo, Qos, TopicInfo};
+use super::telemetry::{LatestCell, TelemetrySample, base_frame_id};
+use super::{CrtkTopic, Ros2Names};
+
+/// Which ROS 2 distribution's key format (`--ros2-distro`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum DistroArg {
+    /// Jazzy, Kilted, Rolling: RIHS01 type hashes in the keys.
+    #[default]
+    Jazzy,
+    /// Humble: `TypeHashNotSupported` in the keys.
+    Humble,
+}
+
+impl From<DistroArg> for Distro {
+    fn from(d: DistroArg) -> Distro {
+        match d {
+            DistroArg::Jazzy => Distro::Jazzy,
+            DistroArg::Humble => Distro::Humble,
+        }
+    }
+}
+
+/// The ROS 2 flags of `h4-slave run`, `h4-master run` and `h4-master loopback`.
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct Ros2Args {
+    /// Also publish this side's CRTK topics to ROS 2 over rmw_zenoh's wire format (its own
+    /// Zenoh session, separate from the teleoperation link; docs/ros2.md).
+    #[arg(long)]
+    pub ros2: bool,
+    /// ROS_DOMAIN_ID of the topics (0 to 232).
+    #[arg(long, default_value_t = 0, value_name = "ID")]
+    pub ros2_domain: u32,
+    /// The Zenoh endpoint to connect to: the rmw_zenoh router (`rmw_zenohd`) or a peer.
+    #[arg(long, default_value = "tcp/localhost:7447", value_name = "ENDPOINT")]
+    pub ros2_connect: String,
+    /// The namespace of the topics (default: `/h4` on the slave, `/h4_master` on the master;
+    /// on `loopback`: the slave's, the master keeps `/h4_master`).
+    #[arg(long, value_name = "NS")]
+    pub ros2_ns: Option<String>,
+    /// How often the publishing thread publishes the newest cycle, Hz (1 to 1000).
+    #[arg(long, default_value_t = 100.0, value_name = "HZ")]
+    pub ros2_rate_hz: f64,
+    /// The key format's distribution.
+    #[arg(long, value_enum, default_value_t = DistroArg::Jazzy)]
+    pub ros2_distro: DistroArg,
+}
+
+impl Ros2Args {
+    /// The node these flags describe, for a side whose default namespace is `default_ns`
+    /// and whose node is called `node_name`; None without `--ros2`.
+    pub fn node_config(
+        &self,
+        default_ns: &str,
+        node_name: &str,
+    ) -> Result<Option<NodeConfig>, Ros2Error> {
+        if !self.ros2 {
+            return Ok(None);
+        }
+        if self.ros2_domain > 232 {
+            return Err(Ros2Error::Flag(format!(
+                "--ros2-domain {} is out of range: allowed 0 to 232",
+                self.ros2_domain
+            )));
+        }
+        if !(self.ros2_rate_hz.is_finite() && (1.0..=1000.0).contains(&self.ros2_rate_hz)) {
+            return Err(Ros2Error::Flag(format!(
+                "--ros2-rate-hz {} is out of range: allowed 1 to 1000",
+                self.ros2_rate_hz
+            )));
+        }
+        let ns = self.ros2_ns.as_deref().unwrap_or(default_ns);
+        let names =
+            Ros2Names::new(ns).map_err(|e| Ros2Error::Flag(format!("--ros2-ns {ns}: {e}")))?;
+        Ok(Some(NodeConfig {
+            domain_id: self.ros2_domain,
+            connect: self.ros2_connect.clone(),
+            names,
+            node_name: node_name.to_owned(),
+            distro: self.ros2_distro.into(),
+            rate_hz: self.ros2_rate_hz,
+        }))
+    }
+
+    /// The flags again, for a child process (`loopback`'s slave).
+    pub fn to_args(&self) -> Vec<String> {
+        if !self.ros2 {
+            return Vec::new();
+        }
+        let mut a = vec![
+            "--ros2".to_owned(),
+            "--ros2-domain".to_owned(),
+            self.ros2_domain.to_string(),
+            "--ros2-connect".to_owned(),
+            self.ros2_connect.clone(),
+            "--ros2-rate-hz".to_owned(),
+            self.ros2_rate_hz.to_string(),
+            "--ros2-distro".to_owned(),
+            match self.ros2_distro {
+                DistroArg::Jazzy => "jazzy",
+                DistroArg::Humble => "humble",
+            }
+            .to_owned(),
+        ];
+        if let Some(ns) = &self.ros2_ns {
+            a.push("--ros2-ns".to_owned());
+            a.push(ns.clone());
+        }
+        a
+    }
+}
+
+/// A node's settings.
+#[derive(Clone, Debug)]
+pub struct NodeConfig {
+    /// ROS_DOMAIN_ID.
+    pub domain_id: u32,
+    /// The Zenoh endpoint to connect to.
+    pub connect: String,
+    /// The topics' namespace.
+    pub names: Ros2Names,
+    /// The node's name (`h4_slave`, `h4_master`).
+    pub node_name: String,
+    /// Key format.
+    pub distro: Distro,
+    /// Publishing rate, Hz.
+    pub rate_hz: f64,
+}
+
+/// Why the ROS 2 node could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum Ros2Error {
+    /// A flag is unusable.
+    #[error("{0}")]
+    Flag(String),
+    /// A name or key could not be formed.
+    #[error("ros2 key: {0}")]
+    Key(#[from] KeyError),
+    /// Zenoh refused a setting or a declaration, or the session did not open.
+    #[error("ros2 zenoh: {0}")]
+    Zenoh(String),
+}
+
+fn zerr(e: impl std::fmt::Display) -> Ros2Error {
+    Ros2Error::Zenoh(e.to_string())
+}
+
+/// One publisher of the node: its key, GID and sequence number.
+struct Ros2Publisher {
+    topic: CrtkTopic,
+    publisher: Publisher<'static>,
+    gid: [u8; GID_LEN],
+    sequence_number: i64,
+    _token: LivelinessToken,
+}
+
+/// The node: its session, its liveliness token, its publishers.
+pub struct Ros2Node {
+    cfg: NodeConfig,
+    info: NodeInfo,
+    publishers: Vec<Ros2Publisher>,
+    _node_token: LivelinessToken,
+    // Declared last: dropped after the tokens and publishers.
+    session: Session,
+}
+
+/// The GID of the endpoint whose liveliness token is `token`.
+pub fn gid_of(token: &str) -> [u8; GID_LEN] {
+    let digest = Sha256::digest(token.as_bytes());
+    let mut gid = [0u8; GID_LEN];
+    gid.copy_from_slice(&digest[..GID_LEN]);
+    gid
+}
+
+impl Ros2Node {
+    /// Opens the node's session and declares its token.
+    pub fn open(cfg: &NodeConfig) -> Result<Self, Ros2Error> {
+        let mut config = Config::default();
+        let set = |c: &mut Config, k: &str, v: &str| c.insert_json5(k, v).map_err(zerr);
+        set(&mut config, "mode", "\"peer\"")?;
+        set(
+            &mut config,
+            "connect/endpoints",
+            &format!("[{:?}]", cfg.connect),
+        )?;
+        set(&mut config, "listen/endpoints", "[\"tcp/127.0.0.1:0\"]")?;
+        set(&mut config, "scouting/multicast/enabled", "false")?;
+        let session = ::zenoh::open(config).wait().map_err(zerr)?;
+        let info = NodeInfo::new(
+            cfg.domain_id,
+            &session.zid().to_string(),
+            0,
+            cfg.names.namespace(),
+            &cfg.node_name,
+        )?;
+        let node_token = session
+            .liveliness()
+            .declare_token(info.node_token())
+            .wait()
+            .map_err(zerr)?;
+        Ok(Ros2Node {
+            cfg: cfg.clone(),
+            info,
+            publishers: Vec::new(),
+            _node_token: node_token,
+            session,
+        })
+    }
+
+    /// The node's liveliness token.
+    pub fn node_token(&self) -> String {
+        self.info.node_token()
+    }
+
+    /// Declares a publisher on `topic` (its token too); returns its key expression.
+    pub fn declare_publisher(&mut self, topic: CrtkTopic) -> Result<String, Ros2Error> {
+        let t = TopicInfo::new(
+            &self.cfg.names.topic(topic),
+            topic.type_name(),
+            self.cfg.distro,
+            Qos::keep_last(1),
+        )?;
+        let entity_id = self.publishers.len() as u64 + 1;
+        let token_key = self
+            .info
+            .endpoint_token(entity_id, EntityKind::Publisher, &t);
+        let key = t.key_expr(self.cfg.domain_id);
+        let publisher = self
+            .session
+            .declare_publisher(key.clone())
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(zerr)?;
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(zerr)?;
+        self.publishers.push(Ros2Publisher {
+            topic,
+            publisher,
+            gid: gid_of(&token_key),
+            sequence_number: 0,
+            _token: token,
+        });
+        Ok(key)
+    }
+}
+
+/// What the publishing thread did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct PublishReport {
+    /// Samples taken from the loop and published (each on every topic).
+    pub samples: u64,
+    /// Messages put.
+    pub messages: u64,
+    /// Messages Zenoh refused to put, or that could not be encoded.
+    pub errors: u64,
+    /// The loop's writes skipped because the thread held the cell at that instant.
+    pub loop_writes_skipped: u64,
+}
+
+/// The publishing thread; [`PublishingThread::stop`] ends it.
+pub struct PublishingThread {
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<PublishReport>>,
+}
+
+impl PublishingThread {
+    /// Stops the thread (after its current round) and returns what it did.
+    pub fn stop(mut self) -> PublishReport {
+        self.stop.store(true, Ordering::Relaxed);
+        self.handle
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for PublishingThread {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// Opens the node of `cfg`, declares a publisher per topic of `T`, and starts the thread
+/// that publishes the newest sample of `cell` at `cfg.rate_hz`.
+pub fn spawn_publisher<T: TelemetrySample>(
+    cfg: &NodeConfig,
+    cell: Arc<LatestCell<T>>,
+) -> Result<PublishingThread, Ros2Error> {
+    let mut node = Ros2Node::open(cfg)?;
+    for &topic in T::TOPICS {
+        node.declare_publisher(topic)?;
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop_thread = Arc::clone(&stop);
+    let period = Duration::from_secs_f64(1.0 / cfg.rate_hz);
+    let handle = std::thread::Builder::new()
+        .name("h4-ros2-pub".into())
+        .spawn(move || publish_loop(node, cell, period, &stop_thread))
+        .map_err(|e| Ros2Error::Zenoh(format!("publishing thread: {e}")))?;
+    Ok(PublishingThread {
+        stop,
+        handle: Some(handle),
+    })
+}
+
+fn publish_loop<T: TelemetrySample>(
+    mut node: Ros2Node,
+    cell: Arc<LatestCell<T>>,
+    period: Duration,
+    stop: &AtomicBool,
+) -> PublishReport {
+    let frame_id = base_frame_id(node.cfg.names.namespace());
+    let mut report = PublishReport::default();
+    let mut seen = 0;
+    let mut next = Instant::now();
+    // One last round after the stop, so the final state goes out.
+    let mut last_round = false;
+    loop {
+        if let Some((version, sample)) = cell.newer_than(seen) {
+            seen = version;
+            report.samples += 1;
+            let stamp = i64::try_from(sample.stamp_unix_ns()).unwrap_or(i64::MAX);
+            for p in &mut node.publishers {
+                // Zenoh takes the payload by value: one allocation per message, on this thread.
+                let payload = match sample.encode(p.topic, &frame_id, Vec::with_capacity(256)) {
+                    Ok(b) => b,
+                    Err(_) => {
+                        report.errors += 1;
+                        continue;
+                    }
+                };
+                p.sequence_number += 1;
+                let att = Attachment {
+                    sequence_number: p.sequence_number,
+                    source_timestamp_ns: stamp,
+                    gid: p.gid,
+                };
+                match p.publisher.put(payload).attachment(att.to_zbytes()).wait() {
+                    Ok(()) => report.messages += 1,
+                    Err(_) => report.errors += 1,
+                }
+            }
+        }
+        if last_round {
+            break;
+        }
+        if stop.load(Ordering::Relaxed) {
+            last_round = true;
+            continue;
+        }
+        next += period;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            next = now;
+        }
+    }
+    report.loop_writes_skipped = cell.skipped();
+    report
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    #[test]
+    fn flags_are_checked_and_passed_on() {
+        let off = Ros2Args::default();
+        assert!(off.node_config("/h4", "h4_slave").unwrap().is_none());
+        assert!(off.to_args().is_empty());
+        let on = Ros2Args {
+            ros2: true,
+            ros2_domain: 3,
+            ros2_connect: "tcp/127.0.0.1:7447".into(),
+            ros2_ns: None,
+            ros2_rate_hz: 100.0,
+            ros2_distro: DistroArg::Humble,
+        };
+        let cfg = on.node_config("/h4", "h4_slave").unwrap().unwrap();
+        assert_eq!(cfg.names.namespace(), "/h4");
+        assert_eq!(cfg.distro, Distro::Humble);
+        assert!(on.to_args().contains(&"humble".to_owned()));
+        for bad in [
+            Ros2Args {
+                ros2_domain: 233,
+                ..on.clone()
+            },
+            Ros2Args {
+                ros2_rate_hz: 0.5,
+                ..on.clone()
+            },
+            Ros2Args {
+                ros2_rate_hz: f64::NAN,
+                ..on.clone()
+            },
+            Ros2Args {
+                ros2_ns: Some("/h4/".into()),
+                ..on.clone()
+            },
+        ] {
+            assert!(bad.node_config("/h4", "h4_slave").is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn gids_differ_per_endpoint() {
+        assert_ne!(gid_of("a"), gid_of("b"));
+        assert_eq!(gid_of("a"), gid_of("a"));
+    }
+}
