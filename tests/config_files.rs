@@ -66,7 +66,8 @@ fn a_value_gets_the_same_verdict_in_every_file() {
         ("sensor.filter_cutoff_hz", "0.5"),
     ];
     for (key, value) in cases {
-        let in_session = session::load(&session_file, &[format!("slave.{key}={value}")]);
+        // The ranges alone (the override lifts only the arm's stable-gain check, below).
+        let in_session = session::load_with(&session_file, &[format!("slave.{key}={value}")], true);
         let in_experiment =
             config::load::<ExperimentConfig>(&experiment_file, &[format!("{key}={value}")]);
         let s = verdict(in_session.map(|_| ()).map_err(|e| match e {
@@ -79,6 +80,16 @@ fn a_value_gets_the_same_verdict_in_every_file() {
             assert_ne!(s, "accepted", "slave.controller.kp=-5 must be refused");
         }
     }
+    // Within the field's range, beyond the arm's stable range: a session refuses it with
+    // its reason unless overridden (the slave's endpoint refuses the same when built).
+    let hot = session::load(&session_file, &["slave.controller.kp=5".to_string()])
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(
+        hot.contains("kp_max") && hot.contains("--unsafe-test-override"),
+        "{hot}"
+    );
     for (env_key, surface_key, value) in [
         ("tilt_deg", "tilt_deg", "50"),
         ("tilt_deg", "tilt_deg", "61"),

@@ -19,7 +19,7 @@
 pub mod arm;
 pub mod controller;
 pub mod filter;
-pub mod safety;
 pub mod ros2;
+pub mod safety;
 pub mod server;
 pub mod teleop;

@@ -36,6 +36,8 @@ fn parts(passivity: bool) -> (TeleopParams, SlaveController, SimArm) {
     let (arm, ctrl) = world.build(Pose::new(0.0, 0.0, -250.0, 0.0), 1).unwrap();
     let mut p = TeleopParams::default();
     p.passivity.enabled = passivity;
+    // Passivity off (the tests of the gate and the watchdog alone) is a safety layer off.
+    p.safety.unsafe_test_override = !passivity;
     (p, ctrl, arm)
 }
 
