@@ -249,6 +249,11 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
     for o in cell.overrides() {
         master_cmd.arg("--set").arg(o);
     }
+    if remote_procs::is_control(&cell.overrides()) {
+        // The bare cells turn passivity (a safety layer) off.
+        master_cmd.arg("--unsafe-test-override");
+        slave_cmd.arg("--unsafe-test-override");
+    }
     master_cmd
         .args(["--duration-s", &DURATION_S.to_string()])
         .args(["--wait-for-slave-s", &wait_s.to_string()])
