@@ -464,7 +464,8 @@ pub fn session(
     session: &str,
     overrides: &[String],
 ) -> Result<h4_master_sim::session::SessionConfig, String> {
-    h4_master_sim::session::load(&workspace().join(session), overrides).map_err(|e| e.to_string())
+    h4_master_sim::session::load_with(&workspace().join(session), overrides, is_control(overrides))
+        .map_err(|e| e.to_string())
 }
 
 /// The arguments of one side of a Zenoh link between the two hosts: `--transport zenoh`
