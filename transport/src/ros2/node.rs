@@ -319,6 +319,53 @@ impl Drop for PublishingThread {
     }
 }
 
+/// A run's ROS 2 publishing (`--ros2`): the node's configuration, the cell the loop writes
+/// its samples into and the thread that publishes them.
+pub struct Ros2Publishing<T: TelemetrySample> {
+    /// The node.
+    pub cfg: NodeConfig,
+    /// The cell the loop writes (hand it to the server's outputs).
+    pub cell: Arc<LatestCell<T>>,
+    thread: PublishingThread,
+}
+
+impl<T: TelemetrySample> Ros2Publishing<T> {
+    /// The publishing of the node `args` describe ([`Ros2Args::node_config`]), started;
+    /// None without `--ros2`. Errors are worded for the command line (`--ros2: ...`).
+    pub fn start(
+        args: &Ros2Args,
+        default_ns: &str,
+        node_name: &str,
+    ) -> Result<Option<Self>, String> {
+        let Some(cfg) = args
+            .node_config(default_ns, node_name)
+            .map_err(|e| e.to_string())?
+        else {
+            return Ok(None);
+        };
+        let cell = Arc::new(LatestCell::new());
+        let thread =
+            spawn_publisher(&cfg, Arc::clone(&cell)).map_err(|e| format!("--ros2: {e}"))?;
+        Ok(Some(Ros2Publishing { cfg, cell, thread }))
+    }
+
+    /// Stops the thread; the line a run prints on stderr: what it published.
+    pub fn stop_line(self, label: &str) -> String {
+        let r = self.thread.stop();
+        let c = &self.cfg;
+        format!(
+            "{label}: ROS 2: {} samples, {} messages on {} (domain {}, via {}), {} errors, {} loop writes skipped",
+            r.samples,
+            r.messages,
+            c.names.namespace(),
+            c.domain_id,
+            c.connect,
+            r.errors,
+            r.loop_writes_skipped
+        )
+    }
+}
+
 /// Opens the node of `cfg`, declares a publisher per topic of `T`, and starts the thread
 /// that publishes the newest sample of `cell` at `cfg.rate_hz`.
 pub fn spawn_publisher<T: TelemetrySample>(

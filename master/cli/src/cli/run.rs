@@ -11,8 +11,7 @@ use h4_telemetry::rt::LoopArgs;
 use h4_telemetry::rt::RealtimePlan;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
-use h4_transport::ros2::node::{self as ros2_node, Ros2Args};
-use h4_transport::ros2::telemetry::LatestCell;
+use h4_transport::ros2::node::{Ros2Args, Ros2Publishing};
 
 /// The haptic device `h4-master run` renders on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -111,24 +110,15 @@ impl RunArgs {
             wait_for_slave_s: self.wait_for_slave_s,
             ..MasterRunOptions::default()
         };
-        let ros2_cfg = self
-            .ros2
-            .node_config(h4_transport::ros2::Ros2Names::MASTER_NAMESPACE, "h4_master")
-            .map_err(|e| e.to_string())?;
-        let ros2_cell = ros2_cfg
-            .as_ref()
-            .map(|_| std::sync::Arc::new(LatestCell::new()));
-        let publishing = match (&ros2_cfg, &ros2_cell) {
-            (Some(c), Some(cell)) => Some(
-                ros2_node::spawn_publisher(c, std::sync::Arc::clone(cell))
-                    .map_err(|e| format!("--ros2: {e}"))?,
-            ),
-            _ => None,
-        };
+        let publishing = Ros2Publishing::start(
+            &self.ros2,
+            h4_transport::ros2::Ros2Names::MASTER_NAMESPACE,
+            "h4_master",
+        )?;
         let out = RunOutputs {
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
-            ros2: ros2_cell,
+            ros2: publishing.as_ref().map(|p| std::sync::Arc::clone(&p.cell)),
         };
         let summary = match self.device {
             DeviceKind::Sim => {
@@ -136,18 +126,8 @@ impl RunArgs {
                     .map_err(|e| e.to_string())
             }
         };
-        if let (Some(p), Some(c)) = (publishing, &ros2_cfg) {
-            let r = p.stop();
-            eprintln!(
-                "{label}: ROS 2: {} samples, {} messages on {} (domain {}, via {}), {} errors, {} loop writes skipped",
-                r.samples,
-                r.messages,
-                c.names.namespace(),
-                c.domain_id,
-                c.connect,
-                r.errors,
-                r.loop_writes_skipped
-            );
+        if let Some(p) = publishing {
+            eprintln!("{}", p.stop_line(label));
         }
         summary
     }

@@ -15,8 +15,7 @@ use h4_telemetry::sink::Outputs;
 use h4_transport::impaired::{self, Direction, ImpairArgs};
 use h4_transport::open::TransportArgs;
 use h4_transport::playout::{Playout, PlayoutConfig};
-use h4_transport::ros2::node::{self as ros2_node, Ros2Args};
-use h4_transport::ros2::telemetry::LatestCell;
+use h4_transport::ros2::node::{Ros2Args, Ros2Publishing};
 
 /// The arm driver `h4-slave run` runs on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -207,25 +206,16 @@ impl RunArgs {
             },
             ..RunOptions::default()
         };
-        let ros2_cfg = self
-            .ros2
-            .node_config(h4_transport::ros2::Ros2Names::SLAVE_NAMESPACE, "h4_slave")
-            .map_err(|e| e.to_string())?;
-        let ros2_cell = ros2_cfg
-            .as_ref()
-            .map(|_| std::sync::Arc::new(LatestCell::new()));
-        let publishing = match (&ros2_cfg, &ros2_cell) {
-            (Some(c), Some(cell)) => Some(
-                ros2_node::spawn_publisher(c, std::sync::Arc::clone(cell))
-                    .map_err(|e| format!("--ros2: {e}"))?,
-            ),
-            _ => None,
-        };
+        let publishing = Ros2Publishing::start(
+            &self.ros2,
+            h4_transport::ros2::Ros2Names::SLAVE_NAMESPACE,
+            "h4_slave",
+        )?;
         let outputs = RunOutputs {
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
             out_dir: self.out.clone(),
-            ros2: ros2_cell,
+            ros2: publishing.as_ref().map(|p| std::sync::Arc::clone(&p.cell)),
         };
         let summary = match (self.arm, &self.replay) {
             (ArmKind::Sim, None) => h4_slave_sim::server::run(&cfg, &opts, &outputs, &mut link)
@@ -234,8 +224,8 @@ impl RunArgs {
             (ArmKind::Sim, Some(_)) => return Err("--replay needs --arm replay".to_string()),
             (ArmKind::Replay, None) => return Err("--arm replay needs --replay FILE".to_string()),
         };
-        if let (Some(p), Some(c)) = (publishing, &ros2_cfg) {
-            ros2_line(LABEL, c, &p.stop());
+        if let Some(p) = publishing {
+            eprintln!("{}", p.stop_line(LABEL));
         }
         h4_telemetry::process::emit_summary(&summary, self.run.summary.as_deref())?;
         let interrupted = self.run.duration_s.is_some() && h4_telemetry::process::signal_received();
@@ -286,20 +276,6 @@ fn run_replay<L: h4_transport::Link<h4_shared::wire::Feedback, h4_shared::wire::
         slave,
         cutting: None,
     })
-}
-
-/// The line on stderr of a run with `--ros2`: what the publishing thread published.
-pub fn ros2_line(label: &str, c: &ros2_node::NodeConfig, r: &ros2_node::PublishReport) {
-    eprintln!(
-        "{label}: ROS 2: {} samples, {} messages on {} (domain {}, via {}), {} errors, {} loop writes skipped",
-        r.samples,
-        r.messages,
-        c.names.namespace(),
-        c.domain_id,
-        c.connect,
-        r.errors,
-        r.loop_writes_skipped
-    );
 }
 
 /// The slave run's line: how it ended, then its figures.
