@@ -141,6 +141,23 @@ impl SafetyTrips {
         *c += 1;
     }
 
+    /// The trips counted since `earlier` (an earlier copy of these counters), by reason.
+    pub fn since(&self, earlier: &SafetyTrips) -> SafetyTrips {
+        let d = |a: u64, b: u64| a.saturating_sub(b);
+        SafetyTrips {
+            force_over_limit: d(self.force_over_limit, earlier.force_over_limit),
+            force_peak: d(self.force_peak, earlier.force_peak),
+            tool_speed: d(self.tool_speed, earlier.tool_speed),
+            workspace: d(self.workspace, earlier.workspace),
+            actuator_position: d(self.actuator_position, earlier.actuator_position),
+            actuator_speed: d(self.actuator_speed, earlier.actuator_speed),
+            sensor_non_finite: d(self.sensor_non_finite, earlier.sensor_non_finite),
+            sensor_saturated: d(self.sensor_saturated, earlier.sensor_saturated),
+            sensor_frozen: d(self.sensor_frozen, earlier.sensor_frozen),
+            driver_silent: d(self.driver_silent, earlier.driver_silent),
+        }
+    }
+
     /// All trips.
     pub fn total(&self) -> u64 {
         self.force_over_limit

@@ -18,6 +18,7 @@
 
 pub mod cut;
 pub mod experiment;
+pub mod fault;
 pub mod identify;
 pub mod kin_tool;
 pub mod plant;

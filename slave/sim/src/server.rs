@@ -51,6 +51,117 @@ pub struct SimRunSummary {
     /// of the simulation's summary, `docs/cutting.md`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub cutting: Option<CutSummary>,
+    /// With `--inject-fault`: what the fault did and how the slave answered.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fault_injection: Option<FaultReport>,
+}
+
+/// What an injected fault (`h4-slave run --inject-fault`) showed: the summary's
+/// `fault_injection`. Cycles are counted on the arm's clock (1 ms each at 1 kHz; a cycle the
+/// loop missed counts too).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FaultReport {
+    /// The fault (`sensor-freeze`, `sensor-saturate`, `driver-silent`).
+    pub kind: String,
+    /// When it began, s on the arm's clock.
+    pub start_s: f64,
+    /// How long it lasted, s.
+    pub duration_s: f64,
+    /// The slave's state in the cycle before the fault (`active`: it was following the
+    /// master when the fault struck).
+    pub state_before: String,
+    /// Cycles from the fault's first cycle to the first cycle the slave was safe-stopped
+    /// (0: in that cycle; absent: never).
+    pub safe_stop_after_cycles: Option<u64>,
+    /// The safety monitor's trips from the fault's start to its end, by reason.
+    pub trips_during: h4_slave::safety::SafetyTrips,
+    /// Cycles of the fault in which the slave was not safe-stopped (following the master on
+    /// a faulty arm).
+    pub cycles_active_during: u64,
+    /// The largest true contact force from the fault's start to the run's end, N.
+    pub max_true_force_n: f64,
+    /// Cycles from the fault's end to the first re-pairing after it (absent: never).
+    pub repaired_after_cycles: Option<u64>,
+}
+
+/// Follows an injected fault through the run ([`FaultReport`]).
+struct FaultWatch {
+    report: FaultReport,
+    start_ns: u64,
+    end_ns: u64,
+    period_ns: u64,
+    last_state: h4_shared::wire::SlaveState,
+    trips_at_start: Option<h4_slave::safety::SafetyTrips>,
+    trips_at_end: Option<h4_slave::safety::SafetyTrips>,
+    prev_trips: h4_slave::safety::SafetyTrips,
+}
+
+impl FaultWatch {
+    fn new(plan: crate::fault::FaultPlan, period_ns: u64) -> Self {
+        let ns = |s: f64| (s * 1e9).round() as u64;
+        FaultWatch {
+            report: FaultReport {
+                kind: plan.kind.name().to_string(),
+                start_s: plan.start_s,
+                duration_s: plan.duration_s,
+                ..FaultReport::default()
+            },
+            start_ns: ns(plan.start_s),
+            end_ns: ns(plan.start_s + plan.duration_s),
+            period_ns,
+            last_state: h4_shared::wire::SlaveState::Idle,
+            trips_at_start: None,
+            trips_at_end: None,
+            prev_trips: h4_slave::safety::SafetyTrips::default(),
+        }
+    }
+
+    /// One cycle whose reading was taken at `t_ns` (arm clock).
+    fn observe(&mut self, t_ns: u64, teleop: &SlaveTeleop<SimArm>, cycle: &TeleopCycle) {
+        use h4_shared::wire::SlaveState;
+        let trips = teleop.counters().safety_trips;
+        if t_ns >= self.start_ns && self.trips_at_start.is_none() {
+            self.report.state_before = format!("{:?}", self.last_state).to_lowercase();
+            // The trips counted before this cycle's step.
+            self.trips_at_start = Some(self.prev_trips);
+        }
+        if t_ns >= self.start_ns {
+            let f = teleop.arm().true_contact_wrench().fixed_rows::<3>(0).norm();
+            self.report.max_true_force_n = if f.is_nan() || self.report.max_true_force_n.is_nan() {
+                f64::NAN
+            } else {
+                self.report.max_true_force_n.max(f)
+            };
+            let safe = cycle.state == SlaveState::SafeStop || cycle.state == SlaveState::Fault;
+            if t_ns < self.end_ns {
+                if safe {
+                    self.report
+                        .safe_stop_after_cycles
+                        .get_or_insert((t_ns - self.start_ns) / self.period_ns);
+                } else {
+                    self.report.cycles_active_during += 1;
+                }
+            } else {
+                self.trips_at_end.get_or_insert(trips);
+                if cycle.repaired {
+                    self.report
+                        .repaired_after_cycles
+                        .get_or_insert((t_ns - self.end_ns) / self.period_ns);
+                }
+            }
+        }
+        self.last_state = cycle.state;
+        self.prev_trips = trips;
+    }
+
+    fn finish(mut self, trips_now: h4_slave::safety::SafetyTrips) -> FaultReport {
+        if let Some(a) = self.trips_at_start {
+            let b = self.trips_at_end.unwrap_or(trips_now);
+            self.report.trips_during = b.since(&a);
+        }
+        self.report
+    }
 }
 
 impl std::ops::Deref for SimRunSummary {
@@ -97,6 +208,8 @@ const MAX_STEADY_FEED_SAMPLES: usize = 600_000;
 /// its evidence for the judge).
 pub struct SimDiagnostics {
     cut_ev: Option<CutEvaluator>,
+    fault: Option<FaultWatch>,
+    period_ns: u64,
 }
 
 impl SimDiagnostics {
@@ -110,7 +223,15 @@ impl SimDiagnostics {
             });
             CutEvaluator::new(cycles, c.tool().spindle_rpm)
         });
-        SimDiagnostics { cut_ev }
+        let fault = teleop
+            .arm()
+            .fault()
+            .map(|(plan, _)| FaultWatch::new(plan, period_ns.max(1)));
+        SimDiagnostics {
+            cut_ev,
+            fault,
+            period_ns: period_ns.max(1),
+        }
     }
 }
 
@@ -126,6 +247,11 @@ impl Diagnostics<SimArm> for SimDiagnostics {
         if let (Some(ev), Some(sample)) = (self.cut_ev.as_mut(), teleop.cut_sample(cycle)) {
             ev.push(&sample);
         }
+        if let Some(w) = self.fault.as_mut() {
+            // Observed after the arm advanced: the cycle's reading was a period earlier.
+            let t_ns = teleop.arm().time_ns().saturating_sub(self.period_ns);
+            w.observe(t_ns, teleop, cycle);
+        }
     }
 }
 
@@ -137,12 +263,30 @@ pub fn run<L: Link<Feedback, Command>>(
     outputs: &RunOutputs,
     link: &mut L,
 ) -> Result<SimRunSummary, SimServerError> {
+    run_with_fault(cfg, opts, outputs, None, link)
+}
+
+/// [`run`], with `fault` injected into the simulated arm (`h4-slave run --inject-fault`; a
+/// saturated sensor reads the arm's `ratings.sensor_range_n`): the summary's
+/// `fault_injection` says what it did.
+pub fn run_with_fault<L: Link<Feedback, Command>>(
+    cfg: &ExperimentConfig,
+    opts: &RunOptions,
+    outputs: &RunOutputs,
+    fault: Option<crate::fault::FaultPlan>,
+    link: &mut L,
+) -> Result<SimRunSummary, SimServerError> {
     use h4_shared::config::Validate;
     cfg.validate()?;
     opts.passivity.validate_at("passivity.")?;
     opts.contact.validate_at("contact.")?;
     let period_ns = opts.period_ns.max(1);
     let mut teleop = build_teleop(cfg, opts, period_ns)?;
+    if let Some(plan) = fault {
+        teleop
+            .arm_mut()
+            .inject_fault(plan, cfg.arm.ratings.sensor_range_n);
+    }
     // `/slave/cut` beside the cycles when the arm cuts.
     let sink = Outputs::start(
         outputs.record.as_deref(),
@@ -155,9 +299,14 @@ pub fn run<L: Link<Feedback, Command>>(
     let sink = h4_slave::ros2::Ros2Tee::new(sink, outputs.ros2.clone());
     let mut diag = SimDiagnostics::new(&teleop, opts.duration_s, period_ns);
     let slave = h4_slave::server::run(&mut teleop, &mut diag, sink, opts, link)?;
+    let fault_injection = diag
+        .fault
+        .take()
+        .map(|w| w.finish(teleop.counters().safety_trips));
     let mut s = SimRunSummary {
         slave,
         cutting: None,
+        fault_injection,
     };
     if let Some(ev) = diag.cut_ev {
         s.cutting = teleop

@@ -928,6 +928,7 @@ mod tests {
                 ..Default::default()
             },
             cutting: None,
+            fault_injection: None,
         };
         (m, s)
     }

@@ -70,6 +70,14 @@ pub struct RunArgs {
     /// Run without the safety monitor (only with `--unsafe-test-override`).
     #[arg(long)]
     pub no_safety_monitor: bool,
+    /// Make the simulated arm fail on purpose, `KIND@START_S+DURATION_S` on the arm's clock
+    /// (from the loop's first cycle): `sensor-freeze` (the force reading stops updating),
+    /// `sensor-saturate` (the normal force reads the sensor's full range, the arm file's
+    /// `ratings.sensor_range_n`), `driver-silent` (stale readings, commands not taken). The
+    /// summary's `fault_injection` says how the slave answered (docs/safety.md). `--arm sim`
+    /// only.
+    #[arg(long, value_name = "KIND@START+DURATION")]
+    pub inject_fault: Option<h4_slave_sim::fault::FaultPlan>,
     /// ROS 2 (`--ros2`, docs/ros2.md).
     #[command(flatten)]
     pub ros2: Ros2Args,
@@ -218,8 +226,17 @@ impl RunArgs {
             ros2: publishing.as_ref().map(|p| std::sync::Arc::clone(&p.cell)),
         };
         let summary = match (self.arm, &self.replay) {
-            (ArmKind::Sim, None) => h4_slave_sim::server::run(&cfg, &opts, &outputs, &mut link)
-                .map_err(|e| e.to_string())?,
+            (ArmKind::Sim, None) => h4_slave_sim::server::run_with_fault(
+                &cfg,
+                &opts,
+                &outputs,
+                self.inject_fault,
+                &mut link,
+            )
+            .map_err(|e| e.to_string())?,
+            (ArmKind::Replay, Some(_)) if self.inject_fault.is_some() => {
+                return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
+            }
             (ArmKind::Replay, Some(file)) => run_replay(&cfg, file, &opts, &outputs, &mut link)?,
             (ArmKind::Sim, Some(_)) => return Err("--replay needs --arm replay".to_string()),
             (ArmKind::Replay, None) => return Err("--arm replay needs --replay FILE".to_string()),
@@ -275,6 +292,7 @@ fn run_replay<L: h4_transport::Link<h4_shared::wire::Feedback, h4_shared::wire::
     Ok(SimRunSummary {
         slave,
         cutting: None,
+        fault_injection: None,
     })
 }
 

@@ -113,12 +113,29 @@ pub struct SimArm {
     kinematics_faults: u64,
     /// The cut, when the arm carries a spindle over a workpiece (boxed: built once).
     cut: Option<Box<cutting::CutState>>,
+    /// A fault injected on purpose (`h4-slave run --inject-fault`; none in simulated
+    /// sessions).
+    fault: Option<crate::fault::ArmFault>,
     /// Tests only: run planes through the generic kernel (to compare the two).
     #[cfg(test)]
     generic_kernel: bool,
 }
 
 impl SimArm {
+    /// Injects `plan` (`h4-slave run --inject-fault`): from then on the arm's readings and
+    /// commands fail as [`crate::fault`] says, in the plan's window; a saturated sensor reads
+    /// `saturation_n` (its full range, N).
+    pub fn inject_fault(&mut self, plan: crate::fault::FaultPlan, saturation_n: f64) {
+        self.fault = Some(crate::fault::ArmFault::new(plan, saturation_n));
+    }
+
+    /// The injected fault, and whether it is on now.
+    pub fn fault(&self) -> Option<(crate::fault::FaultPlan, bool)> {
+        self.fault
+            .as_ref()
+            .map(|f| (f.plan, f.active(self.time_ns)))
+    }
+
     /// An arm at rest at `initial_pose` (springs unloaded), whose controller assumes the
     /// per-actuator stiffness `assumed_stiffness_n_per_mm`; the plant's stiffness is that
     /// × `cfg.stiffness_scale` × (1 + spread).
@@ -211,6 +228,7 @@ impl SimArm {
             latency_ns: (cfg.command_latency_s * 1e9).round() as u64,
             kinematics_faults: 0,
             cut: None,
+            fault: None,
             #[cfg(test)]
             generic_kernel: false,
         };
@@ -433,15 +451,26 @@ impl ArmDriver for SimArm {
                 *a = quantize(*a, res);
             }
         }
-        ArmReading {
+        let r = ArmReading {
             time_ns: self.time_ns,
             actuators_mm: act,
             wrench: self.sensor.filtered,
+        };
+        match self.fault.as_mut() {
+            Some(f) => f.apply(r),
+            None => r,
         }
     }
 
     fn command(&mut self, actuators_mm: &[f64; 4]) {
         if !actuators_mm.iter().all(|a| a.is_finite()) {
+            return;
+        }
+        if self
+            .fault
+            .as_ref()
+            .is_some_and(|f| !f.takes_commands(self.time_ns))
+        {
             return;
         }
         if self.latency_ns == 0 {
