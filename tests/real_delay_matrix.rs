@@ -11,34 +11,36 @@
 //!
 //! Each cell is the wall-push session cut to 7 s (approach, push with 6 N, hold, release).
 //! Criteria, from physical evidence in both summaries (`h4_tests::remote_procs::judge`): every force
-//! finite, the slave's true contact force within `detector.force_limit_n` (100 N), the
-//! rendered force within `coupling.force_limit_n`, both passivity observers ≥ −1 mJ, round
-//! trips completed — the energy floor and force limits of the simulated matrix
-//! (`tests/delay_matrix.rs`; the table also shows the slave guard's own 80 N limit); its
+//! finite, the slave's true contact force within 1.05 × the slave's own limit (84 N at its
+//! 80 N), the rendered force within `coupling.force_limit_n`, both passivity observers
+//! ≥ −1 mJ, round trips completed — the energy floor and force limits of the simulated
+//! matrix (`tests/delay_matrix.rs`); its
 //! oscillation detector needs the per-cycle trace and is not applied to processes (as in
 //! `loopback`). Controls: the measured round trip is at least the cell's (the impairment is
 //! really there); loss cells lost messages; and a negative control (passivity, the local
 //! model and the local damping off, aluminium, 250 ms) must fail the same criteria.
 //!
 //! Host stalls: two more cells (Zenoh on resin and iceoryx2 on aluminium, 250 ms, 5 % loss)
-//! stop both processes together (SIGSTOP/SIGCONT) for 40 ms every 500 ms (this VM's host
+//! run the whole 14 s session (both pushes) and stop both processes together
+//! (SIGSTOP/SIGCONT) for 40 ms every 500 ms (this VM's host
 //! stalls 3–66 ms, a few times a minute: the same kind, more often), under the same
 //! criteria; they are not re-run for starvation (they are starved by design). Their
 //! control: the iceoryx2 aluminium cell with stalls and without the master's discrete-time
 //! damping bound (`passivity.damping_step_fraction = 0` and `damping_hold_memory_ms = 0`)
 //! must fail (measured: the handle chatters, the master's observer to −12…−918 mJ, as in
-//! CI's failure; the simulated version is `tests/host_stalls.rs`). Whether a stall kicks
-//! the handle into the chatter is chance (6 of 7 runs): the control is run again while it
-//! passes, up to three runs, and must fail in one.
+//! CI's failure; the simulated version is `tests/host_stalls.rs`).
 //!
 //! One Zenoh cell (aluminium, 50 ms, 5 %) has the relay drop from the first datagram on (the
 //! handshake and declarations too; the others start dropping once the session is up, see
 //! `lossy_once_up`): the session must come up and the cell meet the criteria.
 //!
 //! Both loops run under `--fifo-priority 10` (as in `tests/processes.rs`). Cells run two at a
-//! time (each is two 1 kHz loops at ~15–20 % of a core); a cell that fails while a loop was
-//! starved (> 1 % deadlines missed, `loopback`'s `realtime_ok`) is run again, at most three
-//! times, and reported as starved if it never ran fed. Nothing asserts a wall-clock duration.
+//! time (each is two 1 kHz loops at ~15–20 % of a core). Every cell runs once: a cell that
+//! fails fails, unless the outside witness of host stalls (`h4_tests::stalls`, one sentinel
+//! per CPU under `SCHED_FIFO` 99, running through the whole test) saw the host freeze a CPU
+//! for at least [`EXCUSE_STALL_MS`] while the cell ran. The test prints each excused cell
+//! with its stall, and at most [`MAX_EXCUSED`] cells may be excused. Nothing asserts a
+//! wall-clock duration.
 //! ≈ 2.5 min on 2 cores.
 //! `cargo test --release -p h4-tests --test real_delay_matrix -- --nocapture` prints the table.
 //! For diagnosis: `H4_REAL_MATRIX_ONLY=<part of a cell's name>` runs only the cells whose name
@@ -57,15 +59,26 @@ use h4_slave_sim::server::SimRunSummary;
 use h4_tests::netns::{Host, TwoHosts};
 use h4_tests::relay::{Proto, Relay};
 use h4_tests::remote_procs::{self, Running, Scratch};
+use h4_tests::stalls::{StallWitness, long_stalls};
 use h4_transport::impair::ImpairmentConfig;
 
 const SESSION: &str = "config/sessions/wall-push.toml";
 const DURATION_S: f64 = 7.0;
+/// The stalled cells run the whole wall-push session (both pushes): twice the contact time
+/// under stalls, so that the control's chatter is not left to the chance of the stalls that
+/// fall in one push (with one push, 6 of 7 runs chattered; measured 2026-12-02).
+const STALLED_DURATION_S: f64 = 14.0;
 const RTT_MS: [f64; 4] = [0.0, 50.0, 250.0, 1000.0];
 const LOSS: [f64; 2] = [0.0, 0.05];
 const CONCURRENT: usize = 2;
-/// Runs of a cell at most: a cell that fails while a loop was starved is run again.
-const ATTEMPTS: usize = 3;
+/// A failing cell is excused only by a host stall at least this long, seen by the witness
+/// while it ran, ms (the stalls that starve a 1 kHz loop; this VM's are 2–66 ms).
+const EXCUSE_STALL_MS: f64 = 5.0;
+/// At most this many cells may be excused by host stalls.
+const MAX_EXCUSED: usize = 2;
+/// The witness's sentinels wake every this, µs (every millisecond they see stalls of
+/// ≥ 1.5 ms, `tests/src/stalls.rs`).
+const WITNESS_PERIOD_US: u64 = 1000;
 /// A stalled cell's stalls: length, ms, and the time from one stall's start to the next's.
 /// 40 ms is within the 3–66 ms this VM's host stalls for; every 500 ms (about 13 stalls in
 /// a cell, several in the contact) is harsher than its few a minute, so that the control's
@@ -132,7 +145,7 @@ impl Cell {
         let mut o = vec![
             format!("environment.material={material}"),
             "environment.stiffness_n_per_mm=0".into(),
-            format!("duration_s={DURATION_S}"),
+            format!("duration_s={}", self.duration_s()),
             format!("passivity.enabled={}", self.protected),
             format!("coupling.model={}", self.protected),
         ];
@@ -161,6 +174,15 @@ impl Cell {
         o
     }
 
+    /// The cell's session length, s.
+    fn duration_s(&self) -> f64 {
+        if self.stalls {
+            STALLED_DURATION_S
+        } else {
+            DURATION_S
+        }
+    }
+
     /// A negative control: it must fail the criteria.
     fn is_control(&self) -> bool {
         !self.protected || !self.damping_bound
@@ -185,8 +207,8 @@ struct Outcome {
     lost: u64,
     /// Either loop missed more than 1 % of its deadlines.
     starved: bool,
-    /// Runs it took.
-    attempts: usize,
+    /// When it ran, `[from_ns, to_ns]` on `CLOCK_MONOTONIC` (for the stall witness).
+    window_ns: [u64; 2],
     /// The session's `coupling.force_limit_n`, N.
     coupling_limit_n: f64,
 }
@@ -207,6 +229,7 @@ fn impair_lost(log: &str) -> u64 {
 }
 
 fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
+    let started_ns = h4_telemetry::rt::monotonic_ns();
     let (master_bin, slave_bin) = remote_procs::binaries()?;
     let tag = cell.name();
     let (world, passivity) = remote_procs::slave_config(scratch, &tag, SESSION, &cell.overrides())?;
@@ -255,7 +278,7 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         slave_cmd.arg("--unsafe-test-override");
     }
     master_cmd
-        .args(["--duration-s", &DURATION_S.to_string()])
+        .args(["--duration-s", &cell.duration_s().to_string()])
         .args(["--wait-for-slave-s", &wait_s.to_string()])
         .arg("--summary")
         .arg(&master_summary)
@@ -308,7 +331,7 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         if cell.stalls {
             s.spawn(|| stall_until(&pids, &done));
         }
-        let r = master.wait(DURATION_S + wait_s + 30.0);
+        let r = master.wait(cell.duration_s() + wait_s + 30.0);
         done.store(true, std::sync::atomic::Ordering::SeqCst);
         r
     })?;
@@ -335,39 +358,11 @@ fn run_cell(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
         master: m,
         slave: s,
         lost,
-        attempts: 1,
+        window_ns: [started_ns, h4_telemetry::rt::monotonic_ns()],
         coupling_limit_n: remote_procs::session(SESSION, &cell.overrides())?
             .coupling
             .force_limit_n,
     })
-}
-
-/// [`run_cell`], again (up to [`ATTEMPTS`] runs) while it fails the criteria *and* a loop
-/// was starved: a starved run's physics describe the host (this VM under other builds), not
-/// the link. A cell failing without starvation is not re-run; nor is a stalled cell (it is
-/// starved by design).
-///
-/// The stall control is run again while it *passes* (up to [`ATTEMPTS`] runs): whether a
-/// stall kicks the unbounded handle into its chatter depends on the handle's state at that
-/// instant (measured 2026-12-02: with a stall every 2 s about half the runs chattered,
-/// the other half stayed at −0.02…−0.7 mJ and CI once saw such a run; with a stall every
-/// 500 ms 6 of 7 runs chattered, −12…−918 mJ). It must chatter in one of its runs; the
-/// protected stalled cells, on the same schedule, must pass in their one run.
-fn run_cell_until_fed(cell: Cell, scratch: &Scratch) -> Result<Outcome, String> {
-    let mut attempt = 1;
-    loop {
-        let mut o = run_cell(cell, scratch)?;
-        o.attempts = attempt;
-        let again = if cell.is_control() {
-            cell.stalls && o.reasons.is_empty()
-        } else {
-            !o.reasons.is_empty() && o.starved && !cell.stalls
-        };
-        if !again || attempt >= ATTEMPTS {
-            return Ok(o);
-        }
-        attempt += 1;
-    }
 }
 
 /// The relay forwards losslessly until the session carries traffic (1000 datagrams, about
@@ -429,7 +424,7 @@ fn run_all(cells: Vec<Cell>, scratch: &Scratch) -> Vec<Result<Outcome, String>> 
                 loop {
                     let next = queue.lock().unwrap().pop();
                     let Some((i, cell)) = next else { break };
-                    let r = run_cell_until_fed(cell, scratch);
+                    let r = run_cell(cell, scratch);
                     results.lock().unwrap().push((i, r));
                 }
             });
@@ -459,7 +454,7 @@ fn row(o: &Outcome) -> String {
         o.slave.safe_stops,
         o.master.run.deadline_misses,
         o.slave.run.deadline_misses,
-        o.attempts,
+        if o.starved { "yes" } else { "no" },
     )
 }
 
@@ -555,12 +550,21 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
     if let Ok(only) = std::env::var("H4_REAL_MATRIX_ONLY") {
         cells.retain(|c| c.name().contains(&only));
     }
+    let witness = StallWitness::start(std::time::Duration::from_micros(WITNESS_PERIOD_US));
     let results = run_all(cells, &scratch);
+    let stalls = witness.stop();
     println!(
-        "| path | wall | round trip ms | loss | stable | max true force N (slave guard's limit) | max rendered N / limit | observers min master / slave mJ | measured rtt p50 ms | lost msgs | safe stops | deadline misses master + slave | runs |"
+        "stall witness: {} stalls seen (longest {:.1} ms), trustworthy {}",
+        stalls.count(),
+        stalls.longest_ms(),
+        stalls.trustworthy()
+    );
+    println!(
+        "| path | wall | round trip ms | loss | meets the criteria | max true force N (slave's limit) | max rendered N / limit | observers min master / slave mJ | measured rtt p50 ms | lost msgs | safe stops | deadline misses master + slave | starved |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut failures = Vec::new();
+    let mut excused = Vec::new();
     for r in &results {
         let o = match r {
             Ok(o) => o,
@@ -580,15 +584,27 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
             continue;
         }
         if !o.reasons.is_empty() {
-            let starved = if o.starved {
-                format!(
-                    " (starved in all {} runs: the host, not the link?)",
-                    o.attempts
-                )
-            } else {
-                String::new()
-            };
-            failures.push(format!("{name}: {}{starved}", o.reasons.join("; ")));
+            // A stalled cell's stalls are its own (SIGSTOP), not the host's: never excused.
+            let stall = long_stalls(Some(&stalls), &[], EXCUSE_STALL_MS)
+                .into_iter()
+                .find(|g| g[0] < o.window_ns[1] && g[1] > o.window_ns[0])
+                .filter(|_| !o.cell.stalls && stalls.trustworthy());
+            match stall {
+                Some(g) => excused.push(format!(
+                    "{name}: {} — excused: the host froze a CPU for {:.1} ms while it ran",
+                    o.reasons.join("; "),
+                    (g[1] - g[0]) as f64 / 1e6
+                )),
+                None => failures.push(format!(
+                    "{name}: {}{}",
+                    o.reasons.join("; "),
+                    if o.starved {
+                        " (a loop was starved, and the witness saw no host stall)"
+                    } else {
+                        ""
+                    }
+                )),
+            }
         }
         // The impairment was really there: the measured round trip includes it.
         if o.master.round_trip_p50_us < o.cell.rtt_ms * 1e3 {
@@ -605,6 +621,20 @@ fn real_processes_meet_the_matrix_criteria_over_iceoryx2_and_zenoh() {
         if o.slave.max_force_n < 2.0 {
             failures.push(format!("{name}: no contact ({:.1} N)", o.slave.max_force_n));
         }
+    }
+    println!(
+        "excused by host stalls: {} of {} cells (at most {MAX_EXCUSED})",
+        excused.len(),
+        results.len()
+    );
+    for e in &excused {
+        println!("  {e}");
+    }
+    if excused.len() > MAX_EXCUSED {
+        failures.push(format!(
+            "{} cells excused by host stalls, more than {MAX_EXCUSED}: {excused:#?}",
+            excused.len()
+        ));
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
