@@ -502,3 +502,129 @@ fn settings_may_lower_the_ratings_never_raise_them() {
         assert!(build(forced, c).is_none(), "accepted with the override");
     }
 }
+
+/// One force-guided press for 30 N (the master's ledger growing by 0.1 W, a new one with
+/// each acknowledgement, as `h4-master` does), 4 s from 2 mm above the wall: the largest true
+/// contact force, the largest sensed force (the controller's compensated reading) and the
+/// monitor's trips.
+fn forced_press(
+    controller: ControllerParams,
+    monitor: bool,
+    material: MaterialPreset,
+    seed: u64,
+) -> (f64, f64, SafetyTrips) {
+    let mut w = world(material, controller);
+    w.plant.stiffness_scale = 0.7;
+    let (arm, ctrl) = w.build(Pose::new(0.0, 0.0, -258.0, 0.0), seed).unwrap();
+    let p = TeleopParams {
+        safety: SafetyParams {
+            monitor,
+            unsafe_test_override: true,
+            ..SafetyParams::default()
+        },
+        ..TeleopParams::default()
+    };
+    let mut ep = SlaveTeleop::new(p, ctrl, arm, PERIOD_NS).unwrap();
+    let (mut master, mut slave) = inproc::pair(64);
+    let (mut max_true, mut max_sensed): (f64, f64) = (0.0, 0.0);
+    let mut energy_j = 0.5;
+    for k in 0..4000u64 {
+        let ack = ep.state() == SlaveState::SafeStop;
+        energy_j = if ack { 0.5 } else { energy_j + 1e-4 };
+        let c = Command {
+            seq: k + 1,
+            send_time_ns: k * PERIOD_NS,
+            pose: [0.0, 0.0, -262.0, 0.0],
+            force_setpoint_n: 30.0,
+            mode: Mode::ForceGuided as u8,
+            protocol_version: PROTOCOL_VERSION,
+            energy_in_j: energy_j,
+            flags: if ack { CMD_FLAG_ACK_SAFE_STOP } else { 0 },
+            ..Command::default()
+        };
+        master.publish(&c).unwrap();
+        let out = ep.step(&mut slave, k * PERIOD_NS, 1e-3);
+        while master.try_recv().unwrap().is_some() {}
+        ep.arm_mut().advance(PERIOD_NS);
+        let norm = |w: &[f64]| (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+        let t = norm(ep.arm().true_contact_wrench().as_slice());
+        max_true = if t.is_nan() {
+            f64::NAN
+        } else {
+            max_true.max(t)
+        };
+        max_sensed = max_sensed.max(norm(&out.out.wrench_measured));
+    }
+    (max_true, max_sensed, ep.counters().safety_trips)
+}
+
+const MATERIALS: [MaterialPreset; 3] = [
+    MaterialPreset::Resin,
+    MaterialPreset::Aluminium,
+    MaterialPreset::Steel,
+];
+
+/// A gain of 4 (four times the arm's `kp_max`) is refused without the override; forced with
+/// it, on a plant 30 % softer than the controller assumes, pressing for 30 N on resin,
+/// aluminium and steel, seeds 1–4, the true force stays within 1.05 × the limit.
+#[test]
+fn a_gain_of_4_is_refused_and_forced_keeps_the_true_force_within_the_limit() {
+    let kp4 = ControllerParams {
+        kp: 4.0,
+        ..ControllerParams::default()
+    };
+    let (_, ctrl, arm) = parts(kp4);
+    let refused = SlaveTeleop::new(TeleopParams::default(), ctrl, arm, PERIOD_NS).err();
+    assert!(
+        matches!(refused, Some(TeleopError::UnstableGain { .. })),
+        "{refused:?}"
+    );
+    let limit = ControllerParams::default().force_limit_n;
+    for material in MATERIALS {
+        for seed in 1..=4 {
+            let (t, sensed, trips) = forced_press(kp4, true, material, seed);
+            println!(
+                "kp 4, {material:?} seed {seed}: true {t:.1} N, sensed {sensed:.1} N, trips {}",
+                trips.total()
+            );
+            assert!(t <= 1.05 * limit, "{material:?} seed {seed}: {t:.1} N");
+        }
+    }
+}
+
+/// What a monitor on the sensed force cannot see (docs/safety.md): the experiments' hot loop
+/// (kp 4 with a tool model of 0.01 kg and no limit on the force loop's acceleration, forced
+/// with the override) makes true-force transients too short for the sensor's filtered
+/// reading: the sensed force never passes the limit (so the monitor never trips on it)
+/// while the true force does in some runs (printed). The bound on those is the gain's
+/// rating and the trajectory limits, refused without the override, not the monitor.
+#[test]
+fn transients_shorter_than_the_sensor_shows_are_not_seen_by_the_force_monitor() {
+    let hot = ControllerParams {
+        kp: 4.0,
+        tool_mass_kg: 0.01,
+        force_accel_mm_per_s2: 1e6,
+        ..ControllerParams::default()
+    };
+    let limit = ControllerParams::default().force_limit_n;
+    let mut past = 0;
+    for material in MATERIALS {
+        for seed in 1..=4 {
+            let (t, sensed, trips) = forced_press(hot, true, material, seed);
+            println!(
+                "hot loop, {material:?} seed {seed}: true {t:.1} N, sensed {sensed:.1} N, force trips {}",
+                trips.force_over_limit + trips.force_peak
+            );
+            assert!(
+                sensed <= limit,
+                "{material:?} seed {seed}: sensed {sensed:.1} N"
+            );
+            assert_eq!(trips.force_over_limit + trips.force_peak, 0);
+            if t > 1.05 * limit {
+                past += 1;
+            }
+        }
+    }
+    println!("hot loop: {past} of 12 runs past 1.05 × {limit} N in true force, none sensed");
+    assert!(past >= 1, "the hot loop no longer rings past the limit");
+}
