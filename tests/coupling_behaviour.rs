@@ -581,3 +581,66 @@ fn a_catch_up_never_hits_a_surface_at_full_speed() {
     println!("neither: true force max {neither:.1} N");
     assert!(neither > limit, "control: only {neither:.1} N");
 }
+
+/// A steel touch at the fastest speed the master can command (issue 31): the operator's hand
+/// throws the handle 40 mm down in 50 ms (800 mm/s, far beyond the arm's rated 100 mm/s) onto
+/// a steel wall 20 mm below, pushing with 30 N, on seeds 1–6.
+/// The master commands the slave target at ≥ 80 % of the rated speed before the touch (the
+/// test's control: the throw is the fastest command there is, not a slow approach; the
+/// slave's own approach, slower behind its passivity port, is printed), and the true
+/// contact force stays within 1.05 × the slave's limit.
+#[test]
+fn a_steel_touch_at_the_fastest_commanded_speed_keeps_the_force_within_the_limit() {
+    for seed in 1..=6 {
+        let mut cfg = load(
+            "wall-push.toml",
+            &[
+                "environment.material=steel",
+                "environment.stiffness_n_per_mm=0",
+                "environment.gap_mm=20",
+                &format!("seed={seed}"),
+                "duration_s=3",
+            ],
+        );
+        cfg.operator.intent = vec![
+            seg(0.0, [0.0, 0.0, 0.0], 0.3, [0.0; 3], false),
+            seg(0.5, [0.0, 0.0, -40.0], 0.05, [0.0, 0.0, -30.0], false),
+            seg(2.5, [0.0, 0.0, 2.0], 0.3, [0.0; 3], false),
+        ];
+        let limit = cfg.slave.controller.force_limit_n;
+        let rated = cfg.slave.arm.ratings.max_speed_mm_per_s;
+        let r = run(&cfg);
+        let peak = r
+            .iter()
+            .map(|x| norm(x.true_force_n))
+            .fold(
+                0.0,
+                |a: f64, b| if b.is_nan() { f64::NAN } else { a.max(b) },
+            );
+        // The slave's speed before its first touch (z over 5 ms windows).
+        let touch = r.iter().position(|x| norm(x.true_force_n) > 1.0).unwrap();
+        let speed = r[..touch]
+            .windows(6)
+            .map(|w| (w[5].slave_measured_mm[2] - w[0].slave_measured_mm[2]).abs() / 5e-3)
+            .fold(0.0, f64::max);
+        let target_speed = r[..touch]
+            .windows(6)
+            .map(|w| (w[5].slave_target_mm[2] - w[0].slave_target_mm[2]).abs() / 5e-3)
+            .fold(0.0, f64::max);
+        println!(
+            "seed {seed}: commanded {target_speed:.1} mm/s, slave approach {speed:.1} mm/s (rated {rated}), true force peak {peak:.2} N (limit {limit})"
+        );
+        assert!(
+            peak <= 1.05 * limit,
+            "seed {seed}: true force {peak:.2} N > 1.05 × {limit} N"
+        );
+        assert!(
+            target_speed >= 0.8 * rated,
+            "seed {seed}: the master commanded only {target_speed:.1} mm/s"
+        );
+    }
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}

@@ -372,8 +372,9 @@ fn a_safe_stopped_arm_backs_away_from_a_surface_that_advances_into_it() {
     };
     let limit = 80.0;
     let guarded = peak_for(&[]);
+    println!("a surface advancing into the safe-stopped arm: {guarded:.2} N against {limit} N");
     assert!(
-        guarded <= 1.1 * limit,
+        guarded <= 1.05 * limit,
         "{guarded} N against a {limit} N limit"
     );
     assert!(
