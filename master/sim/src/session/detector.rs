@@ -340,16 +340,28 @@ pub(super) fn holds(
         .min(push_n.len())
         .min(applied_n.len())
         .min(steady.len());
-    // Holds: runs of steady cycles pushing with at least hold_push_min_n.
+    // Holds: runs of steady cycles pushing with at least hold_push_min_n. In a cutting
+    // session also in contact: the operator's push is steady from before the tool meets the
+    // stock, and after the last of the material is cut (a closed ring) the tool dwells in its
+    // own cut, pushing on the fixture's floor with no force at the tool; neither the plunge
+    // nor that end is the hold of a contact (with them the cut-profile session's one hold
+    // read 2.06 N RMS of "ripple": the force's rise at the plunge and its fall at the ring's
+    // end, around a force steady to 0.12 N RMS).
+    let cutting = tip_z_mm.is_some();
+    let holding = |k: usize| {
+        steady[k]
+            && push_n[k] >= d.hold_push_min_n
+            && (!cutting || force_n[k] > d.contact_threshold_n)
+    };
     let mut k = 0;
     let mut first_hold_settled: Option<usize> = None;
     while k < len {
-        if !(steady[k] && push_n[k] >= d.hold_push_min_n) {
+        if !holding(k) {
             k += 1;
             continue;
         }
         let start = k;
-        while k < len && steady[k] && push_n[k] >= d.hold_push_min_n {
+        while k < len && holding(k) {
             k += 1;
         }
         if k - start > settle + 2 {
@@ -972,6 +984,40 @@ mod tests {
         assert_eq!(bouncing_impacts(&f, &e[6..], 500, 1.0, 2000), 3);
         // With a longer settle time the held push is an impact too.
         assert_eq!(bouncing_impacts(&f, &e, 2500, 2.0, 2000), 7);
+    }
+
+    /// In a cutting session a hold is the push's stretch in contact: a steady push that
+    /// starts before the tool meets the stock and goes on after the last material is cut
+    /// (the force 0, then 9 N steady, then falling to 0 in a cycle) has no ripple, and a
+    /// limit cycle of ±2 N while in contact is still caught. Control: the same force without
+    /// the cut (a plain surface) is one hold through the plunge and the end, and its
+    /// ripple is large.
+    #[test]
+    fn a_cutting_hold_is_the_push_in_contact_and_its_oscillation_still_counts() {
+        let d = DetectorConfig::default();
+        let n = 14_000;
+        let push = vec![5.0; n];
+        let applied = vec![5.0; n];
+        let steady: Vec<bool> = (0..n).map(|k| k >= 500).collect();
+        let force = |wobble: f64| -> Vec<f64> {
+            (0..n)
+                .map(|k| {
+                    if (1300..13_000).contains(&k) {
+                        9.0 + wobble * (2.0 * std::f64::consts::PI * 3.0 * k as f64 * DT_S).sin()
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        };
+        let tip = vec![-251.0; n];
+        let steady_cut = holds(&force(0.0), &push, &applied, &steady, Some(&tip), 0.5, &d);
+        assert!(steady_cut.ripple_rms_n < 0.01, "{steady_cut:?}");
+        assert_eq!(steady_cut.hold_count(), 1);
+        let wobbly_cut = holds(&force(2.0), &push, &applied, &steady, Some(&tip), 0.5, &d);
+        assert!(wobbly_cut.ripple_rms_n > 1.2, "{wobbly_cut:?}");
+        let plain = holds(&force(0.0), &push, &applied, &steady, None, 0.5, &d);
+        assert!(plain.ripple_rms_n > 2.0, "control: {plain:?}");
     }
 
     /// The holds' measures on synthetic forces, with negative controls: a slow (0.3 Hz)
