@@ -749,8 +749,15 @@ fn combine(
             s.max_force_n
         ));
     }
-    let energy_min_j = m.energy_min_j.min(s.energy_min_j);
-    if energy_min_j < -cfg.detector.energy_tolerance_j {
+    // NaN-safe: a NaN observer (`f64::min` would drop it) is a divergence.
+    let energy_min_j = if m.energy_min_j.is_nan() || s.energy_min_j.is_nan() {
+        f64::NAN
+    } else {
+        m.energy_min_j.min(s.energy_min_j)
+    };
+    if energy_min_j.is_nan() {
+        reasons.push("diverged: a passivity observer is not finite".to_string());
+    } else if energy_min_j < -cfg.detector.energy_tolerance_j {
         reasons.push(format!(
             "energy: a passivity observer reached {energy_min_j:.4} J < -{} J (the link generated energy)",
             cfg.detector.energy_tolerance_j
@@ -931,6 +938,29 @@ mod tests {
             fault_injection: None,
         };
         (m, s)
+    }
+
+    /// A NaN anywhere in the evidence fails the verdict; the same summaries without it pass.
+    #[test]
+    fn a_nan_force_or_observer_fails_the_verdict() {
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/sessions/wall-push.toml");
+        let cfg = session::load(&path, &[]).expect("wall-push session");
+        let (m, s) = summaries(0, 2000);
+        assert!(combine(&cfg, 2.0, false, m, s).stable, "control");
+        type Spoil = fn(&mut MasterRunSummary, &mut SimRunSummary);
+        let spoils: [(&str, Spoil); 4] = [
+            ("true force", |_, s| s.slave.max_force_n = f64::NAN),
+            ("rendered force", |m, _| m.max_rendered_force_n = f64::NAN),
+            ("master observer", |m, _| m.energy_min_j = f64::NAN),
+            ("slave observer", |_, s| s.slave.energy_min_j = f64::NAN),
+        ];
+        for (what, spoil) in spoils {
+            let (mut m, mut s) = summaries(0, 2000);
+            spoil(&mut m, &mut s);
+            let v = combine(&cfg, 2.0, false, m, s);
+            assert!(!v.stable, "{what} NaN: {v:?}");
+        }
     }
 
     #[test]
