@@ -93,6 +93,11 @@ fn iceoryx2_files() -> usize {
     shm + count(std::path::Path::new("/tmp/iceoryx2"))
 }
 
+/// The services one link of live processes holds: commands and feedback, each a
+/// publish-subscribe service and the event service its publisher notifies
+/// (`<prefix>/<arm>/<topic>/event`, the phase-locked wake-up).
+const LINK_SERVICES: usize = 4;
+
 fn no_leaks(prefix: &str, alive: usize, services: usize) {
     let r = iox::resources(prefix).expect("iceoryx2 listing");
     assert_eq!(r.dead_nodes, 0, "dead nodes left: {r:?}");
@@ -141,7 +146,7 @@ fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
     observe(&mut mon, &mut jumps, 20.0, "paired", |fb| {
         fb.state == SlaveState::Active as u8
     });
-    no_leaks(&scratch.prefix, 3, 2);
+    no_leaks(&scratch.prefix, 3, LINK_SERVICES);
     eprintln!(
         "master storm: max step {:.4} mm, max force step {:.3} N over {} pairs",
         jumps.max_step_mm, jumps.max_force_step_n, jumps.pairs
@@ -178,7 +183,7 @@ fn twenty_kills_of_each_side_repair_without_jumps_or_leaks() {
             jumps.max_step_mm
         );
     }
-    no_leaks(&scratch.prefix, 3, 2);
+    no_leaks(&scratch.prefix, 3, LINK_SERVICES);
     ma.stop();
     sl.stop();
     drop(mon);

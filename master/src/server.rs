@@ -42,6 +42,11 @@ pub struct MasterRunOptions {
     /// Wait this long for the slave's first feedback before starting the operator's script,
     /// s (0: start at once).
     pub wait_for_slave_s: f64,
+    /// After publishing its command, wait (blocking on the link, until shortly before the
+    /// next deadline) for the slave's feedback that echoes it and take it when it arrives
+    /// (default on): with a phase-locked slave the coupling then has the answer to its last
+    /// command in every cycle, and the round trip is measured when the answer arrives.
+    pub await_feedback: bool,
 }
 
 impl Default for MasterRunOptions {
@@ -54,6 +59,7 @@ impl Default for MasterRunOptions {
             progress: h4_telemetry::progress::ProgressConfig::off(),
             duration_s: None,
             wait_for_slave_s: 10.0,
+            await_feedback: true,
         }
     }
 }
@@ -79,6 +85,11 @@ pub struct MasterRunSummary {
     pub round_trip_p999_us: f64,
     /// Largest round trip, µs.
     pub round_trip_max_us: f64,
+    /// Cycles whose command the slave's feedback echoed before the master's next cycle (the
+    /// slave answered within the master's period: `MasterRunOptions::await_feedback` with a
+    /// phase-locked slave).
+    #[serde(default)]
+    pub feedback_in_period_cycles: u64,
     /// Feedback messages received from the link (before the gate).
     pub feedback_received: u64,
     /// Feedback messages rejected for any reason but `stale` (duplicates and reordered
@@ -302,6 +313,9 @@ where
         }
         s.final_rendered_force_n = force;
         s.final_fade = fade;
+        if opts.await_feedback {
+            side.await_feedback(&mut link, cx.idle_until, || cx.clock_ns());
+        }
         Ok::<(), MasterRunError>(())
     })?;
     at_loop_end();
@@ -319,6 +333,7 @@ where
     s.gate = *gate;
     s.link_errors = side.counters().link_errors;
     s.device_stale_cycles = side.counters().device_stale_cycles;
+    s.feedback_in_period_cycles = side.counters().feedback_in_period_cycles;
     s.force_transparency_err_pct = stats.transparency_err_pct();
     let (sent, arrived) = link_stats.totals();
     s.feedback_lost = sent.saturating_sub(arrived);

@@ -179,6 +179,9 @@ pub struct MasterTeleopCounters {
     /// Cycles the device had not answered for [`DEVICE_STALE_CYCLES`] cycles or more (its
     /// reading's time did not move on): the rendered force fades out through them.
     pub device_stale_cycles: u64,
+    /// Cycles whose command the slave's feedback echoed before the master's next cycle
+    /// ([`MasterTeleop::await_feedback`]): the slave answered within the master's period.
+    pub feedback_in_period_cycles: u64,
 }
 
 /// What one master cycle did (plain data, no allocation).
@@ -210,6 +213,8 @@ pub struct MasterTeleop<D: HapticDevice> {
     /// The time of the device's last reading, and the cycles in a row it has not moved on.
     last_reading_ns: Option<u64>,
     stale_cycles: u32,
+    /// The sequence number of the last command published (0: none yet).
+    last_command_seq: u64,
 }
 
 impl<D: HapticDevice> MasterTeleop<D> {
@@ -229,6 +234,7 @@ impl<D: HapticDevice> MasterTeleop<D> {
             counters: MasterTeleopCounters::default(),
             last_reading_ns: None,
             stale_cycles: 0,
+            last_command_seq: 0,
         }
     }
 
@@ -314,6 +320,54 @@ impl<D: HapticDevice> MasterTeleop<D> {
         d.accepted > 0
     }
 
+    /// After a cycle's [`MasterTeleop::step`]: waits for the feedback that echoes the command
+    /// it published, blocking on the link ([`Link::wait_message`]) at most until `until` (the
+    /// loop's next deadline less its spin margin), and takes what arrives through the gate at
+    /// the time it arrives (`now_ns()`, the loop's clock): the round trip is then the reply's
+    /// true age, not rounded up to the next cycle, and the next step's coupling has the reply.
+    /// True if the echo arrived in time ([`MasterTeleopCounters::feedback_in_period_cycles`]).
+    /// Allocates nothing; on a link that cannot wake it returns false at once.
+    pub fn await_feedback<L: Link<Command, Feedback>>(
+        &mut self,
+        link: &mut L,
+        until: std::time::Instant,
+        now_ns: impl Fn() -> u64,
+    ) -> bool {
+        let want = self.last_command_seq;
+        if want == 0 || !link.can_wake() {
+            return false;
+        }
+        loop {
+            if self.gate.latest().is_some_and(|f| f.echo_seq >= want) {
+                self.counters.feedback_in_period_cycles += 1;
+                return true;
+            }
+            // Never past the deadline: a link that keeps saying a message waits while none
+            // can be taken (a receive error, a dead peer's last samples) must not hold the
+            // loop (it held `h4-master run` at its last cycle against a replayed slave).
+            if std::time::Instant::now() >= until {
+                return false;
+            }
+            match link.wait_message(until) {
+                Ok(true) => {
+                    let errors = self.counters.link_errors;
+                    let received = self.counters.feedback_received;
+                    self.receive(link, now_ns());
+                    if self.counters.link_errors > errors
+                        || self.counters.feedback_received == received
+                    {
+                        return false;
+                    }
+                }
+                Ok(false) => return false,
+                Err(_) => {
+                    self.counters.link_errors += 1;
+                    return false;
+                }
+            }
+        }
+    }
+
     /// The `missed` periods of `period_ns` before the cycle at `now_ns` that a stalled host
     /// did not run ([`HapticDevice::stalled`]: the simulated device's hand goes on).
     pub fn stalled(&mut self, now_ns: u64, period_ns: u64, missed: u64) {
@@ -347,6 +401,7 @@ impl<D: HapticDevice> MasterTeleop<D> {
         let rendered_wrench = self.device.write_wrench(&step.wrench);
         let mut cmd = self.coupling.finish(&rendered_wrench, &dev, now_ns);
         cmd.session_id = self.session_id;
+        self.last_command_seq = cmd.seq;
         match link.publish(&cmd) {
             Ok(()) => self.counters.commands_published += 1,
             Err(_) => self.counters.link_errors += 1,

@@ -1,6 +1,9 @@
-//! `h4-slave run`: the slave as a real process. A 1 kHz loop on absolute deadlines reads
-//! the link, passes every command through the receive gate, runs the controller on the
-//! (simulated) arm and publishes feedback. No valid command for the watchdog period (20 ms)
+//! `h4-slave run`: the slave as a real process. A 1 kHz loop reads the link, passes every
+//! command through the receive gate, runs the controller on the (simulated) arm and
+//! publishes feedback. The loop is phase-locked to the master: each cycle runs when the
+//! master's command arrives (the link wakes it), so the feedback leaves within the master's
+//! period; without a command for 1.5 periods it runs on its own absolute deadlines
+//! ([`h4_telemetry::rt::Pacer::wait_or_wake`]). No valid command for the watchdog period (20 ms)
 //! puts the arm in its safe state (force set-point ramped to zero, retract along the contact
 //! normal, hold); a valid command after that re-pairs with no jump.
 //!
@@ -61,6 +64,12 @@ pub struct RunOptions {
     pub period_ns: u64,
     /// How long before each deadline the loop stops sleeping and spins, ns.
     pub spin_ns: u64,
+    /// Phase-locked (default): each cycle runs when the master's command arrives (the link
+    /// wakes the loop: [`Link::wait_message`]), so the feedback leaves within the master's
+    /// period; without a command within `1.5 ×` its period the loop runs on its own clock
+    /// (the watchdog and safe stop as ever). Off, or on a link that cannot wake the loop (an
+    /// impaired or playout link): the loop runs on its own clock only.
+    pub phase_lock: bool,
     /// No valid command for this long → safe state, ms.
     pub watchdog_ms: f64,
     /// After this much silence a command whose sequence number went backwards is taken as a
@@ -89,6 +98,7 @@ impl Default for RunOptions {
             arm_id: 0,
             period_ns: 1_000_000,
             spin_ns: 200_000,
+            phase_lock: true,
             watchdog_ms: 20.0,
             restart_silence_ms: 100.0,
             passivity: PassivityParams::default(),
@@ -344,7 +354,7 @@ where
     let mut error_sum = 0.0;
     let mut worst_excess_ms = f64::NEG_INFINITY;
     let mut state = SlaveState::Idle;
-    let Ok(()) = rt.run(|cx| {
+    let mut body = |cx: &mut h4_telemetry::rt::CycleCtx<'_>, link: &mut L| {
         let now = cx.now_ns;
         // A simulated arm keeps real time: through deadlines the loop missed (a stalled
         // host) its servos held the last command written, before this cycle reads it.
@@ -389,7 +399,18 @@ where
             );
         }
         Ok::<(), std::convert::Infallible>(())
-    });
+    };
+    let Ok(()) = if opts.phase_lock && link.can_wake() {
+        // A failed wait is a cycle on the loop's own clock; the step's receive counts the
+        // link's error.
+        rt.run_phase_locked(
+            link,
+            |l, until| l.wait_message(until).unwrap_or(false),
+            body,
+        )
+    } else {
+        rt.run(|cx| body(cx, link))
+    };
     let k = *teleop.counters();
     s.shutdown = shut_down(teleop, diag, link, &mut rt, &mut sink, opts);
     progress.finish();

@@ -3,10 +3,13 @@
 //! encoding); the receiver still validates every message through its [`crate::gate::Gate`].
 //!
 //! Services are `<prefix>/<arm_id>/command` and `<prefix>/<arm_id>/feedback` (prefix `h4`),
-//! so several arms share a host. Receiving is a non-blocking poll, done once per control
-//! cycle of the caller's paced loop: no wake-up to pay (35–110 µs across vCPUs on the
-//! project's VMs) and no core spinning on the link. The round-trip bench measures it against
-//! an event wake-up and a busy-poll (`docs/processes.md`, "Event wake-up or polling").
+//! so several arms share a host. Receiving is a non-blocking poll ([`Link::try_recv`]); a
+//! receiver that waits for its peer ([`Link::wait_message`]: the phase-locked slave, the
+//! master waiting for its cycle's feedback) blocks on the event service
+//! `<prefix>/<arm_id>/<topic>/event`, which the publisher notifies after every sample: it
+//! sleeps in the kernel (no core spinning on the link) and pays one wake-up (35–110 µs across
+//! vCPUs on the project's VMs). The round-trip bench measures it against a busy-poll
+//! (`docs/processes.md`, "Event wake-up or polling").
 //!
 //! Resources left by a killed process are removed when the next node is created (iceoryx2
 //! cleans up dead nodes on creation), and services are opened with `open_or_create`, so a
@@ -15,6 +18,8 @@
 
 use std::sync::Once;
 
+use ::iceoryx2::port::listener::Listener;
+use ::iceoryx2::port::notifier::Notifier;
 use ::iceoryx2::port::publisher::Publisher;
 use ::iceoryx2::port::subscriber::Subscriber;
 use ::iceoryx2::prelude::*;
@@ -94,6 +99,10 @@ where
 {
     publisher: Publisher<ipc::Service, Shm<Out>, ()>,
     subscriber: Subscriber<ipc::Service, Shm<In>, ()>,
+    /// Notifies the peer's listener after each published sample (`<…>/<out topic>/event`).
+    notifier: Notifier<ipc::Service>,
+    /// Woken by the peer's notifier (`<…>/<in topic>/event`): [`Link::wait_message`].
+    listener: Listener<ipc::Service>,
     // Dropped last: ports belong to the node.
     _node: Node<ipc::Service>,
 }
@@ -129,6 +138,24 @@ where
         .enable_safe_overflow(true)
         .max_publishers(MAX_PUBLISHERS)
         .max_subscribers(4)
+        .max_nodes(8)
+        .open_or_create()
+        .map_err(|e| format!("{e:?}"))
+}
+
+/// Opens (or creates) the event service `<prefix>/<arm_id>/<topic>/event`: the publisher of
+/// `<topic>` notifies it after every sample, the subscriber's side listens on it.
+fn event_service(
+    node: &Node<ipc::Service>,
+    opts: &Iceoryx2Options,
+    topic: &str,
+) -> Result<::iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, String> {
+    let name = format!("{}/{}/{}/event", opts.prefix, opts.arm_id, topic);
+    let name = ServiceName::new(&name).map_err(|e| format!("service name {name}: {e:?}"))?;
+    node.service_builder(&name)
+        .event()
+        .max_notifiers(4)
+        .max_listeners(4)
         .max_nodes(8)
         .open_or_create()
         .map_err(|e| format!("{e:?}"))
@@ -196,9 +223,27 @@ where
         .buffer_size(opts.buffer.max(1))
         .create()
         .map_err(|e| err("subscriber")(&e))?;
+    let notifier = event_service(&node, opts, out_topic)
+        .map_err(|detail| Iceoryx2Error {
+            what: "open or create the outgoing event service",
+            detail,
+        })?
+        .notifier_builder()
+        .create()
+        .map_err(|e| err("notifier")(&e))?;
+    let listener = event_service(&node, opts, in_topic)
+        .map_err(|detail| Iceoryx2Error {
+            what: "open or create the incoming event service",
+            detail,
+        })?
+        .listener_builder()
+        .create()
+        .map_err(|e| err("listener")(&e))?;
     Ok(Iceoryx2Link {
         publisher,
         subscriber,
+        notifier,
+        listener,
         _node: node,
     })
 }
@@ -353,6 +398,9 @@ where
         let sample = self.publisher.loan_uninit().map_err(|_| failed)?;
         let sample = sample.write_payload(Shm(*msg));
         sample.send().map_err(|_| failed)?;
+        // The sample is delivered whatever the notification does: a lost wake-up leaves a
+        // waiting peer to its own clock for one cycle, so a failure is not the link's.
+        let _ = self.notifier.notify();
         Ok(())
     }
 
@@ -364,5 +412,32 @@ where
                 transport: "iceoryx2",
             }),
         }
+    }
+
+    /// Blocks on the event service's listener, which the peer's publisher notifies after
+    /// every sample; a notification for a sample already taken (the listener collects them
+    /// all) is slept through again until the deadline.
+    fn wait_message(&mut self, deadline: std::time::Instant) -> Result<bool, LinkError> {
+        let failed = LinkError::ReceiveFailed {
+            transport: "iceoryx2",
+        };
+        loop {
+            if self.subscriber.has_samples().map_err(|_| failed)? {
+                // Forget the notifications of what is waiting: the next wait sleeps.
+                self.listener.try_wait(|_| {}).map_err(|_| failed)?;
+                return Ok(true);
+            }
+            let timeout = deadline.saturating_duration_since(std::time::Instant::now());
+            if timeout.is_zero() {
+                return Ok(false);
+            }
+            self.listener
+                .timed_wait(|_| {}, timeout)
+                .map_err(|_| failed)?;
+        }
+    }
+
+    fn can_wake(&self) -> bool {
+        true
     }
 }

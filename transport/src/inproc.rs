@@ -3,7 +3,9 @@
 
 use std::collections::VecDeque;
 use std::marker::PhantomData;
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::Instant;
 
 use h4_shared::wire::{Command, Feedback, WireMessage};
 
@@ -44,7 +46,59 @@ impl<T> Ring<T> {
     }
 }
 
-type Shared<T> = Arc<Mutex<Ring<T>>>;
+/// One direction of an in-process link: the ring, and the signal a waiting receiver
+/// ([`Link::wait_message`]) sleeps on. `waiters` spares the publisher the wake-up call when
+/// nobody waits (the lockstep simulation never does).
+#[derive(Debug)]
+pub(crate) struct Queue<T> {
+    ring: Mutex<Ring<T>>,
+    arrived: Condvar,
+    waiters: AtomicUsize,
+}
+
+impl<T> Queue<T> {
+    fn new(capacity: usize) -> Arc<Self> {
+        Arc::new(Queue {
+            ring: Mutex::new(Ring::new(capacity)),
+            arrived: Condvar::new(),
+            waiters: AtomicUsize::new(0),
+        })
+    }
+
+    fn lock(&self) -> std::sync::LockResult<std::sync::MutexGuard<'_, Ring<T>>> {
+        self.ring.lock()
+    }
+
+    /// Queues `item` and wakes a waiting receiver.
+    fn push(&self, item: T) -> Result<(), LinkError> {
+        self.ring.lock().map_err(|_| LinkError::Closed)?.push(item);
+        if self.waiters.load(Ordering::Acquire) > 0 {
+            self.arrived.notify_all();
+        }
+        Ok(())
+    }
+
+    /// Blocks until the ring holds an item or `deadline` passes; true if it holds one.
+    pub(crate) fn wait(&self, deadline: Instant) -> Result<bool, LinkError> {
+        let ring = self.ring.lock().map_err(|_| LinkError::Closed)?;
+        if !ring.is_empty() {
+            return Ok(true);
+        }
+        let timeout = deadline.saturating_duration_since(Instant::now());
+        if timeout.is_zero() {
+            return Ok(false);
+        }
+        self.waiters.fetch_add(1, Ordering::AcqRel);
+        let waited = self
+            .arrived
+            .wait_timeout_while(ring, timeout, |r| r.is_empty());
+        self.waiters.fetch_sub(1, Ordering::AcqRel);
+        let (ring, _) = waited.map_err(|_| LinkError::Closed)?;
+        Ok(!ring.is_empty())
+    }
+}
+
+type Shared<T> = Arc<Queue<T>>;
 
 /// One end of an in-process link.
 #[derive(Debug)]
@@ -57,8 +111,8 @@ pub struct InprocEnd<Out, In> {
 /// A connected pair: the master's end and the slave's end, each queue holding `capacity`
 /// messages.
 pub fn pair(capacity: usize) -> (InprocEnd<Command, Feedback>, InprocEnd<Feedback, Command>) {
-    let commands = Arc::new(Mutex::new(Ring::new(capacity)));
-    let feedback = Arc::new(Mutex::new(Ring::new(capacity)));
+    let commands = Queue::new(capacity);
+    let feedback = Queue::new(capacity);
     (
         InprocEnd {
             tx: commands.clone(),
@@ -82,14 +136,20 @@ impl<Out, In> InprocEnd<Out, In> {
 
 impl<Out: WireMessage, In: WireMessage> Link<Out, In> for InprocEnd<Out, In> {
     fn publish(&mut self, msg: &Out) -> Result<(), LinkError> {
-        let mut q = self.tx.lock().map_err(|_| LinkError::Closed)?;
-        q.push(*msg);
-        Ok(())
+        self.tx.push(*msg)
     }
 
     fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
         let mut q = self.rx.lock().map_err(|_| LinkError::Closed)?;
         Ok(q.pop())
+    }
+
+    fn wait_message(&mut self, deadline: Instant) -> Result<bool, LinkError> {
+        self.rx.wait(deadline)
+    }
+
+    fn can_wake(&self) -> bool {
+        true
     }
 }
 
@@ -105,9 +165,7 @@ pub struct RawEnd {
 impl RawEnd {
     /// Sends one payload.
     pub fn send(&mut self, bytes: &[u8]) {
-        if let Ok(mut q) = self.tx.lock() {
-            q.push(bytes.to_vec());
-        }
+        let _ = self.tx.push(bytes.to_vec());
     }
 
     /// The next payload that has arrived, or `None`.
@@ -129,8 +187,8 @@ pub struct DecodingEnd<Out, In> {
 
 /// A byte-level pair: the outside client's raw end (a master) and the slave's decoding end.
 pub fn raw_pair(capacity: usize) -> (RawEnd, DecodingEnd<Feedback, Command>) {
-    let commands = Arc::new(Mutex::new(Ring::new(capacity)));
-    let feedback = Arc::new(Mutex::new(Ring::new(capacity)));
+    let commands = Queue::new(capacity);
+    let feedback = Queue::new(capacity);
     (
         RawEnd {
             tx: commands.clone(),
@@ -152,9 +210,7 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for DecodingEnd<Out, In> {
             .map_err(|_| LinkError::SendFailed {
                 transport: "inproc-bytes",
             })?;
-        let mut q = self.tx.lock().map_err(|_| LinkError::Closed)?;
-        q.push(bytes);
-        Ok(())
+        self.tx.push(bytes)
     }
 
     fn try_recv(&mut self) -> Result<Option<In>, LinkError> {
@@ -172,6 +228,14 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for DecodingEnd<Out, In> {
 
     fn decode_rejects(&self) -> DecodeRejects {
         self.rejects
+    }
+
+    fn wait_message(&mut self, deadline: Instant) -> Result<bool, LinkError> {
+        self.rx.wait(deadline)
+    }
+
+    fn can_wake(&self) -> bool {
+        true
     }
 }
 
@@ -194,5 +258,31 @@ mod tests {
         assert_eq!(slave.try_recv().unwrap().map(|c| c.seq), Some(2));
         assert_eq!(slave.recv_latest().unwrap().map(|c| c.seq), Some(3));
         assert_eq!(slave.try_recv().unwrap(), None);
+    }
+
+    #[test]
+    fn a_waiting_receiver_is_woken_by_the_message() {
+        let (mut master, mut slave) = pair(4);
+        // Nothing sent: the wait ends at its deadline with nothing waiting.
+        assert!(!slave.wait_message(Instant::now()).unwrap());
+        // A message sent while the receiver waits (with a deadline it never reaches) wakes it.
+        let sender = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            master
+                .publish(&Command {
+                    seq: 7,
+                    ..Command::default()
+                })
+                .unwrap();
+            master
+        });
+        let far = Instant::now() + std::time::Duration::from_secs(600);
+        assert!(slave.wait_message(far).unwrap());
+        assert_eq!(slave.try_recv().unwrap().map(|c| c.seq), Some(7));
+        let _master = sender.join().unwrap();
+        // A message already waiting: true at once, whatever the deadline.
+        let (mut m2, mut s2) = pair(4);
+        m2.publish(&Command::default()).unwrap();
+        assert!(s2.wait_message(Instant::now()).unwrap());
     }
 }

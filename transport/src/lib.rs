@@ -9,7 +9,8 @@
 //! a process's end from its command-line options. [`ros2`] is the ROS 2 wire format over
 //! rmw_zenoh (CDR, type hashes, key expressions; pure, no session).
 //!
-//! Publishing and receiving never block and allocate nothing per message.
+//! Publishing and receiving never block and allocate nothing per message; a receiver that
+//! has nothing else to do until its peer's message may block in [`Link::wait_message`].
 
 pub mod gate;
 #[cfg(feature = "iceoryx2")]
@@ -106,6 +107,25 @@ pub trait Link<Out: WireMessage, In: WireMessage> {
     fn undecodable(&self) -> u64 {
         self.decode_rejects().total()
     }
+
+    /// Blocks until a message has arrived for [`Link::try_recv`] or until `deadline`,
+    /// whichever comes first; true if one is waiting (at once when one already is). It
+    /// sleeps in the kernel (a condition variable, an iceoryx2 event, the Zenoh subscriber's
+    /// signal), never spins, and allocates nothing. A phase-locked loop waits here for its
+    /// peer's message and runs its cycle when it arrives ([`Link::can_wake`]).
+    ///
+    /// The default, for a link that cannot be woken (an impaired link, whose messages are
+    /// released by the clock): returns `Ok(false)` at once, and the caller runs on its own
+    /// clock.
+    fn wait_message(&mut self, deadline: std::time::Instant) -> Result<bool, LinkError> {
+        let _ = deadline;
+        Ok(false)
+    }
+
+    /// True if [`Link::wait_message`] wakes on an arrival (false: it returns at once).
+    fn can_wake(&self) -> bool {
+        false
+    }
 }
 
 impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In> for Box<L> {
@@ -117,5 +137,11 @@ impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In>
     }
     fn decode_rejects(&self) -> DecodeRejects {
         (**self).decode_rejects()
+    }
+    fn wait_message(&mut self, deadline: std::time::Instant) -> Result<bool, LinkError> {
+        (**self).wait_message(deadline)
+    }
+    fn can_wake(&self) -> bool {
+        (**self).can_wake()
     }
 }

@@ -337,6 +337,20 @@ where
         }
     }
 
+    /// Disabled, the inner link's wake-up (the slave phase-locks through it); enabled, the
+    /// buffer releases by its clock and cannot be woken by an arrival.
+    fn wait_message(&mut self, deadline: std::time::Instant) -> Result<bool, LinkError> {
+        if self.cfg.enabled {
+            Ok(false)
+        } else {
+            self.inner.wait_message(deadline)
+        }
+    }
+
+    fn can_wake(&self) -> bool {
+        !self.cfg.enabled && self.inner.can_wake()
+    }
+
     fn decode_rejects(&self) -> DecodeRejects {
         self.inner.decode_rejects()
     }

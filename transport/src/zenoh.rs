@@ -247,8 +247,9 @@ pub const ROLE_SETTLE: std::time::Duration = std::time::Duration::from_millis(10
 struct Inbox<In> {
     queue: Mutex<Ring<In>>,
     /// Signalled after a message is queued while a thread waits in
-    /// [`ZenohLink::wait_for_message`]; `waiters` keeps the callback from paying a wake-up
-    /// syscall when nobody waits (the 1 kHz loops poll, they never wait).
+    /// [`ZenohLink::wait_for_message`] (and so [`Link::wait_message`]: the phase-locked slave
+    /// between its cycles, the master for the feedback of its cycle); `waiters` keeps the
+    /// callback from paying a wake-up syscall when nobody waits.
     arrived: std::sync::Condvar,
     waiters: std::sync::atomic::AtomicUsize,
     rejects: Mutex<DecodeRejects>,
@@ -395,8 +396,8 @@ impl<Out: WireMessage, In: WireMessage> ZenohLink<Out, In> {
     }
 
     /// Blocks until a message is waiting for [`Link::try_recv`] or `timeout` passes; true if
-    /// one is waiting. For a receiver that has nothing else to do (a tool, the round-trip
-    /// bench): the 1 kHz loops poll once a cycle and never call it. Waiting this way leaves the
+    /// one is waiting. For a receiver that has nothing else to do until the message (a tool,
+    /// the round-trip bench, a phase-locked loop through [`Link::wait_message`]). Waiting this way leaves the
     /// CPU to Zenoh's own threads, which deliver the message; spinning on `try_recv` on a
     /// 2-core machine competes with them.
     pub fn wait_for_message(&self, timeout: std::time::Duration) -> bool {
@@ -519,6 +520,16 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for ZenohLink<Out, In> {
             .rejects
             .lock()
             .map_or(DecodeRejects::default(), |r| *r)
+    }
+
+    /// Sleeps on the subscriber callback's signal ([`ZenohLink::wait_for_message`]).
+    fn wait_message(&mut self, deadline: std::time::Instant) -> Result<bool, LinkError> {
+        let timeout = deadline.saturating_duration_since(std::time::Instant::now());
+        Ok(self.wait_for_message(timeout))
+    }
+
+    fn can_wake(&self) -> bool {
+        true
     }
 }
 

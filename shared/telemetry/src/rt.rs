@@ -137,6 +137,9 @@ pub struct Tick {
     pub lateness_ns: u64,
     /// Deadlines skipped because the loop was later than a whole period.
     pub missed: u64,
+    /// The cycle was started by the peer's message ([`Pacer::wait_or_wake`]), not by the
+    /// loop's own deadline.
+    pub woken: bool,
 }
 
 /// Paces a loop on absolute deadlines `start + n · period`.
@@ -167,7 +170,24 @@ pub struct Pacer {
     /// `CLOCK_MONOTONIC` at `origin`, ns: turns an `Instant` into a system-wide time.
     origin_mono_ns: u64,
     origin: Instant,
+    /// When the last cycle started (woke).
+    last_start: Instant,
+    /// The last cycle was started by a message ([`Pacer::wait_or_wake`]).
+    locked: bool,
+    /// Cycles started by a message.
+    pub woken_cycles: u64,
 }
+
+/// How long after its period a phase-locked loop still waits for the peer's message before it
+/// runs on its own clock, as a share of the period: the peer's own lateness (a master's p99
+/// under load is ~1 ms at 1 kHz, `docs/processes.md`) up to half a period does not split a
+/// cycle in two.
+pub const LOCK_MARGIN_PERIODS: f64 = 0.5;
+
+/// The shortest time between the starts of two cycles when the second is woken by a
+/// message: a quarter period, at most this (a peer sending faster than its period, a burst
+/// after a stall, cannot drive the loop faster than four times its rate), ns.
+pub const MIN_WOKEN_SPACING_MAX_NS: u64 = 250_000;
 
 /// Misses whose times a [`Pacer`] keeps (the later ones are only counted).
 pub const MISS_SPANS_MAX: usize = 256;
@@ -197,6 +217,96 @@ impl Pacer {
             miss_spans_len: 0,
             origin_mono_ns: monotonic_ns(),
             origin: Instant::now(),
+            last_start: Instant::now(),
+            locked: false,
+            woken_cycles: 0,
+        }
+    }
+
+    /// When the next cycle is due on the loop's own clock (the next deadline).
+    pub fn next_deadline(&self) -> Instant {
+        self.next
+    }
+
+    /// How long before each deadline the pacer stops sleeping and spins.
+    pub fn spin(&self) -> Duration {
+        self.spin
+    }
+
+    /// The phase-locked wait: the next cycle starts when the peer's message arrives
+    /// (`wake(until)` blocks until a message is waiting, true, or until `until`, false;
+    /// a link's `wait_message`) or, without one, at the loop's own
+    /// deadline, whichever comes first. The own deadline after a woken cycle is its start
+    /// plus `1 + LOCK_MARGIN_PERIODS` periods, after an own-clock cycle the next deadline of
+    /// the grid (anchored at the last woken cycle's start). A woken cycle starts no sooner than
+    /// a quarter period (at most [`MIN_WOKEN_SPACING_MAX_NS`]) after the last one. Its
+    /// lateness is 0 (the loop ran when its input came); `missed` counts the whole periods
+    /// beyond the first since the last cycle (a stalled host). A `wake` that cannot block
+    /// (returns false at once) makes this [`Pacer::wait`].
+    pub fn wait_or_wake(&mut self, mut wake: impl FnMut(Instant) -> bool) -> Tick {
+        let body_cpu_ns = thread_cpu_ns().saturating_sub(self.woke_cpu_ns);
+        let period_ns = u64::try_from(self.period.as_nanos())
+            .unwrap_or(u64::MAX)
+            .max(1);
+        let own = if self.locked {
+            self.last_start + self.period.mul_f64(1.0 + LOCK_MARGIN_PERIODS)
+        } else {
+            self.next
+        };
+        let earliest =
+            self.last_start + Duration::from_nanos((period_ns / 4).min(MIN_WOKEN_SPACING_MAX_NS));
+        if let Some(pause) = earliest.checked_duration_since(Instant::now()) {
+            std::thread::sleep(pause);
+        }
+        let until = own.checked_sub(self.spin).unwrap_or(own);
+        if Instant::now() < until && wake(until) {
+            let woke = Instant::now();
+            let gap_ns =
+                u64::try_from(woke.duration_since(self.last_start).as_nanos()).unwrap_or(u64::MAX);
+            let missed = (gap_ns / period_ns).saturating_sub(1);
+            self.book_miss(
+                missed,
+                body_cpu_ns,
+                period_ns,
+                self.last_start + self.period,
+                woke,
+            );
+            self.max_body_cpu_ns = self.max_body_cpu_ns.max(body_cpu_ns);
+            self.woke_cpu_ns = thread_cpu_ns();
+            self.lateness.record(0);
+            self.next = woke + self.period;
+            self.last_start = woke;
+            self.locked = true;
+            self.woken_cycles += 1;
+            let tick = Tick {
+                cycle: self.cycle,
+                lateness_ns: 0,
+                missed,
+                woken: true,
+            };
+            self.cycle += 1 + missed;
+            return tick;
+        }
+        self.next = own;
+        self.locked = false;
+        self.wait()
+    }
+
+    fn book_miss(
+        &mut self,
+        missed: u64,
+        body_cpu_ns: u64,
+        period_ns: u64,
+        due: Instant,
+        woke: Instant,
+    ) {
+        self.misses += missed;
+        if missed > 0 && body_cpu_ns >= period_ns {
+            self.misses_outside_stalls += missed;
+        }
+        if missed > 0 && self.miss_spans_len < MISS_SPANS_MAX {
+            self.miss_spans_ns[self.miss_spans_len] = [self.mono_ns(due), self.mono_ns(woke)];
+            self.miss_spans_len += 1;
         }
     }
 
@@ -238,14 +348,8 @@ impl Pacer {
             .unwrap_or(u64::MAX)
             .max(1);
         let missed = late_ns / period_ns;
-        self.misses += missed;
-        if missed > 0 && body_cpu_ns >= period_ns {
-            self.misses_outside_stalls += missed;
-        }
-        if missed > 0 && self.miss_spans_len < MISS_SPANS_MAX {
-            self.miss_spans_ns[self.miss_spans_len] = [self.mono_ns(deadline), self.mono_ns(woke)];
-            self.miss_spans_len += 1;
-        }
+        self.book_miss(missed, body_cpu_ns, period_ns, deadline, woke);
+        self.last_start = woke;
         self.max_body_cpu_ns = self.max_body_cpu_ns.max(body_cpu_ns);
         self.woke_cpu_ns = thread_cpu_ns();
         self.lateness.record(late_ns);
@@ -255,6 +359,7 @@ impl Pacer {
             cycle: self.cycle,
             lateness_ns: late_ns,
             missed,
+            woken: false,
         };
         self.cycle += 1 + missed;
         tick
@@ -283,6 +388,9 @@ pub struct LoopReport {
     /// `CLOCK_MONOTONIC`, ns: a recorded cycle's time plus this is comparable with the spans
     /// above and with the other process's.
     pub clock_origin_monotonic_ns: u64,
+    /// Cycles the peer's message started (a phase-locked loop: the slave's woken by the
+    /// master's command); the other cycles ran on the loop's own clock.
+    pub phase_locked_cycles: u64,
     /// Largest CPU time of the loop thread in one cycle's body (the per-cycle work, without
     /// the pacer's wait), µs.
     pub max_cycle_cpu_us: f64,
@@ -322,6 +430,7 @@ impl LoopReport {
             },
             // The pacer has no clock origin: `RtLoop::report` sets it.
             clock_origin_monotonic_ns: 0,
+            phase_locked_cycles: pacer.woken_cycles,
             max_cycle_cpu_us: us(pacer.max_body_cpu_ns),
             lateness_p50_us: us(h.quantile(0.5)),
             lateness_p99_us: us(h.quantile(0.99)),
@@ -365,6 +474,20 @@ pub struct CycleCtx<'a> {
     /// `Some` when the progress reporter wants the status text (a few times a second for a
     /// bar, once per plain line): the text to write.
     pub status: Option<StatusDue<'a>>,
+    /// The loop's clock (to read the time again inside the body).
+    pub clock: &'a h4_shared::clock::MonotonicClock,
+    /// The latest instant the body may block until (waiting for the peer's message) without
+    /// delaying the next cycle: the next deadline less the pacer's spin margin.
+    pub idle_until: Instant,
+}
+
+impl CycleCtx<'_> {
+    /// The loop's clock now, ns since the loop started (later than `now_ns` by the body's
+    /// time so far).
+    pub fn clock_ns(&self) -> u64 {
+        use h4_shared::clock::Clock;
+        self.clock.now_ns()
+    }
 }
 
 /// The real-time shell both processes (`h4-slave run`, `h4-master run`) run their 1 kHz
@@ -416,12 +539,34 @@ impl RtLoop {
     /// returned at once).
     pub fn run<E>(
         &mut self,
-        body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
+        mut body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
     ) -> Result<(), E> {
         let end_ns = self.end_ns;
-        self.cycle_until(body, |now_ns| {
-            crate::process::stop_requested() || end_ns.is_some_and(|e| now_ns >= e)
-        })
+        self.cycle_until(
+            &mut (),
+            |p, _| p.wait(),
+            |cx, _| body(cx),
+            |now_ns| crate::process::stop_requested() || end_ns.is_some_and(|e| now_ns >= e),
+        )
+    }
+
+    /// [`RtLoop::run`], phase-locked ([`Pacer::wait_or_wake`]): each cycle starts when
+    /// `wake(state, until)` reports the peer's message (it blocks until one is waiting or
+    /// until `until`), or at the loop's own deadline without one. `state` (the link) is lent
+    /// to `wake` between cycles and to `body` in them.
+    pub fn run_phase_locked<T, E>(
+        &mut self,
+        state: &mut T,
+        mut wake: impl FnMut(&mut T, Instant) -> bool,
+        body: impl FnMut(&mut CycleCtx<'_>, &mut T) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let end_ns = self.end_ns;
+        self.cycle_until(
+            state,
+            |p, st| p.wait_or_wake(|until| wake(st, until)),
+            body,
+            |now_ns| crate::process::stop_requested() || end_ns.is_some_and(|e| now_ns >= e),
+        )
     }
 
     /// After [`RtLoop::run`] stopped: runs `body` on the same pacer, clock and statistics for
@@ -436,7 +581,9 @@ impl RtLoop {
         let end_ns = self.clock.now_ns() + (limit_s.max(0.0) * 1e9) as u64;
         let done = std::cell::Cell::new(false);
         let Ok(()) = self.cycle_until(
-            |cx| {
+            &mut (),
+            |p, _| p.wait(),
+            |cx, _| {
                 done.set(!body(cx));
                 Ok::<(), std::convert::Infallible>(())
             },
@@ -444,14 +591,16 @@ impl RtLoop {
         );
     }
 
-    fn cycle_until<E>(
+    fn cycle_until<T, E>(
         &mut self,
-        mut body: impl FnMut(&mut CycleCtx<'_>) -> Result<(), E>,
+        state: &mut T,
+        mut wait: impl FnMut(&mut Pacer, &mut T) -> Tick,
+        mut body: impl FnMut(&mut CycleCtx<'_>, &mut T) -> Result<(), E>,
         mut stop: impl FnMut(u64) -> bool,
     ) -> Result<(), E> {
         use h4_shared::clock::Clock;
         loop {
-            let tick = self.pacer.wait();
+            let tick = wait(&mut self.pacer, state);
             let now_ns = self.clock.now_ns();
             if stop(now_ns) {
                 break;
@@ -476,14 +625,17 @@ impl RtLoop {
             } else {
                 None
             };
+            let next = self.pacer.next_deadline();
             let mut ctx = CycleCtx {
                 now_ns,
                 unix_ns: self.clock.unix_ns(now_ns),
                 tick,
                 cycles: self.cycles,
                 status,
+                clock: &self.clock,
+                idle_until: next.checked_sub(self.pacer.spin()).unwrap_or(next),
             };
-            body(&mut ctx)?;
+            body(&mut ctx, state)?;
             if due {
                 self.progress.set_detail(&self.text);
             }
