@@ -23,7 +23,7 @@ use h4_slave_sim::plant::{
 use h4_slave_sim::world::SlaveWorld;
 use h4_transport::gate::GateCounters;
 use h4_transport::inproc::{self, DecodingEnd, RawEnd};
-use outside_client::{Cmd, Fb, bad_messages};
+use outside_client::{BIT_OUT_OF_RANGE, BIT_STALE, Cmd, Fb, bad_messages};
 
 const PERIOD_NS: u64 = 1_000_000;
 const HOME: [f64; 4] = [0.0, 0.0, -258.0, 0.0];
@@ -42,8 +42,13 @@ struct Rig {
 
 impl Rig {
     fn new() -> Self {
+        Self::with(ArmConfig::default(), 10_000.0)
+    }
+
+    /// The rig with the slave arm `arm` and the slave's watchdog at `watchdog_ms`.
+    fn with(arm: ArmConfig, watchdog_ms: f64) -> Self {
         let world = SlaveWorld {
-            arm: ArmConfig::default(),
+            arm,
             surface: SurfaceConfig::new(
                 ShapeKind::Plane,
                 MaterialPreset::Resin,
@@ -57,7 +62,7 @@ impl Rig {
         };
         let (arm, ctrl) = world.build(Pose::from(HOME), 1).unwrap();
         let p = TeleopParams {
-            watchdog_ms: 10_000.0,
+            watchdog_ms,
             ..TeleopParams::default()
         };
         let (client, link) = inproc::raw_pair(4096);
@@ -226,4 +231,188 @@ fn every_bad_message_is_rejected_counted_by_reason_flagged_and_never_acted_on() 
     );
     assert_eq!(r.counters().pairings, 1);
     assert_eq!(r.ep.gate().paired_session(), Some(SESSION));
+}
+
+/// docs/wire.md, "Safe stop and the acknowledgement" and `echo_seq`, as an outside master
+/// sees them on the wire. `echo_seq` is the `seq` of the last command the slave took in the
+/// cycle (the newest of several, not a rejected one after it) and stays as it was in a cycle
+/// that took none. After a safe stop (here the watchdog's), commands without the
+/// acknowledgement are accepted by the gate but not followed (state stays 2, `echo_seq` stays,
+/// fault bit 0 stays set): the negative control. The first command carrying
+/// `CMD_FLAG_ACK_SAFE_STOP` re-arms the slave in the cycle it arrives (state 1, bit 0 clear,
+/// echoed); acknowledgements that go on while active (the master's round trip) change
+/// nothing, and commands without it then keep the slave active.
+#[test]
+fn a_safe_stop_re_arms_on_the_first_acknowledged_command_and_echo_seq_names_the_last_taken() {
+    const ACK: u16 = 1 << 1;
+    const FAULT_COMMAND_TIMEOUT: u16 = 1 << 0;
+    let mut r = Rig::with(ArmConfig::default(), 20.0);
+    let mut seq = 0;
+    let pos = |seq| Cmd::position(SESSION, seq, HOME);
+    for _ in 0..300 {
+        seq += 1;
+        r.cycle(&[&pos(seq).bytes()]);
+        assert_eq!(r.last_fb.unwrap().echo_seq, seq, "one command per cycle");
+    }
+    // Two in one cycle: the newest is echoed.
+    r.cycle(&[&pos(seq + 1).bytes(), &pos(seq + 2).bytes()]);
+    seq += 2;
+    assert_eq!(r.last_fb.unwrap().echo_seq, seq);
+    // A rejected command alone (out of the workspace): the echo stays.
+    let mut far = pos(seq + 1);
+    far.pose[0] = 1e6;
+    r.cycle(&[&far.bytes()]);
+    assert_eq!(r.last_fb.unwrap().echo_seq, seq);
+    assert_eq!(r.last_fb.unwrap().rejected_reasons, BIT_OUT_OF_RANGE);
+    // An accepted command, then a rejected one (a duplicate) in the same cycle: the accepted
+    // one is echoed, not the last received.
+    seq += 2;
+    r.cycle(&[&pos(seq).bytes(), &pos(seq).bytes()]);
+    assert_eq!(r.last_fb.unwrap().echo_seq, seq);
+    assert_eq!(r.last_fb.unwrap().rejected_reasons, BIT_STALE);
+    // A cycle without a command: the echo stays.
+    r.cycle(&[]);
+    let fb = r.last_fb.unwrap();
+    assert_eq!((fb.echo_seq, fb.state), (seq, 1));
+    // Silence: the watchdog's safe stop (20 ms).
+    for _ in 0..25 {
+        r.cycle(&[]);
+    }
+    let fb = r.last_fb.unwrap();
+    assert_eq!(fb.state, 2, "safe stop");
+    assert!(fb.fault_flags & FAULT_COMMAND_TIMEOUT != 0);
+    let followed = seq;
+    // Negative control: commands without the acknowledgement are accepted by the gate but
+    // neither followed nor echoed; the safe stop holds.
+    let accepted = r.counters().accepted;
+    for _ in 0..100 {
+        seq += 1;
+        r.cycle(&[&pos(seq).bytes()]);
+        let fb = r.last_fb.unwrap();
+        assert_eq!(fb.state, 2, "re-armed without the acknowledgement");
+        assert_eq!(
+            fb.echo_seq, followed,
+            "an unacknowledged command was followed"
+        );
+        assert!(fb.fault_flags & FAULT_COMMAND_TIMEOUT != 0);
+        assert_eq!(fb.rejected_reasons, 0);
+    }
+    assert_eq!(r.counters().accepted, accepted + 100);
+    assert_eq!(r.ep.counters().unacknowledged_in_safe_stop, 100);
+    // The master acknowledges in every command while the feedback says state 2: the first
+    // acknowledged command re-arms the slave in its own cycle.
+    seq += 1;
+    r.cycle(&[&Cmd {
+        flags: ACK,
+        ..pos(seq)
+    }
+    .bytes()]);
+    let fb = r.last_fb.unwrap();
+    assert_eq!(fb.state, 1, "re-armed by the acknowledgement");
+    assert_eq!(fb.echo_seq, seq, "the acknowledged command is followed");
+    assert_eq!(fb.fault_flags & FAULT_COMMAND_TIMEOUT, 0);
+    assert_eq!(r.ep.counters().repairs, 1);
+    // The acknowledgements in flight (a round trip's worth) change nothing.
+    for _ in 0..5 {
+        seq += 1;
+        r.cycle(&[&Cmd {
+            flags: ACK,
+            ..pos(seq)
+        }
+        .bytes()]);
+        let fb = r.last_fb.unwrap();
+        assert_eq!((fb.state, fb.echo_seq, fb.rejected_reasons), (1, seq, 0));
+    }
+    // Having seen state 1, the master stops acknowledging: the slave stays active.
+    for _ in 0..100 {
+        seq += 1;
+        r.cycle(&[&pos(seq).bytes()]);
+        let fb = r.last_fb.unwrap();
+        assert_eq!((fb.state, fb.echo_seq), (1, seq));
+    }
+    assert_eq!(r.ep.counters().repairs, 1);
+    assert_eq!(r.counters().pairings, 1);
+}
+
+/// docs/wire.md, "The limits of a command", with the shipped arm file
+/// (config/arms/prototype.toml) and the default controller limits: each probe is one
+/// position command, accepted or rejected as `out_of_range` (never clamped), one cycle each.
+#[test]
+fn a_command_outside_the_arms_limits_is_rejected_as_out_of_range_not_clamped() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/arms/prototype.toml");
+    let arm: ArmConfig = h4_shared::config::load(&path, &[]).unwrap();
+    let mut r = Rig::with(arm, 10_000.0);
+    let mut seq = 0;
+    for _ in 0..50 {
+        seq += 1;
+        r.cycle(&[&Cmd::position(SESSION, seq, HOME).bytes()]);
+    }
+    // (x, y, z, theta), then speed and set-point probes; true = accepted.
+    let theta_max = 1.047_197_551_196_597_6;
+    let poses: [([f64; 4], bool); 12] = [
+        ([0.0, 0.0, -250.0, 1.047], true),
+        ([0.0, 0.0, -250.0, theta_max + 1e-4], false),
+        ([0.0, 0.0, -250.0, -1.047], true),
+        ([0.0, 0.0, -250.0, -theta_max - 1e-4], false),
+        // 10 mm from the singular line e z + h y = 0 (at y = 0, theta = 0: z = -10).
+        ([0.0, 0.0, -10.01, 0.0], true),
+        ([0.0, 0.0, -9.99, 0.0], false),
+        // Rail clearance 20 mm: at x = y = theta = 0, z down to -373.03 mm.
+        ([0.0, 0.0, -373.0, 0.0], true),
+        ([0.0, 0.0, -373.1, 0.0], false),
+        // Stroke ±650 mm: at z = -250, x up to ±372.42 mm.
+        ([372.0, 0.0, -250.0, 0.0], true),
+        ([373.0, 0.0, -250.0, 0.0], false),
+        ([-372.0, 0.0, -250.0, 0.0], true),
+        ([-373.0, 0.0, -250.0, 0.0], false),
+    ];
+    let mut probes: Vec<(String, Cmd, bool)> = poses
+        .iter()
+        .map(|(p, ok)| (format!("pose {p:?}"), Cmd::position(SESSION, 0, *p), *ok))
+        .collect();
+    let hold_far = Cmd {
+        mode: 0,
+        pose: [0.0, 0.0, -1e6, 0.0],
+        ..Cmd::position(SESSION, 0, HOME)
+    };
+    probes.push(("hold mode ignores the pose".into(), hold_far, true));
+    for (v, ok) in [(100.0, true), (100.01, false)] {
+        let c = Cmd {
+            velocity: [0.6 * v, 0.0, -0.8 * v, 5.0],
+            ..Cmd::position(SESSION, 0, HOME)
+        };
+        probes.push((format!("speed {v} mm/s"), c, ok));
+    }
+    for (f, ok) in [(80.0, true), (80.01, false), (0.0, true), (-0.01, false)] {
+        let c = Cmd {
+            mode: 2,
+            force_setpoint_n: f,
+            ..Cmd::position(SESSION, 0, HOME)
+        };
+        probes.push((format!("set-point {f} N"), c, ok));
+    }
+    for (name, probe, ok) in probes {
+        let before = r.counters();
+        seq += 1;
+        r.cycle(&[&Cmd { seq, ..probe }.bytes()]);
+        let after = r.counters();
+        let fb = r.last_fb.unwrap();
+        if ok {
+            assert_eq!(after.accepted, before.accepted + 1, "{name}: {after:?}");
+            assert_eq!(fb.echo_seq, seq, "{name}");
+        } else {
+            assert_eq!(
+                after.out_of_range,
+                before.out_of_range + 1,
+                "{name}: {after:?}"
+            );
+            assert_eq!(after.rejected(), before.rejected() + 1, "{name}");
+            assert_eq!(fb.rejected_reasons, BIT_OUT_OF_RANGE, "{name}");
+            assert_ne!(fb.echo_seq, seq, "{name}: followed");
+        }
+        // Back home before the next probe.
+        seq += 1;
+        r.cycle(&[&Cmd::position(SESSION, seq, HOME).bytes()]);
+    }
 }

@@ -1,6 +1,8 @@
 //! `tests/data/wire_vectors.json`: encoded bytes ↔ decoded fields for both messages, checked both
 //! ways (decode the bytes and compare the fields; encode the fields and compare the bytes), and
-//! invalid encodings with the error each must give. docs/wire.md describes the layout; these
+//! invalid encodings with the error each must give and the receiver's counter it is counted
+//! under (`counter`, `gate.<counter>` in the summaries; `tests/wire_vectors_at_the_slave.rs`
+//! sends each through the slave). docs/wire.md describes the layout; these
 //! vectors are what a client in another language tests against.
 //!
 //! `H4_BLESS=1 cargo test --release -p h4-tests --test wire_vectors` rewrites the file from the
@@ -155,6 +157,7 @@ fn make_vectors() -> Value {
     let mut bad = |name: &str, bytes: Vec<u8>, error: WireError| {
         invalid.push(json!({
             "name": name, "kind": "command", "bytes": hex(&bytes), "error": format!("{error:?}"),
+            "counter": error.reason().name(),
         }));
     };
     let mut b = good.clone();
@@ -239,6 +242,152 @@ fn make_vectors() -> Value {
             got: 2,
         },
     );
+    // Shorter than a message: under the 8-byte prefix, the prefix alone, the prefix and part
+    // of the session id, the whole header without a body. With a valid prefix the size is
+    // judged after the header's fields, so each of these is `WrongSize`.
+    for len in [7, 8, 15, 16] {
+        bad(
+            match len {
+                7 => "7 bytes: shorter than the prefix",
+                8 => "8 bytes: the prefix alone",
+                15 => "15 bytes: the prefix and 7 bytes of the session id",
+                _ => "16 bytes: the header without a body",
+            },
+            good[..len].to_vec(),
+            WireError::WrongSize {
+                expected: Command::WIRE_SIZE,
+                got: len,
+            },
+        );
+    }
+    // Two faults at once: the first check in docs/wire.md's order names the error.
+    let mut b = good[..12].to_vec();
+    b[2] = 1;
+    bad(
+        "version 1 and 12 bytes: the version before the size",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 1,
+        },
+    );
+    let mut b = good[..7].to_vec();
+    b[2] = 1;
+    bad(
+        "version 1 and 7 bytes: under 8 bytes nothing is read",
+        b,
+        WireError::WrongSize {
+            expected: Command::WIRE_SIZE,
+            got: 7,
+        },
+    );
+    let mut b = good.clone();
+    b[0] = b'X';
+    b[2] = 1;
+    bad(
+        "bad magic and version 1: the magic first",
+        b,
+        WireError::BadMagic,
+    );
+    let mut b = good.clone();
+    b[2] = 3;
+    b[4] = 2;
+    bad(
+        "version 3 and the feedback kind: the version before the kind",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 3,
+        },
+    );
+    let mut b = good.clone();
+    b[4] = 2;
+    b[5] = 1;
+    bad(
+        "feedback kind and header reserved byte set: the kind first",
+        b,
+        WireError::WrongKind {
+            expected: 1,
+            got: 2,
+        },
+    );
+    let mut b = good.clone();
+    b[5] = 1;
+    b[6] = 111;
+    bad(
+        "header reserved byte and body length 111: the reserved byte first",
+        b,
+        WireError::ReservedSet {
+            field: "header.reserved",
+            value: 1,
+        },
+    );
+    let mut b = good[..good.len() - 1].to_vec();
+    b[6] = 111;
+    bad(
+        "body length 111 and one byte short: the body length before the size",
+        b,
+        WireError::LengthMismatch {
+            declared: 111,
+            expected: 112,
+        },
+    );
+    let mut b = good.clone();
+    b[120] = 3;
+    bad(
+        "version 3 in the body only",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 3,
+        },
+    );
+    let mut b = good.clone();
+    b[120] = 3;
+    b[32..40].copy_from_slice(&f64::NAN.to_le_bytes());
+    bad(
+        "body version 3 and NaN in pose[0]: the body version first",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 3,
+        },
+    );
+    let mut b = good.clone();
+    b[124] = 9;
+    b[125] = 4;
+    bad(
+        "mode 9 and body reserved byte set: the mode first",
+        b,
+        WireError::BadMode(9),
+    );
+    let mut b = good.clone();
+    b[125] = 4;
+    b[126] = 0x04;
+    bad(
+        "body reserved byte and unknown flag bit: the reserved byte first",
+        b,
+        WireError::ReservedSet {
+            field: "reserved",
+            value: 4,
+        },
+    );
+    let mut b = good.clone();
+    b[126] = 0x04;
+    b[104..112].copy_from_slice(&f64::INFINITY.to_le_bytes());
+    bad(
+        "unknown flag bit and energy_in_j infinite: the flags before the numbers",
+        b,
+        WireError::BadFlags(0x04),
+    );
+    let mut b = good.clone();
+    b[64..72].copy_from_slice(&f64::NAN.to_le_bytes());
+    b[104..112].copy_from_slice(&f64::INFINITY.to_le_bytes());
+    bad(
+        "NaN in velocity[0] and energy_in_j infinite: the first field in wire order",
+        b,
+        WireError::NonFinite { field: "velocity" },
+    );
     json!({
         "protocol_version": PROTOCOL_VERSION,
         "command_size": Command::WIRE_SIZE,
@@ -295,9 +444,10 @@ fn vectors_decode_to_their_fields_and_fields_encode_to_their_bytes() {
             "{}",
             v["name"]
         );
+        assert_eq!(err.reason().name(), v["counter"], "{}", v["name"]);
         checked += 1;
     }
-    assert_eq!(checked, 14);
+    assert_eq!(checked, 3 + 11 + 17);
 }
 
 #[test]

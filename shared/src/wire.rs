@@ -4,10 +4,11 @@
 //! shared-memory path sends them as they are (from `session_id` on). The network path uses
 //! the checked little-endian encoding of [`Command::encode`] / [`Command::decode`]: a
 //! 16-byte header (magic `b"H4"`, protocol version, message kind, reserved byte, body
-//! length, the sender's session id) and the fields in order. Decoding rejects a wrong
-//! magic, version or kind, a non-zero reserved byte, a header body length that does not
-//! match the kind, a payload whose size is not the kind's, an unknown mode or state,
-//! unknown flag bits and every non-finite number, each with its own [`WireError`], and
+//! length, the sender's session id) and the fields in order. Decoding rejects, in this
+//! order, a wrong magic, version or kind, a non-zero reserved byte, a header body length
+//! that does not match the kind, a payload whose size is not the kind's, then in the body
+//! another version, an unknown mode or state, a reserved byte, unknown flag bits and every
+//! non-finite number, each with its own [`WireError`] (the first failure is the error), and
 //! every error belongs to one [`RejectReason`] (the receivers' counters). The byte layout,
 //! for clients in other languages, is in docs/wire.md with test vectors in
 //! tests/data/wire_vectors.json.
@@ -446,21 +447,11 @@ impl Reader<'_> {
     fn u64(&mut self) -> u64 {
         u64::from_le_bytes(self.take())
     }
-    fn f64(&mut self, field: &'static str) -> Result<f64, WireError> {
-        let v = f64::from_le_bytes(self.take());
-        if v.is_finite() {
-            Ok(v)
-        } else {
-            Err(WireError::NonFinite { field })
-        }
+    fn f64(&mut self) -> f64 {
+        f64::from_le_bytes(self.take())
     }
-    fn f64s(&mut self, field: &'static str) -> Result<[f64; 4], WireError> {
-        Ok([
-            self.f64(field)?,
-            self.f64(field)?,
-            self.f64(field)?,
-            self.f64(field)?,
-        ])
+    fn f64s(&mut self) -> [f64; 4] {
+        [self.f64(), self.f64(), self.f64(), self.f64()]
     }
     fn u16(&mut self) -> u16 {
         u16::from_le_bytes(self.take())
@@ -538,8 +529,10 @@ impl Command {
     /// Size of the body after the header, bytes (the header's body length).
     pub const BODY_LEN: usize = Self::WIRE_SIZE - HEADER_LEN;
 
-    /// Checks a command received over any transport: version, mode, reserved byte, flags and
-    /// finiteness.
+    /// Checks a command's body, received over any transport, in this order (the first failure
+    /// is the error): body version, mode, reserved byte, flag bits, then every number finite
+    /// (fields in wire order). The byte path ([`Command::decode`]) checks the header and the
+    /// size first.
     pub fn validate(&self) -> Result<(), WireError> {
         if self.protocol_version != PROTOCOL_VERSION {
             return Err(WireError::WrongVersion {
@@ -598,18 +591,19 @@ impl Command {
         w.u16(self.flags);
     }
 
-    /// Decodes and validates a command.
+    /// Decodes and validates a command: the header (magic, version, kind, reserved byte, body
+    /// length), then the payload's size, then the body ([`Command::validate`]'s order), so every transport judges a body alike.
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
         let mut r = read_header(bytes, KIND_COMMAND, Self::BODY_LEN)?;
         let cmd = Command {
             session_id: r.u64(),
             seq: r.u64(),
             send_time_ns: r.u64(),
-            pose: r.f64s("pose")?,
-            velocity: r.f64s("velocity")?,
-            force_setpoint_n: r.f64("force_setpoint_n")?,
-            energy_in_j: r.f64("energy_in_j")?,
-            energy_out_j: r.f64("energy_out_j")?,
+            pose: r.f64s(),
+            velocity: r.f64s(),
+            force_setpoint_n: r.f64(),
+            energy_in_j: r.f64(),
+            energy_out_j: r.f64(),
             protocol_version: r.u16(),
             arm_id: r.u16(),
             mode: r.u8(),
@@ -627,8 +621,10 @@ impl Feedback {
     /// Size of the body after the header, bytes (the header's body length).
     pub const BODY_LEN: usize = Self::WIRE_SIZE - HEADER_LEN;
 
-    /// Checks feedback received over any transport: version, state, reserved byte, flags and
-    /// finiteness.
+    /// Checks a feedback body, received over any transport, in this order (the first failure
+    /// is the error): body version, state, reserved byte, fault flag bits, reason bits, then
+    /// every number finite (fields in wire order). The byte path ([`Feedback::decode`]) checks
+    /// the header and the size first.
     pub fn validate(&self) -> Result<(), WireError> {
         if self.protocol_version != PROTOCOL_VERSION {
             return Err(WireError::WrongVersion {
@@ -688,7 +684,9 @@ impl Feedback {
         w.u32(self.rejected_count);
     }
 
-    /// Decodes and validates feedback.
+    /// Decodes and validates feedback: the header (magic, version, kind, reserved byte, body
+    /// length), then the payload's size, then the body
+    /// ([`Feedback::validate`]'s order).
     pub fn decode(bytes: &[u8]) -> Result<Self, WireError> {
         let mut r = read_header(bytes, KIND_FEEDBACK, Self::BODY_LEN)?;
         let fb = Feedback {
@@ -697,11 +695,11 @@ impl Feedback {
             send_time_ns: r.u64(),
             echo_seq: r.u64(),
             echo_send_time_ns: r.u64(),
-            pose: r.f64s("pose")?,
-            wrench_measured: r.f64s("wrench_measured")?,
-            wrench_desired: r.f64s("wrench_desired")?,
-            energy_in_j: r.f64("energy_in_j")?,
-            energy_out_j: r.f64("energy_out_j")?,
+            pose: r.f64s(),
+            wrench_measured: r.f64s(),
+            wrench_desired: r.f64s(),
+            energy_in_j: r.f64(),
+            energy_out_j: r.f64(),
             protocol_version: r.u16(),
             arm_id: r.u16(),
             state: r.u8(),

@@ -230,6 +230,21 @@ pub fn bad_messages(ok: &Cmd, rng: &mut u64) -> Vec<Bad> {
         "wrong_version",
         BIT_WRONG_VERSION,
     );
+    // Version 1's layout: the same fields after an 8-byte header without the session id
+    // (120 bytes); refused as another version, whatever its size.
+    let mut v1 = Cmd {
+        header_version: 1,
+        protocol_version: 1,
+        ..next(ok)
+    }
+    .bytes();
+    v1.drain(8..16);
+    push(
+        "a protocol-1 command (120 bytes)",
+        v1,
+        "wrong_version",
+        BIT_WRONG_VERSION,
+    );
     push(
         "version 3 in the body only",
         Cmd {

@@ -219,7 +219,7 @@ impl<Out: WireMessage, In: WireMessage> Link<Out, In> for DecodingEnd<Out, In> {
             let Some(bytes) = next else {
                 return Ok(None);
             };
-            match In::decode_from(&bytes) {
+            match crate::decode_payload::<In>(&bytes, bytes.len()) {
                 Ok(msg) => return Ok(Some(msg)),
                 Err(e) => self.rejects.count(&e),
             }

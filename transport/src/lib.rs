@@ -27,6 +27,27 @@ pub mod zenoh;
 
 use h4_shared::wire::{RejectReason, WireError, WireMessage};
 
+/// Decodes a received payload of `len` bytes, of which `head` holds the first (all of them, or
+/// the first bytes of a payload longer than the receiver's buffer). Whatever its size, a
+/// payload is judged by its header first (magic, version, kind, reserved byte, body length),
+/// then by its size, then by its body, as [`WireMessage::decode_from`] does: a message of
+/// another protocol version is [`WireError::WrongVersion`] (counted `wrong_version`) whatever
+/// its size, never `undecodable` for its size alone.
+pub fn decode_payload<In: WireMessage>(head: &[u8], len: usize) -> Result<In, WireError> {
+    let judged = In::decode_from(head);
+    if head.len() == len {
+        return judged;
+    }
+    // A truncated view of a longer payload: only its header can be judged, its size is `len`.
+    match judged {
+        Err(WireError::WrongSize { .. }) | Ok(_) => Err(WireError::WrongSize {
+            expected: In::WIRE_SIZE,
+            got: len,
+        }),
+        Err(e) => Err(e),
+    }
+}
+
 /// Payloads a link end dropped because they did not decode, by reason (totals since it was
 /// opened; see [`WireError::reason`]). The gate folds them into its counters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -143,5 +164,51 @@ impl<Out: WireMessage, In: WireMessage, L: Link<Out, In> + ?Sized> Link<Out, In>
     }
     fn can_wake(&self) -> bool {
         (**self).can_wake()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use h4_shared::wire::{Command, PROTOCOL_VERSION};
+
+    fn command_bytes() -> [u8; Command::WIRE_SIZE] {
+        let mut b = [0u8; Command::WIRE_SIZE];
+        Command::default().encode(&mut b);
+        b
+    }
+
+    /// A version-1 command (120 bytes) is another version, not an undecodable size, whether
+    /// the receiver holds all of it or only the first bytes of a longer payload.
+    #[test]
+    fn another_version_is_named_whatever_the_payload_size() {
+        let mut v1 = command_bytes()[..120].to_vec();
+        v1[2] = 1;
+        let wrong_version = Err(WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 1,
+        });
+        assert_eq!(decode_payload::<Command>(&v1, v1.len()), wrong_version);
+        assert_eq!(decode_payload::<Command>(&v1, 4000), wrong_version);
+        // Control: the same payload with our version is judged by its size.
+        let v2 = &command_bytes()[..120];
+        assert_eq!(
+            decode_payload::<Command>(v2, 120),
+            Err(WireError::WrongSize {
+                expected: 128,
+                got: 120
+            })
+        );
+        assert_eq!(
+            decode_payload::<Command>(&command_bytes(), 4000),
+            Err(WireError::WrongSize {
+                expected: 128,
+                got: 4000
+            })
+        );
+        assert_eq!(
+            decode_payload::<Command>(&command_bytes(), 128),
+            Ok(Command::default())
+        );
     }
 }

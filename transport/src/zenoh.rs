@@ -8,7 +8,8 @@
 //! thread) decodes each payload and pushes it into a bounded queue preallocated at
 //! construction (drop-oldest when full), which [`Link::try_recv`] drains without blocking.
 //! Payloads that do not decode (wrong size, magic, kind or version, a non-finite number, an
-//! unknown enum or flag) are counted by reason in [`Link::decode_rejects`] and never delivered.
+//! unknown enum or flag) are counted by reason in [`Link::decode_rejects`] and never delivered;
+//! a payload of any size is judged as [`decode_payload`] says (its header before its size).
 //!
 //! Publications are `express` (not batched), [`Priority::RealTime`] and
 //! [`CongestionControl::Drop`]: a late message is worth less than the next one.
@@ -33,7 +34,7 @@ use h4_shared::wire::{Command, Feedback, WireError, WireMessage};
 use serde::{Deserialize, Serialize};
 
 use crate::inproc::Ring;
-use crate::{DecodeRejects, Link, LinkError};
+use crate::{DecodeRejects, Link, LinkError, decode_payload};
 
 const TRANSPORT: &str = "zenoh";
 
@@ -260,23 +261,21 @@ impl<In: WireMessage> Inbox<In> {
     fn on_sample(&self, sample: &Sample) {
         let payload = sample.payload();
         let mut buf = [0u8; MAX_WIRE_SIZE];
-        let len = payload.len();
-        let decoded = if len == In::WIRE_SIZE {
-            let mut at = 0;
-            for slice in payload.slices() {
-                // `len` bounds the sum of the slice lengths; `get_mut` keeps it panic-free.
-                if let Some(dst) = buf.get_mut(at..at + slice.len()) {
-                    dst.copy_from_slice(slice);
-                }
-                at += slice.len();
+        // The whole payload, or the first MAX_WIRE_SIZE bytes of a longer one: a payload of
+        // another size is judged by its header first (docs/wire.md, "Checks in order"), so a
+        // message of another version is counted as such whatever its size.
+        let mut at = 0;
+        for slice in payload.slices() {
+            let n = slice.len().min(MAX_WIRE_SIZE - at);
+            if let (Some(dst), Some(src)) = (buf.get_mut(at..at + n), slice.get(..n)) {
+                dst.copy_from_slice(src);
             }
-            In::decode_from(buf.get(..len).unwrap_or(&[]))
-        } else {
-            Err(WireError::WrongSize {
-                expected: In::WIRE_SIZE,
-                got: len,
-            })
-        };
+            at += n;
+            if at == MAX_WIRE_SIZE {
+                break;
+            }
+        }
+        let decoded = decode_payload::<In>(buf.get(..at).unwrap_or(&[]), payload.len());
         match decoded {
             Ok(msg) => {
                 if let Ok(mut q) = self.queue.lock() {
