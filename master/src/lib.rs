@@ -21,6 +21,7 @@
 
 pub mod contact_model;
 pub mod coupling;
+pub mod crtk;
 pub mod device;
 pub mod link_stats;
 pub mod ros2;
