@@ -179,9 +179,10 @@ fn a_python_ros2_device_drives_the_master_and_its_bad_input_is_refused_by_reason
 
 /// Not yet passing (issue 35): in a debug build on a loaded 2-vCPU host the master's
 /// observer fell to −4.4 mJ (floor −1 mJ) with the rendered force at its 30 N limit from
-/// the second push's hold, where `--device sim` on the same session renders about 5 N: the
-/// device side's two polling threads (stand-in publishing, master commands, each at 1 kHz)
-/// add 1-4 ms of delay inside the coupling's contact damping. Run it with `--ignored`.
+/// the second push's hold, where `--device sim` on the same session renders about 5 N. The
+/// suspect: the device side's own round trip (pose out, force back across two 1 kHz loops
+/// and two polling threads, at least two cycles) inside the coupling's contact damping;
+/// polling at 5 kHz did not fix it. Run it with `--ignored`.
 #[test]
 #[ignore = "unstable over the stand-in's ROS 2 path so far (see the doc comment)"]
 fn the_ros2_standin_through_device_crtk_pushes_the_wall_stably() {
