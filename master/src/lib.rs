@@ -6,6 +6,8 @@
 //! * [`coupling`]: [`coupling::MasterCoupling`], the master's pure 1 kHz step
 //!   (position–force and force-guided coupling, scaling, clutch, workspace mapping,
 //!   saturation, feedback-loss fade).
+//! * [`crtk`]: [`crtk::CrtkDevice`], a haptic device reached over ROS 2 (`--device crtk`,
+//!   docs/ros2.md), over the cells its subscriptions fill.
 //! * [`contact_model`]: [`contact_model::ContactModel`], the master's local model of the
 //!   slave's contact (model-mediated rendering).
 //! * [`link_stats`]: the link as the operator sees it in `h4-master run` (feedback loss,
@@ -21,6 +23,7 @@
 
 pub mod contact_model;
 pub mod coupling;
+pub mod crtk;
 pub mod device;
 pub mod link_stats;
 pub mod ros2;

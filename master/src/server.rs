@@ -105,6 +105,16 @@ pub struct MasterRunSummary {
     /// `h4_master::teleop::DEVICE_STALE_CYCLES`); the rendered force fades out through them.
     #[serde(default)]
     pub device_stale_cycles: u64,
+    /// A ROS 2 device (`--device crtk`): samples refused on its topics, by reason
+    /// (truncated CDR, wrong type on the key or payload, NaN/infinite values, a second
+    /// publisher, a bad attachment; docs/ros2.md). All zero for other devices.
+    #[serde(default)]
+    pub ros2_rejected: h4_transport::ros2::subscriber::Ros2Rejected,
+    /// A ROS 2 device: poses, velocities and button messages accepted, times it fell
+    /// silent (no fresh pose within `--device-timeout-ms`), poses clamped into the mapped
+    /// workspace. None for other devices.
+    #[serde(default)]
+    pub ros2_device: Option<h4_transport::ros2::device::DeviceReport>,
     /// Largest force rendered to the operator, N.
     pub max_rendered_force_n: f64,
     /// Largest change of the rendered force from one cycle to the next, N.

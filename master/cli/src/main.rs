@@ -19,7 +19,7 @@ enum Command {
     Sim(cli::sim::SimArgs),
     /// Run the master process: simulated master arm and scripted operator at 1 kHz against a
     /// slave process over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
-    Run(cli::run::RunArgs),
+    Run(Box<cli::run::RunArgs>),
     /// Start the slave and the master as two processes connected by iceoryx2, run the
     /// session for a while, stop, and print a summary (JSON).
     Loopback(cli::loopback::LoopbackArgs),
@@ -27,6 +27,10 @@ enum Command {
     /// on the simulated clock, with progress; writes the per-cell table (CSV, JSON,
     /// markdown) and a heat map per wall (PNG).
     Matrix(cli::matrix::MatrixArgs),
+    /// Run a stand-in haptic device that speaks only ROS 2: the simulated master arm and
+    /// scripted operator of a session file behind CRTK topics (publishes measured_cp,
+    /// measured_cv, clutch; renders servo_cf), for `h4-master run --device crtk`.
+    Ros2Standin(cli::standin::StandinArgs),
     /// Write the slave's world, passivity and contact hand-over files of a session, for
     /// `h4-slave run --config WORLD --passivity-config PASSIVITY --contact-config CONTACT`.
     SlaveConfig(cli::loopback::SlaveConfigArgs),
@@ -49,6 +53,7 @@ fn main() -> std::process::ExitCode {
         Command::Loopback(args) => args.run(),
         Command::Matrix(args) => args.run(),
         Command::SlaveConfig(args) => args.run(),
+        Command::Ros2Standin(args) => args.run(),
         Command::ConfigReference(args) => args.run(),
         Command::Report(args) => args
             .run()

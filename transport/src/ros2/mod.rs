@@ -22,10 +22,14 @@
 //! publishers and the decimating publishing thread, with the `--ros2` flags).
 
 pub mod cdr;
+pub mod device;
+#[cfg(feature = "zenoh")]
+pub mod device_io;
 pub mod keys;
 pub mod msgs;
 #[cfg(feature = "zenoh")]
 pub mod node;
+pub mod subscriber;
 pub mod telemetry;
 pub mod type_hash;
 pub mod units;

@@ -24,8 +24,9 @@ use std::time::{Duration, Instant};
 
 use ::zenoh::Wait;
 use ::zenoh::liveliness::LivelinessToken;
-use ::zenoh::pubsub::Publisher;
+use ::zenoh::pubsub::{Publisher, Subscriber};
 use ::zenoh::qos::CongestionControl;
+use ::zenoh::sample::Sample;
 use ::zenoh::{Config, Session};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
@@ -111,6 +112,7 @@ impl Ros2Args {
             node_name: node_name.to_owned(),
             distro: self.ros2_distro.into(),
             rate_hz: self.ros2_rate_hz,
+            listen: None,
         }))
     }
 
@@ -157,6 +159,8 @@ pub struct NodeConfig {
     pub distro: Distro,
     /// Publishing rate, Hz.
     pub rate_hz: f64,
+    /// The endpoint the node listens on (None: a loopback ephemeral port).
+    pub listen: Option<String>,
 }
 
 /// Why the ROS 2 node could not start.
@@ -178,19 +182,54 @@ fn zerr(e: impl std::fmt::Display) -> Ros2Error {
 }
 
 /// One publisher of the node: its key, GID and sequence number.
-struct Ros2Publisher {
-    topic: CrtkTopic,
+pub struct RawPublisher {
     publisher: Publisher<'static>,
     gid: [u8; GID_LEN],
     sequence_number: i64,
     _token: LivelinessToken,
 }
 
-/// The node: its session, its liveliness token, its publishers.
+impl RawPublisher {
+    /// Puts `payload` with the next sequence number and `stamp_unix_ns` in the attachment.
+    pub fn put(&mut self, payload: Vec<u8>, stamp_unix_ns: i64) -> Result<(), Ros2Error> {
+        self.sequence_number += 1;
+        let att = Attachment {
+            sequence_number: self.sequence_number,
+            source_timestamp_ns: stamp_unix_ns,
+            gid: self.gid,
+        };
+        self.publisher
+            .put(payload)
+            .attachment(att.to_zbytes())
+            .wait()
+            .map_err(zerr)
+    }
+
+    /// The publisher's GID.
+    pub fn gid(&self) -> [u8; GID_LEN] {
+        self.gid
+    }
+}
+
+/// One CRTK publisher of the node.
+struct Ros2Publisher {
+    topic: CrtkTopic,
+    raw: RawPublisher,
+}
+
+/// One subscription of the node (its Zenoh subscriber and token, kept alive).
+struct Ros2Subscription {
+    _subscriber: Subscriber<()>,
+    _token: LivelinessToken,
+}
+
+/// The node: its session, its liveliness token, its publishers and subscriptions.
 pub struct Ros2Node {
     cfg: NodeConfig,
     info: NodeInfo,
+    next_entity_id: u64,
     publishers: Vec<Ros2Publisher>,
+    subscriptions: Vec<Ros2Subscription>,
     _node_token: LivelinessToken,
     // Declared last: dropped after the tokens and publishers.
     session: Session,
@@ -215,7 +254,8 @@ impl Ros2Node {
             "connect/endpoints",
             &format!("[{:?}]", cfg.connect),
         )?;
-        set(&mut config, "listen/endpoints", "[\"tcp/127.0.0.1:0\"]")?;
+        let listen = cfg.listen.as_deref().unwrap_or("tcp/127.0.0.1:0");
+        set(&mut config, "listen/endpoints", &format!("[{listen:?}]"))?;
         set(&mut config, "scouting/multicast/enabled", "false")?;
         let session = ::zenoh::open(config).wait().map_err(zerr)?;
         let info = NodeInfo::new(
@@ -233,7 +273,9 @@ impl Ros2Node {
         Ok(Ros2Node {
             cfg: cfg.clone(),
             info,
+            next_entity_id: 1,
             publishers: Vec::new(),
+            subscriptions: Vec::new(),
             _node_token: node_token,
             session,
         })
@@ -246,13 +288,27 @@ impl Ros2Node {
 
     /// Declares a publisher on `topic` (its token too); returns its key expression.
     pub fn declare_publisher(&mut self, topic: CrtkTopic) -> Result<String, Ros2Error> {
-        let t = TopicInfo::new(
-            &self.cfg.names.topic(topic),
-            topic.type_name(),
-            self.cfg.distro,
-            Qos::keep_last(1),
-        )?;
-        let entity_id = self.publishers.len() as u64 + 1;
+        let (raw, key) =
+            self.declare_raw_publisher(&self.cfg.names.topic(topic), topic.type_name())?;
+        self.publishers.push(Ros2Publisher { topic, raw });
+        Ok(key)
+    }
+
+    fn entity_id(&mut self) -> u64 {
+        let id = self.next_entity_id;
+        self.next_entity_id += 1;
+        id
+    }
+
+    /// Declares a publisher of `type_name` on the fully qualified topic `fq_topic` (its
+    /// `MP` token too), owned by the caller; returns it and its key expression.
+    pub fn declare_raw_publisher(
+        &mut self,
+        fq_topic: &str,
+        type_name: &str,
+    ) -> Result<(RawPublisher, String), Ros2Error> {
+        let t = TopicInfo::new(fq_topic, type_name, self.cfg.distro, Qos::keep_last(1))?;
+        let entity_id = self.entity_id();
         let token_key = self
             .info
             .endpoint_token(entity_id, EntityKind::Publisher, &t);
@@ -269,14 +325,61 @@ impl Ros2Node {
             .declare_token(token_key.clone())
             .wait()
             .map_err(zerr)?;
-        self.publishers.push(Ros2Publisher {
-            topic,
-            publisher,
-            gid: gid_of(&token_key),
-            sequence_number: 0,
+        Ok((
+            RawPublisher {
+                publisher,
+                gid: gid_of(&token_key),
+                sequence_number: 0,
+                _token: token,
+            },
+            key,
+        ))
+    }
+
+    /// Declares a subscription to `fq_topic` for messages of `type_name` (its `MS` token
+    /// too). It listens to every type on the topic (`<domain>/<topic>/*/*`), so that a
+    /// publication of another type reaches `on_sample` and can be refused and counted
+    /// ([`super::subscriber::Intake`]). `on_sample(key, payload, attachment)` runs on
+    /// Zenoh's thread. Returns the key expression subscribed to.
+    pub fn declare_subscription(
+        &mut self,
+        fq_topic: &str,
+        type_name: &str,
+        on_sample: impl Fn(&str, &[u8], Option<&[u8]>) + Send + Sync + 'static,
+    ) -> Result<String, Ros2Error> {
+        let t = TopicInfo::new(fq_topic, type_name, self.cfg.distro, Qos::keep_last(1))?;
+        let entity_id = self.entity_id();
+        let token_key = self
+            .info
+            .endpoint_token(entity_id, EntityKind::Subscription, &t);
+        let name = fq_topic.strip_prefix('/').unwrap_or(fq_topic);
+        let key = format!("{}/{name}/*/*", self.cfg.domain_id);
+        let subscriber = self
+            .session
+            .declare_subscriber(key.clone())
+            .callback(move |sample: Sample| {
+                let payload = sample.payload().to_bytes();
+                let attachment = sample.attachment().map(|a| a.to_bytes());
+                on_sample(sample.key_expr().as_str(), &payload, attachment.as_deref());
+            })
+            .wait()
+            .map_err(zerr)?;
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(token_key)
+            .wait()
+            .map_err(zerr)?;
+        self.subscriptions.push(Ros2Subscription {
+            _subscriber: subscriber,
             _token: token,
         });
         Ok(key)
+    }
+
+    /// The node's configuration.
+    pub fn config(&self) -> &NodeConfig {
+        &self.cfg
     }
 }
 
@@ -415,13 +518,7 @@ fn publish_loop<T: TelemetrySample>(
                         continue;
                     }
                 };
-                p.sequence_number += 1;
-                let att = Attachment {
-                    sequence_number: p.sequence_number,
-                    source_timestamp_ns: stamp,
-                    gid: p.gid,
-                };
-                match p.publisher.put(payload).attachment(att.to_zbytes()).wait() {
+                match p.raw.put(payload, stamp) {
                     Ok(()) => report.messages += 1,
                     Err(_) => report.errors += 1,
                 }

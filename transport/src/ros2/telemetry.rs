@@ -82,7 +82,38 @@ impl<T: Copy> LatestCell<T> {
         }
     }
 
-    /// Writes skipped because the reader held the cell.
+    /// Replaces the value, waiting for the cell if a reader holds it (for a writer off the
+    /// 1 kHz path, e.g. a subscriber's callback; the loop reads with
+    /// [`LatestCell::try_newer_than`], which never waits).
+    pub fn put(&self, value: T) {
+        let mut s = match self.slot.lock() {
+            Ok(s) => s,
+            Err(p) => p.into_inner(),
+        };
+        s.version += 1;
+        s.value = Some(value);
+    }
+
+    /// [`LatestCell::newer_than`] without waiting, for the 1 kHz loop: None also when the
+    /// writer holds the cell at this instant (counted in [`LatestCell::skipped`]); the value
+    /// is there at the next cycle's read. No allocation.
+    pub fn try_newer_than(&self, seen: u64) -> Option<(u64, T)> {
+        let s = match self.slot.try_lock() {
+            Ok(s) => *s,
+            Err(std::sync::TryLockError::Poisoned(p)) => *p.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => {
+                self.skipped.fetch_add(1, Ordering::Relaxed);
+                return None;
+            }
+        };
+        match s.value {
+            Some(v) if s.version > seen => Some((s.version, v)),
+            _ => None,
+        }
+    }
+
+    /// Writes (or, for [`LatestCell::try_newer_than`], reads) skipped because the other
+    /// side held the cell.
     pub fn skipped(&self) -> u64 {
         self.skipped.load(Ordering::Relaxed)
     }
@@ -263,6 +294,24 @@ mod tests {
         drop(guard);
         assert_eq!(cell.skipped(), 1);
         assert_eq!(cell.newer_than(0), None);
+    }
+
+    /// The loop's read never waits: while the writer holds the cell it returns None and
+    /// counts it, and the value is read once the writer is done. Control: without the
+    /// writer holding it the same read sees the value at once.
+    #[test]
+    fn the_loops_read_does_not_wait_for_the_writer() {
+        let cell = LatestCell::<u32>::new();
+        cell.put(5);
+        let guard = cell.slot.lock().unwrap();
+        assert_eq!(cell.try_newer_than(0), None);
+        drop(guard);
+        assert_eq!(cell.skipped(), 1);
+        let (v, x) = cell.try_newer_than(0).unwrap();
+        assert_eq!(x, 5);
+        assert_eq!(cell.try_newer_than(v), None);
+        cell.put(6);
+        assert_eq!(cell.try_newer_than(v).map(|(_, x)| x), Some(6));
     }
 
     #[test]

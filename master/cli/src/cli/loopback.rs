@@ -194,6 +194,7 @@ impl LoopbackArgs {
                 ros2_ns: None,
                 ..self.ros2.clone()
             },
+            crtk: super::crtk::CrtkDeviceArgs::default(),
             prechecked: true,
             unsafe_test_override: self.unsafe_test_override,
         };

@@ -18,6 +18,9 @@ use h4_transport::ros2::node::{Ros2Args, Ros2Publishing};
 pub enum DeviceKind {
     /// The simulated master arm with the scripted operator's hand of the session file.
     Sim,
+    /// A haptic device reached over ROS 2 (rmw_zenoh): CRTK topics or forcedimension_ros2's
+    /// (`--device-profile`, `--device-ns`; docs/ros2.md).
+    Crtk,
 }
 
 /// Run the master process: a haptic device (the simulated master arm and the scripted
@@ -52,6 +55,9 @@ pub struct RunArgs {
     /// ROS 2 (`--ros2`, docs/ros2.md).
     #[command(flatten)]
     pub ros2: Ros2Args,
+    /// The ROS 2 device (`--device crtk`).
+    #[command(flatten)]
+    pub crtk: super::crtk::CrtkDeviceArgs,
     /// Wait this long for the slave's first feedback before the operator's script starts, s.
     #[arg(long, default_value_t = 10.0)]
     pub wait_for_slave_s: f64,
@@ -125,6 +131,16 @@ impl RunArgs {
                 h4_master_sim::server::run_then(&cfg, &opts, &out, link, at_loop_end)
                     .map_err(|e| e.to_string())
             }
+            DeviceKind::Crtk => super::crtk::run_then(
+                &self.crtk,
+                &self.ros2,
+                label,
+                &cfg,
+                &opts,
+                &out,
+                link,
+                at_loop_end,
+            ),
         };
         if let Some(p) = publishing {
             eprintln!("{}", p.stop_line(label));
