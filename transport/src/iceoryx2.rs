@@ -28,6 +28,10 @@ use h4_shared::wire::{Command, Feedback, WireMessage};
 
 use crate::{Link, LinkError};
 
+/// The shortest wait handed to the event listener: its timeout counts whole microseconds and
+/// zero would block for ever (see [`Link::wait_message`] for [`Iceoryx2Link`]).
+const MIN_LISTENER_TIMEOUT: std::time::Duration = std::time::Duration::from_micros(1);
+
 /// A message as it lies in shared memory: the wire struct itself.
 #[derive(Clone, Copy, Debug)]
 #[repr(transparent)]
@@ -417,6 +421,11 @@ where
     /// Blocks on the event service's listener, which the peer's publisher notifies after
     /// every sample; a notification for a sample already taken (the listener collects them
     /// all) is slept through again until the deadline.
+    ///
+    /// A deadline less than a microsecond away is reached without blocking: iceoryx2 0.10's
+    /// listener turns its timeout into a `timeval` by whole microseconds, and a zero
+    /// `SO_RCVTIMEO` means "no timeout", so a sub-microsecond wait on a silent peer never
+    /// returned (the restarted slave of `tests/processes.rs` froze its loop that way).
     fn wait_message(&mut self, deadline: std::time::Instant) -> Result<bool, LinkError> {
         let failed = LinkError::ReceiveFailed {
             transport: "iceoryx2",
@@ -428,7 +437,7 @@ where
                 return Ok(true);
             }
             let timeout = deadline.saturating_duration_since(std::time::Instant::now());
-            if timeout.is_zero() {
+            if timeout < MIN_LISTENER_TIMEOUT {
                 return Ok(false);
             }
             self.listener

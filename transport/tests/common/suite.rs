@@ -221,6 +221,51 @@ pub fn empty_receive_is_non_blocking<T: Transport>() {
     }
 }
 
+/// A wait for the peer's message whose deadline is less than a microsecond away (or past)
+/// returns with nothing when the peer is silent, on both ends; one with a message waiting
+/// returns true. A transport that blocks instead (iceoryx2 0.10's listener turns a
+/// sub-microsecond timeout into "no timeout") ends the test binary through the watchdog.
+pub fn short_waits_on_a_silent_peer_return<T: Transport>() {
+    let (mut master, mut slave) = connected_pair::<T>(3);
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let watch = done.clone();
+    let watchdog = thread::spawn(move || {
+        let deadline = Instant::now() + WATCHDOG;
+        while Instant::now() < deadline {
+            if watch.load(std::sync::atomic::Ordering::Acquire) {
+                return;
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+        eprintln!("watchdog: a short wait_message on a silent peer did not return");
+        std::process::exit(101);
+    });
+    for round in 0..200u32 {
+        for offset_ns in [0u64, 1, 50, 200, 500, 900, 999] {
+            let deadline = Instant::now() + Duration::from_nanos(offset_ns);
+            assert!(
+                !slave.wait_message(deadline).expect("wait"),
+                "round {round}, {offset_ns} ns: the slave woke with no command sent"
+            );
+            let deadline = Instant::now() + Duration::from_nanos(offset_ns);
+            assert!(
+                !master.wait_message(deadline).expect("wait"),
+                "round {round}, {offset_ns} ns: the master woke with no feedback sent"
+            );
+        }
+    }
+    if slave.can_wake() {
+        master.publish(&command(3, 500)).expect("publish");
+        let deadline = Instant::now() + WATCHDOG;
+        assert!(
+            slave.wait_message(deadline).expect("wait"),
+            "a waiting command did not wake the slave"
+        );
+    }
+    done.store(true, std::sync::atomic::Ordering::Release);
+    watchdog.join().expect("watchdog");
+}
+
 /// A NaN, a wrong protocol version, a duplicate and a reordered (older) message never get past
 /// the link and the gate; the valid ones do, and every rejection is counted once.
 pub fn gate_rejects_bad_duplicate_and_reordered<T: Transport>() {
@@ -396,6 +441,10 @@ macro_rules! conformance_suite {
         #[test]
         fn arms_do_not_interfere() {
             common::suite::arms_do_not_interfere::<$t>();
+        }
+        #[test]
+        fn short_waits_on_a_silent_peer_return() {
+            common::suite::short_waits_on_a_silent_peer_return::<$t>();
         }
         #[test]
         fn liveness_lost_after_peer_drop() {
