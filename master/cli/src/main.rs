@@ -20,8 +20,8 @@ enum Command {
     /// Run the master process: simulated master arm and scripted operator at 1 kHz against a
     /// slave process over iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
     Run(Box<cli::run::RunArgs>),
-    /// Start the slave and the master as two processes connected by iceoryx2, run the
-    /// session for a while, stop, and print a summary (JSON).
+    /// Start the slave and the master as two processes connected by iceoryx2 (or Zenoh with
+    /// --transport zenoh), run the session for a while, stop, and print a summary (JSON).
     Loopback(cli::loopback::LoopbackArgs),
     /// Run the delay matrix: a session over wall × round trip × jitter × loss × force scale
     /// on the simulated clock, with progress; writes the per-cell table (CSV, JSON,
@@ -38,6 +38,10 @@ enum Command {
     /// (rendered vs slave force, passivity observers, the link's round trip and losses; force
     /// against the set-point band), metrics.json and index.html.
     Report(h4_slave_sim::report::ReportArgs),
+    /// Measure on this host, in one run: round trips of the bare links against the processes
+    /// (iceoryx2 and Zenoh, idle and with both cores loaded), 1 kHz loop lateness, simulation
+    /// speed per session kind and the matrix; prints a table, --json writes it.
+    Bench(cli::bench::BenchArgs),
     /// Write the configuration reference (docs/configuration.md): every field of the arm,
     /// experiment and session files with its type, unit, range, default and description,
     /// from the code's schemas and checks; `--check FILE` exits 1 if FILE is stale.
@@ -55,6 +59,7 @@ fn main() -> std::process::ExitCode {
         Command::SlaveConfig(args) => args.run(),
         Command::Ros2Standin(args) => args.run(),
         Command::ConfigReference(args) => args.run(),
+        Command::Bench(args) => args.run(),
         Command::Report(args) => args
             .run()
             .map(|_| std::process::ExitCode::SUCCESS)

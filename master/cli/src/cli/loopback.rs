@@ -1,6 +1,7 @@
-//! `h4-master loopback [--duration-s N] [--summary out.json] [--record out.mcap]`: the slave
-//! (`h4-slave run`, a child process) and the master (this process) as two OS processes
-//! connected by iceoryx2, with the simulated arms, the simulated surface and the scripted
+//! `h4-master loopback [--duration-s N] [--summary out.json] [--record out.mcap]
+//! [--transport iceoryx2|zenoh]`: the slave (`h4-slave run`, a child process) and the master
+//! (this process) as two OS processes connected by iceoryx2 (or Zenoh peers over TCP on
+//! 127.0.0.1), with the simulated arms, the simulated surface and the scripted
 //! operator of a session file. Stops by itself and prints a summary.
 
 use std::path::{Path, PathBuf};
@@ -20,7 +21,7 @@ use h4_telemetry::progress::{grouped, verdict_line};
 use h4_telemetry::rt::LoopArgs;
 use h4_telemetry::rt::RealtimeMode;
 use h4_transport::impaired::ImpairArgs;
-use h4_transport::open::TransportArgs;
+use h4_transport::open::{TransportArgs, TransportKind};
 use serde::Serialize;
 
 /// Run the slave and the master as two processes over iceoryx2 for a fixed time and print a
@@ -51,6 +52,11 @@ pub struct LoopbackArgs {
     /// Arm id.
     #[arg(long, default_value_t = 0)]
     pub arm_id: u16,
+    /// The link between the two processes: `iceoryx2` (services under a prefix of the run's
+    /// own) or `zenoh` (peers over TCP on 127.0.0.1, the slave listening on a free port, the
+    /// master connecting to it).
+    #[arg(long, value_enum, default_value_t = TransportKind::Iceoryx2)]
+    pub transport: TransportKind,
     /// The h4-slave binary (default: next to this executable; under `cargo run` it is built
     /// there first if missing).
     #[arg(long)]
@@ -168,10 +174,8 @@ impl LoopbackArgs {
         let parts = self.record.as_deref().map(RecordingParts::next_to);
         self.check_outputs(parts.as_ref())?;
         let slave_bin = find_slave_binary(self.slave_bin.as_deref())?;
-        // A prefix of our own: runs side by side never share services.
-        let pid = std::process::id();
-        let transport = TransportArgs::iceoryx2(self.arm_id, format!("h4-loopback-{pid}"));
-        let slave = SlaveChild::spawn(&self, &cfg, &slave_bin, &transport, parts.as_ref())?;
+        let (slave_transport, transport) = self.links()?;
+        let slave = SlaveChild::spawn(&self, &cfg, &slave_bin, &slave_transport, parts.as_ref())?;
         let slave_pid = slave.pid;
         let duration_s = self.duration_s.unwrap_or(cfg.duration_s);
         let master_args = super::run::RunArgs {
@@ -244,6 +248,34 @@ impl LoopbackArgs {
         } else {
             ExitStatus::VerdictFailed.into()
         })
+    }
+
+    /// The slave's and the master's link options. iceoryx2: a prefix of our own, so runs side
+    /// by side never share services. Zenoh: the slave listens on a free loopback port.
+    fn links(&self) -> Result<(TransportArgs, TransportArgs), String> {
+        let pid = std::process::id();
+        let iceoryx2 = TransportArgs::iceoryx2(self.arm_id, format!("h4-loopback-{pid}"));
+        match self.transport {
+            TransportKind::Iceoryx2 => Ok((iceoryx2.clone(), iceoryx2)),
+            TransportKind::Zenoh => {
+                let port = std::net::TcpListener::bind("127.0.0.1:0")
+                    .and_then(|l| l.local_addr())
+                    .map_err(|e| format!("a free TCP port for Zenoh: {e}"))?
+                    .port();
+                let endpoint = format!("tcp/127.0.0.1:{port}");
+                let slave = TransportArgs {
+                    transport: TransportKind::Zenoh,
+                    zenoh_listen: vec![endpoint.clone()],
+                    ..iceoryx2.clone()
+                };
+                let master = TransportArgs {
+                    transport: TransportKind::Zenoh,
+                    zenoh_connect: vec![endpoint],
+                    ..iceoryx2
+                };
+                Ok((slave, master))
+            }
+        }
     }
 
     /// `--summary`, `--record` and the recording's parts must be writable before the run.

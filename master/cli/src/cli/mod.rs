@@ -1,5 +1,6 @@
 //! The subcommands.
 
+pub mod bench;
 pub mod config_reference;
 pub mod crtk;
 pub mod loopback;
