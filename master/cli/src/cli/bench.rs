@@ -666,6 +666,8 @@ fn print_table(r: &BenchReport) {
             .map(|(n, v)| {
                 if n == "samples" || n == "lost" || n.contains("cycles") || n.contains("misses") {
                     format!("{n} {v:.0}")
+                } else if v.abs() < 10.0 {
+                    format!("{n} {v:.3}")
                 } else {
                     format!("{n} {v:.1}")
                 }
