@@ -312,9 +312,11 @@ fn bare_zenoh(duration_s: f64, realtime: bool) -> Result<(Histogram, u64), Strin
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let slave_stop = stop.clone();
     let slave = std::thread::spawn(move || -> Result<(), String> {
-        enter_fifo(realtime);
+        // Opened before SCHED_FIFO: Zenoh's own threads, started here, must not inherit it
+        // (in the processes they run at normal priority).
         let mut link = SlaveZenohLink::open(0, &ZenohConfig::listen_on_loopback(port))
             .map_err(|e| e.to_string())?;
+        enter_fifo(realtime);
         let _ = ready_tx.send(());
         pong(&mut link, &slave_stop)
     });
