@@ -106,3 +106,30 @@ fn turntable_cycles_allocate_nothing() {
     assert!(angle(&s) - angle_before > 1.5, "the table did not turn");
     assert_eq!(n, 0, "{n} allocations in 4000 turntable cycles");
 }
+
+/// The mesh fixture (the part's distance grid queried every cycle, the tool's envelope
+/// projected out of it) allocates nothing: cycles of the dome session while the fixture
+/// holds the ball off the part and the tool cuts.
+#[test]
+fn mesh_fixture_cycles_allocate_nothing() {
+    let mut s = impaired_session("cut-mesh-dome.toml", 2500);
+    let removed_before = s.slave.arm().cut().unwrap().report().removed_mm3;
+    let (n, held) = count_allocations(|| {
+        let mut held = 0u32;
+        for _ in 0..4000 {
+            s.cycle().unwrap();
+            held += u32::from(s.slave.controller().mesh_fixture_active());
+        }
+        held
+    });
+    let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
+    assert!(
+        removed > 10.0,
+        "nothing cut in the counted cycles: {removed} mm³"
+    );
+    assert!(
+        held > 100,
+        "the mesh fixture held the tool in {held} cycles"
+    );
+    assert_eq!(n, 0, "{n} allocations in 4000 mesh-fixture cycles");
+}

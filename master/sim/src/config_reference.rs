@@ -100,6 +100,9 @@ max_mm = [10.0, 6.0]
 [fixtures.turntable_sync]
 speed_rad_per_s = 0.5
 
+[fixtures.mesh]
+allowance_mm = 0.3
+
 [cut_target]
 kind = \"pocket\"
 centre_mm = [0.0, 0.0]

@@ -61,6 +61,18 @@ impl SlaveWorld {
         initial_pose: Pose,
         seed: u64,
     ) -> Result<(SimArm, SlaveController), SimError> {
+        // A mesh fixture guards only once its part is loaded (`judge::load_mesh_target`):
+        // never run with it silently off.
+        if self
+            .fixtures
+            .mesh
+            .as_ref()
+            .is_some_and(|m| m.guard.is_none())
+        {
+            return Err(SimError::BadParameter(
+                "fixtures.mesh (its part, the cut_target's mesh, is not loaded)",
+            ));
+        }
         let ws = self.arm.workspace();
         let assumed = self.arm.stiffness()?;
         let arm = SimArm::new(

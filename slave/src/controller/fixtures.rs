@@ -13,9 +13,16 @@
 //!   pocket's edge cuts the edge where it was planned, not where the hand stopped;
 //! * the **turntable-synchronous** mode: the slave turns the table at a configured speed
 //!   while the tool point is held on a radial line through the table's axis; the operator
-//!   guides only its radius and depth, the turning part brings the stock round.
+//!   guides only its radius and depth, the turning part brings the stock round;
+//! * a **mesh** (a part from a CAD model, `fixtures.mesh`): a forbidden region; the tool's
+//!   envelope (a sphere about the ball end's centre) is never commanded closer than
+//!   `allowance_mm` to the part's surface: a command that would put it there is projected
+//!   out along the part's signed-distance gradient (in the workpiece frame, turned with the
+//!   table's measured angle). Queries through the part's precomputed distance grid only.
 //!
 //! Each is a section of `fixtures` in a slave world or a session file; `docs/cutting.md`.
+
+use std::sync::Arc;
 
 use h4_shared::config::{ConfigError, Section, check_range};
 use h4_shared::kinematics::Pose;
@@ -73,6 +80,74 @@ pub struct TurntableSync {
     pub radius_range_mm: [f64; 2],
 }
 
+/// The part's mesh as a forbidden region (`fixtures.mesh`; the part is the `cut_target` of
+/// kind `mesh`, loaded and checked with the session).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MeshFixtureConfig {
+    /// The finishing allowance: the closest the tool's envelope is commanded to the part's
+    /// surface, mm (0 to 10; 0.3).
+    #[serde(default = "default_allowance")]
+    pub allowance_mm: f64,
+    /// The loaded part and the tool's envelope (set when the session or world is loaded,
+    /// from `cut_target` and `cutting.tool`; not a key of the file).
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub guard: Option<MeshGuard>,
+}
+
+/// The mesh fixture's default finishing allowance, mm.
+pub const MESH_ALLOWANCE_DEFAULT_MM: f64 = 0.3;
+
+fn default_allowance() -> f64 {
+    MESH_ALLOWANCE_DEFAULT_MM
+}
+
+/// The part the mesh fixture guards and the tool's envelope, as loaded.
+#[derive(Clone)]
+pub struct MeshGuard {
+    /// The checked, placed part with its distance grid (workpiece frame).
+    pub part: Arc<h4_part::Part>,
+    /// The envelope sphere's centre above the tool's tip, mm (a ball end: its radius).
+    pub centre_above_tip_mm: f64,
+    /// The envelope sphere's radius, mm (a ball end: its radius; a flat end: √2 × its
+    /// radius, the sphere about the same centre that holds the end's corners).
+    pub radius_mm: f64,
+}
+
+impl MeshGuard {
+    /// The guard for a tool of `radius_mm`, a ball end (`ball`) or a flat end.
+    pub fn new(part: Arc<h4_part::Part>, radius_mm: f64, ball: bool) -> Self {
+        MeshGuard {
+            part,
+            centre_above_tip_mm: radius_mm,
+            radius_mm: if ball {
+                radius_mm
+            } else {
+                radius_mm * std::f64::consts::SQRT_2
+            },
+        }
+    }
+}
+
+impl PartialEq for MeshGuard {
+    fn eq(&self, o: &Self) -> bool {
+        Arc::ptr_eq(&self.part, &o.part)
+            && self.centre_above_tip_mm == o.centre_above_tip_mm
+            && self.radius_mm == o.radius_mm
+    }
+}
+
+impl std::fmt::Debug for MeshGuard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MeshGuard")
+            .field("part_volume_mm3", &self.part.volume_mm3)
+            .field("centre_above_tip_mm", &self.centre_above_tip_mm)
+            .field("radius_mm", &self.radius_mm)
+            .finish()
+    }
+}
+
 fn default_ramp() -> f64 {
     2.0
 }
@@ -97,6 +172,9 @@ pub struct FixturesConfig {
     /// The turntable-synchronous mode.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub turntable_sync: Option<TurntableSync>,
+    /// The part's mesh as a forbidden region (needs a `cut_target` of kind `mesh`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<MeshFixtureConfig>,
 }
 
 impl FixturesConfig {
@@ -106,6 +184,7 @@ impl FixturesConfig {
             && self.corridor.is_none()
             && self.region.is_none()
             && self.turntable_sync.is_none()
+            && self.mesh.is_none()
     }
 
     /// The turntable-synchronous mode needs a turntable (`has_turntable`): the error names
@@ -174,6 +253,15 @@ impl Section for FixturesConfig {
                 check_range(&hi, r.max_mm[a], r.min_mm[a], 1e4, "mm (≥ the minimum)")?;
             }
         }
+        if let Some(m) = &self.mesh {
+            check_range(
+                &format!("{prefix}mesh.allowance_mm"),
+                m.allowance_mm,
+                0.0,
+                10.0,
+                "mm",
+            )?;
+        }
         if let Some(t) = &self.turntable_sync {
             let f = |n: &str| format!("{prefix}turntable_sync.{n}");
             check_range(
@@ -200,8 +288,9 @@ impl Section for FixturesConfig {
     }
 }
 
-/// The fixtures as the controller holds them (fixed size: nothing allocated per cycle).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// The fixtures as the controller holds them (fixed size: nothing allocated per cycle; the
+/// mesh's part is shared, built at load time).
+#[derive(Clone, Debug, PartialEq)]
 pub struct Fixtures {
     floor_z_mm: Option<f64>,
     path: [[f64; 2]; CORRIDOR_POINTS_MAX],
@@ -211,6 +300,10 @@ pub struct Fixtures {
     region: Option<RegionConfig>,
     /// The turntable-synchronous mode.
     sync: Option<TurntableSync>,
+    /// The mesh's guard and the allowance, mm.
+    mesh: Option<(MeshGuard, f64)>,
+    /// The mesh's guard moved the last committed pose.
+    mesh_active: bool,
     /// The turntable's axis (x, y), base frame, mm, when the machine has one (told).
     table_axis_mm: Option<[f64; 2]>,
     /// The table's measured angle this cycle, rad.
@@ -235,6 +328,8 @@ impl Default for Fixtures {
             half_width_mm: 0.0,
             region: None,
             sync: None,
+            mesh: None,
+            mesh_active: false,
             table_axis_mm: None,
             table_measured_rad: None,
             table_cmd_rad: 0.0,
@@ -254,6 +349,10 @@ impl Fixtures {
             floor_z_mm: cfg.depth_floor.map(|d| d.z_mm),
             region: cfg.region,
             sync: cfg.turntable_sync,
+            mesh: cfg
+                .mesh
+                .as_ref()
+                .and_then(|m| m.guard.clone().map(|g| (g, m.allowance_mm))),
             ..Fixtures::default()
         };
         if let Some(c) = &cfg.corridor {
@@ -362,10 +461,71 @@ impl Fixtures {
                 moved = true;
             }
         }
+        self.mesh_active = false;
+        if self.mesh.is_some() {
+            let q = self.out_of_the_part(p);
+            if (q[0] - p[0]).abs() + (q[1] - p[1]).abs() + (q[2] - p[2]).abs() > 1e-9 {
+                p = q;
+                moved = true;
+                self.mesh_active = true;
+            }
+        }
         self.active = moved;
         if self.active {
             self.active_cycles += 1;
         }
+        p
+    }
+
+    /// Whether the mesh fixture moved the last committed pose.
+    pub fn mesh_active(&self) -> bool {
+        self.mesh_active
+    }
+
+    /// `pose` with the tool's envelope moved out of the part grown by the allowance: the
+    /// envelope's centre (workpiece frame, through the table's measured angle) stepped along
+    /// the distance field's gradient by what it lacks, up to 8 times (straight up where the
+    /// gradient is lost, deep inside). Unchanged without a mesh or for a non-finite pose.
+    fn out_of_the_part(&self, pose: Pose) -> Pose {
+        let Some((g, allowance_mm)) = &self.mesh else {
+            return pose;
+        };
+        if !(pose[0].is_finite() && pose[1].is_finite() && pose[2].is_finite()) {
+            return pose;
+        }
+        let frame = self.table_frame();
+        let q = match frame {
+            Some((th, c)) => turn_about(c, -th, [pose[0], pose[1]]),
+            None => [pose[0], pose[1]],
+        };
+        let need = g.radius_mm + allowance_mm;
+        let start = [q[0], q[1], pose[2] + g.centre_above_tip_mm];
+        let mut c = start;
+        for _ in 0..8 {
+            let (d, n) = g.part.distance_and_normal(c);
+            if !d.is_finite() || d >= need {
+                break;
+            }
+            let n_ok =
+                n.iter().all(|v| v.is_finite()) && (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) > 0.25;
+            let n = if n_ok { n } else { [0.0, 0.0, 1.0] };
+            // A micrometre beyond, so the interpolated field is met from outside.
+            let step = need - d + 1e-3;
+            for (a, v) in c.iter_mut().enumerate() {
+                *v += step * n[a];
+            }
+        }
+        if c == start {
+            return pose;
+        }
+        let b = match frame {
+            Some((th, axis)) => turn_about(axis, th, [c[0], c[1]]),
+            None => [c[0], c[1]],
+        };
+        let mut p = pose;
+        p[0] = b[0];
+        p[1] = b[1];
+        p[2] = c[2] - g.centre_above_tip_mm;
         p
     }
 
@@ -609,5 +769,87 @@ mod tests {
         let e = sync(1.0).check_turntable("fixtures.", false).unwrap_err();
         assert!(e.to_string().contains("fixtures.turntable_sync"), "{e}");
         assert!(sync(1.0).check_turntable("fixtures.", true).is_ok());
+    }
+
+    /// The dome-and-step block (2 mm cells) on a block whose top is at z = −250, the dome's
+    /// top 1 mm under it, guarded for a 3 mm ball end with a 0.3 mm allowance.
+    fn mesh_fixture() -> (Fixtures, Arc<h4_part::Part>) {
+        let m = h4_part::shapes::dome_block(2.0);
+        let v: Vec<[f32; 3]> = m.vertices.iter().map(|p| p.map(|x| x as f32)).collect();
+        let opts = h4_part::LoadOptions {
+            band_mm: 7.0,
+            ..h4_part::LoadOptions::default()
+        };
+        let placement = h4_part::Placement {
+            translation_mm: [-15.0, 0.0, -275.0],
+            rotation_deg: [0.0; 3],
+        };
+        let part =
+            Arc::new(h4_part::Part::from_mesh(&v, &m.faces, placement, None, &opts).unwrap());
+        let cfg = FixturesConfig {
+            mesh: Some(MeshFixtureConfig {
+                allowance_mm: 0.3,
+                guard: Some(MeshGuard::new(part.clone(), 3.0, true)),
+            }),
+            ..FixturesConfig::default()
+        };
+        (Fixtures::new(&cfg), part)
+    }
+
+    /// Commanded anywhere over and into the dome (down to 8 mm into it), the ball's centre
+    /// ends at least radius + allowance from the part (to the grid's 0.01 mm); a command clear
+    /// of it is left alone. Control: without the mesh fixture the same commands stay inside.
+    #[test]
+    fn the_mesh_keeps_the_balls_envelope_off_the_part() {
+        let (mut f, part) = mesh_fixture();
+        let mut none = Fixtures::new(&FixturesConfig::default());
+        let (mut held, mut inside_without) = (0, 0);
+        for i in -12..=12 {
+            for j in -8..=8 {
+                for k in 0..12 {
+                    let cmd = Pose::new(f64::from(i), f64::from(j), -250.0 - f64::from(k), 0.0);
+                    let p = f.limit(cmd);
+                    let d = part.signed_distance_mm([p[0], p[1], p[2] + 3.0]);
+                    assert!(d >= 3.3 - 0.01, "{cmd:?} -> {p:?}: {d} mm");
+                    let d_cmd = part.signed_distance_mm([cmd[0], cmd[1], cmd[2] + 3.0]);
+                    if d_cmd >= 3.3 {
+                        assert_eq!(p, cmd, "clear of the part: unchanged");
+                        assert!(!f.mesh_active());
+                    } else {
+                        held += 1;
+                        assert!(f.mesh_active() && f.active);
+                    }
+                    let q = none.limit(cmd);
+                    if part.signed_distance_mm([q[0], q[1], q[2] + 3.0]) < 3.3 {
+                        inside_without += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            held > 1000 && held == inside_without,
+            "{held} held, {inside_without}"
+        );
+        // A NaN command is not moved (the controller's own guards refuse it).
+        let p = f.limit(Pose::new(f64::NAN, 0.0, -260.0, 0.0));
+        assert!(p[0].is_nan());
+    }
+
+    /// With a turntable the part turns with the table's measured angle: the dome, 15 mm off
+    /// the axis, is guarded where the table has turned it.
+    #[test]
+    fn the_mesh_turns_with_the_table() {
+        let (mut f, part) = mesh_fixture();
+        f.set_turntable_axis([-15.0, 0.0]);
+        // Turned by 90°, the dome's top (workpiece (0, 0)) lies at base (−15, 15).
+        f.observe_turntable(Some(std::f64::consts::FRAC_PI_2));
+        let p = f.limit(Pose::new(-15.0, 15.0, -254.0, 0.0));
+        assert!(f.mesh_active(), "{p:?}");
+        let wp = turn_about([-15.0, 0.0], -std::f64::consts::FRAC_PI_2, [p[0], p[1]]);
+        let d = part.signed_distance_mm([wp[0], wp[1], p[2] + 3.0]);
+        assert!(d >= 3.29, "{d}");
+        // The base-frame point over the unturned dome is clear now (the dome has moved).
+        let q = f.limit(Pose::new(0.0, 0.0, -254.0, 0.0));
+        assert_eq!(q, Pose::new(0.0, 0.0, -254.0, 0.0));
     }
 }

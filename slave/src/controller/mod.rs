@@ -233,6 +233,11 @@ impl SlaveController {
         self.fixtures.turntable_command(dt_s, stop)
     }
 
+    /// Whether the mesh fixture (`fixtures.mesh`) moved the last committed pose.
+    pub fn mesh_fixture_active(&self) -> bool {
+        self.fixtures.mesh_active()
+    }
+
     /// Whether a fixture moved the last committed pose, and in how many cycles one did.
     pub fn fixture_activity(&self) -> (bool, u64) {
         (self.fixtures.active, self.fixtures.active_cycles)

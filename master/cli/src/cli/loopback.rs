@@ -703,7 +703,7 @@ pub fn slave_world(cfg: &SessionConfig) -> ExperimentConfig {
         targets: Default::default(),
         cutting: cfg.cutting,
         fixtures: cfg.fixtures.clone(),
-        cut_target: cfg.cut_target,
+        cut_target: cfg.cut_target.clone(),
     }
 }
 

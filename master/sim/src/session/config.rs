@@ -521,6 +521,14 @@ pub fn load_with(
     {
         cfg.operator.replay_file = Some(dir.join(rf));
     }
+    // A part from a mesh: read, checked and its distance grid built now, before any run.
+    let dir = path.parent().unwrap_or(Path::new("."));
+    h4_slave_sim::plant::cutting::judge::load_mesh_target(
+        cfg.cut_target.as_mut(),
+        &mut cfg.fixtures,
+        cfg.cutting.as_ref(),
+        dir,
+    )?;
     Ok(cfg)
 }
 

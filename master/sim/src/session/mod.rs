@@ -80,6 +80,9 @@ pub enum SessionError {
     /// The link failed.
     #[error("link: {0}")]
     Link(#[from] h4_transport::LinkError),
+    /// A mesh target's part was refused (or a mesh fixture has no part).
+    #[error("{0}")]
+    Mesh(#[from] h4_slave_sim::plant::cutting::judge::MeshTargetError),
     /// The part's files could not be written.
     #[error("--out: {0}")]
     Export(#[from] h4_slave_sim::plant::cutting::export::ExportError),

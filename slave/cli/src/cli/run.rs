@@ -162,8 +162,16 @@ impl RunArgs {
             "config/slave/sim-resin.toml",
             "--config",
         )?;
-        let cfg: ExperimentConfig =
+        let mut cfg: ExperimentConfig =
             h4_shared::config::load(&path, &self.set).map_err(|e| e.to_string())?;
+        // A part from a mesh: read, checked and its distance grid built before the run.
+        h4_slave_sim::plant::cutting::judge::load_mesh_target(
+            cfg.cut_target.as_mut(),
+            &mut cfg.fixtures,
+            cfg.cutting.as_ref(),
+            path.parent().unwrap_or(std::path::Path::new(".")),
+        )
+        .map_err(|e| e.to_string())?;
         let passivity = match &self.passivity_config {
             Some(p) => {
                 h4_shared::config::load::<PassivityFile>(p, &[])

@@ -2,7 +2,8 @@
 //! per-cycle evidence of the cutting force at steady feed, the summary's cutting fields and
 //! the files `--out DIR` writes (height map, STL, deviation map).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use super::export::{ExportError, write_deviation_png, write_height_png, write_stl};
 use super::{CutReport, Stock, Tool, ToolKind};
@@ -19,15 +20,50 @@ pub enum TargetKind {
     /// A ring groove (a contour round a turning part): the tool's tip covers the circle of
     /// `radius_mm` about `centre_mm` (a band `size_mm[0]` wide across it) at `depth_mm`.
     Ring,
+    /// A part from a CAD mesh (`mesh`, an STL file in millimetres), placed by
+    /// `translation_mm` and `rotation_deg` in the workpiece frame; judged over the rectangle
+    /// `centre_mm` ± `size_mm`/2 (the whole block when `size_mm` is 0) against the mesh's
+    /// top surface (`docs/cutting.md`).
+    Mesh,
+}
+
+/// The default largest mesh file accepted, bytes (16 MiB).
+pub const MESH_MAX_FILE_BYTES_DEFAULT: u64 = 16 << 20;
+
+/// A mesh target's part as loaded (not a key of the file): the checked, placed part with
+/// its distance grid, and the finishing allowance it is judged with, mm.
+#[derive(Clone)]
+pub struct LoadedPart {
+    /// The part (workpiece frame).
+    pub part: Arc<h4_part::Part>,
+    /// The finishing allowance, mm (`fixtures.mesh.allowance_mm`, else its default 0.3).
+    pub allowance_mm: f64,
+}
+
+impl PartialEq for LoadedPart {
+    fn eq(&self, o: &Self) -> bool {
+        Arc::ptr_eq(&self.part, &o.part) && self.allowance_mm == o.allowance_mm
+    }
+}
+
+impl std::fmt::Debug for LoadedPart {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LoadedPart")
+            .field("volume_mm3", &self.part.volume_mm3)
+            .field("allowance_mm", &self.allowance_mm)
+            .finish()
+    }
 }
 
 /// The shape a session should cut (`cut_target`), in the workpiece frame.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CutTarget {
     /// The kind of shape.
     pub kind: TargetKind,
-    /// Centre of the region the tool's tip covers, x and y, mm.
+    /// Centre of the region the tool's tip covers (a mesh: of the region judged), x and y,
+    /// mm.
+    #[serde(default)]
     pub centre_mm: [f64; 2],
     /// Size of that region along x and y, mm (a ring: `[band width, unused]`, default 0).
     #[serde(default)]
@@ -35,11 +71,34 @@ pub struct CutTarget {
     /// A ring's radius (the tip's circle), mm (0 to 1e4; unused by a pocket).
     #[serde(default)]
     pub radius_mm: f64,
-    /// Depth below the block's top, mm.
+    /// Depth below the block's top, mm (unused by a mesh).
+    #[serde(default)]
     pub depth_mm: f64,
     /// The part is judged over the pocket and this margin of the top around it, mm.
     #[serde(default = "default_margin_mm")]
     pub margin_mm: f64,
+    /// A mesh target's STL file (binary or ASCII, millimetres), relative to the session
+    /// (or world) file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<PathBuf>,
+    /// Where the mesh's origin lies in the workpiece frame, mm (±1e4 each).
+    #[serde(default)]
+    pub translation_mm: [f64; 3],
+    /// The mesh's rotation about the workpiece frame's x, y, then z axes, degrees (±360
+    /// each).
+    #[serde(default)]
+    pub rotation_deg: [f64; 3],
+    /// The largest mesh file accepted, bytes (1 to 1 GiB; 16 MiB).
+    #[serde(default = "default_mesh_max_file_bytes")]
+    pub mesh_max_file_bytes: u64,
+    /// The mesh's part once loaded ([`CutTarget::load_mesh`]).
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub part: Option<LoadedPart>,
+}
+
+fn default_mesh_max_file_bytes() -> u64 {
+    MESH_MAX_FILE_BYTES_DEFAULT
 }
 
 fn default_margin_mm() -> f64 {
@@ -67,7 +126,151 @@ impl Section for CutTarget {
         }
         check_range(&f("radius_mm"), self.radius_mm, 0.0, 1e4, "mm")?;
         check_range(&f("depth_mm"), self.depth_mm, 0.0, 100.0, "mm")?;
-        check_range(&f("margin_mm"), self.margin_mm, 0.0, 100.0, "mm")
+        check_range(&f("margin_mm"), self.margin_mm, 0.0, 100.0, "mm")?;
+        for i in 0..3 {
+            check_range(
+                &f(&format!("translation_mm[{i}]")),
+                self.translation_mm[i],
+                -1e4,
+                1e4,
+                "mm",
+            )?;
+            check_range(
+                &f(&format!("rotation_deg[{i}]")),
+                self.rotation_deg[i],
+                -360.0,
+                360.0,
+                "deg",
+            )?;
+        }
+        check_range(
+            &f("mesh_max_file_bytes"),
+            self.mesh_max_file_bytes as f64,
+            1.0,
+            (1u64 << 30) as f64,
+            "bytes",
+        )?;
+        const NEEDS: &str = "a file with kind = \"mesh\", none otherwise";
+        if h4_shared::config::recording() {
+            h4_shared::config::record_rule(&f("mesh"), NEEDS);
+        }
+        if (self.kind == TargetKind::Mesh) != self.mesh.is_some() {
+            return Err(ConfigError::OutOfRange {
+                field: f("mesh"),
+                value: match &self.mesh {
+                    Some(m) => m.display().to_string(),
+                    None => "none".to_string(),
+                },
+                allowed: NEEDS.to_string(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Why a mesh target could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshTargetError {
+    /// A mesh target without a `[cutting]` section (no stock to place it in).
+    #[error(
+        "cut_target.kind = \"mesh\" needs a [cutting] section (the stock the part is placed in)"
+    )]
+    NoStock,
+    /// A mesh fixture without a mesh target.
+    #[error("fixtures.mesh needs a cut_target of kind \"mesh\" (the part it guards)")]
+    NoPart,
+    /// The part was refused.
+    #[error("cut_target.mesh {path}: {source}")]
+    Part {
+        /// The file.
+        path: String,
+        /// The reason.
+        source: h4_part::PartError,
+    },
+}
+
+/// Loads a session's (or world's) mesh target and hands its part to the mesh fixture:
+/// the target's part is judged with the fixture's allowance (its default without the
+/// fixture); the fixture's guard is the part with the envelope of `cutting`'s tool.
+pub fn load_mesh_target(
+    target: Option<&mut CutTarget>,
+    fixtures: &mut h4_slave::controller::FixturesConfig,
+    cutting: Option<&super::CuttingConfig>,
+    base_dir: &Path,
+) -> Result<(), MeshTargetError> {
+    let allowance_mm = fixtures.mesh.as_ref().map_or(
+        h4_slave::controller::fixtures::MESH_ALLOWANCE_DEFAULT_MM,
+        |m| m.allowance_mm,
+    );
+    let part = match target {
+        Some(t) => {
+            t.load_mesh(base_dir, cutting, allowance_mm)?;
+            t.part.as_ref().map(|p| p.part.clone())
+        }
+        None => None,
+    };
+    if let Some(m) = fixtures.mesh.as_mut() {
+        let (Some(part), Some(c)) = (part, cutting) else {
+            return Err(MeshTargetError::NoPart);
+        };
+        m.guard = Some(h4_slave::controller::fixtures::MeshGuard::new(
+            part,
+            c.tool.radius_mm,
+            c.tool.kind == ToolKind::Ball,
+        ));
+    }
+    Ok(())
+}
+
+impl CutTarget {
+    /// Loads a mesh target's part (nothing for the other kinds): the file (relative to
+    /// `base_dir`) read and checked (closed, manifold, outward, finite, non-degenerate, not
+    /// over `mesh_max_file_bytes`), placed, checked to fit the stock of `cutting`, and its
+    /// distance grid built wide enough for the tool's envelope and the allowance.
+    pub fn load_mesh(
+        &mut self,
+        base_dir: &Path,
+        cutting: Option<&super::CuttingConfig>,
+        allowance_mm: f64,
+    ) -> Result<(), MeshTargetError> {
+        let Some(rel) = self.mesh.clone() else {
+            return Ok(());
+        };
+        let path = if rel.is_relative() {
+            base_dir.join(rel)
+        } else {
+            rel
+        };
+        let c = cutting.ok_or(MeshTargetError::NoStock)?;
+        let stock = h4_part::StockBox {
+            centre_top_mm: c.stock_centre_top_mm,
+            size_mm: c.stock_size_mm,
+            thickness_mm: c.stock_thickness_mm,
+        };
+        let reach_mm = c.tool.radius_mm * std::f64::consts::SQRT_2 + allowance_mm;
+        let opts = h4_part::LoadOptions {
+            max_file_bytes: self.mesh_max_file_bytes,
+            band_mm: (reach_mm + 2.0).max(4.0),
+            ..h4_part::LoadOptions::default()
+        };
+        let placement = h4_part::Placement {
+            translation_mm: self.translation_mm,
+            rotation_deg: self.rotation_deg,
+        };
+        let part =
+            h4_part::Part::load(&path, placement, Some(&stock), &opts).map_err(|source| {
+                MeshTargetError::Part {
+                    path: path.display().to_string(),
+                    source,
+                }
+            })?;
+        self.part = Some(LoadedPart {
+            part: Arc::new(part),
+            allowance_mm,
+        });
+        // Written out (a world file for the slave process) the path holds from anywhere.
+        self.mesh = Some(path);
+        Ok(())
     }
 }
 
@@ -147,6 +350,14 @@ pub struct CutSummary {
     pub fixture_limited_cycles: u64,
     /// Largest true contact force during the cut, N.
     pub cutting_force_max_n: f64,
+    /// A mesh target: the stock left more than the allowance from the part over the judged
+    /// region, mm³.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material_left_mm3: Option<f64>,
+    /// A mesh target: the stock more than the allowance from the part over the judged
+    /// region before the cut (what was to be removed), mm³.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material_to_remove_mm3: Option<f64>,
 }
 
 fn nan() -> f64 {
@@ -345,10 +556,20 @@ impl CutEvaluator {
             }
         }
         let floor = floor_z_mm.or(target.map(|t| top - t.depth_mm));
+        let mesh = target.and_then(|t| t.part.as_ref().map(|p| judge_mesh(stock, t, p)));
+        let (surface_error_p99_mm, gouge_max_mm) = match &mesh {
+            Some(m) => (m.surface_error_p99_mm, m.gouge_max_mm),
+            None => (
+                p99(&mut errors),
+                floor.map_or(0.0, |f| (f - lowest).max(0.0)),
+            ),
+        };
         CutSummary {
             removed_volume_mm3: stock.removed_mm3(),
-            surface_error_p99_mm: p99(&mut errors),
-            gouge_max_mm: floor.map_or(0.0, |f| (f - lowest).max(0.0)),
+            surface_error_p99_mm,
+            gouge_max_mm,
+            material_left_mm3: mesh.as_ref().map(|m| m.material_left_mm3),
+            material_to_remove_mm3: mesh.as_ref().map(|m| m.material_to_remove_mm3),
             cutting_force_dev_p99_pct: p99(&mut self.deviations_pct),
             removal_rate_mm3_per_s: if self.cutting_cycles > 0 {
                 self.removed_while_cutting_mm3 / (self.cutting_cycles as f64 * 1e-3)
@@ -363,6 +584,126 @@ impl CutEvaluator {
             fixture_limited_cycles,
             cutting_force_max_n: self.force_max_n,
         }
+    }
+}
+
+/// A mesh target's judgement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshJudgement {
+    /// 99th percentile of |machined height − the part's top| over the judged cells, mm.
+    pub surface_error_p99_mm: f64,
+    /// Deepest cut into the part (the part's top − the machined height) over every cut
+    /// cell, mm (0: none).
+    pub gouge_max_mm: f64,
+    /// Stock left more than the allowance from the part over the judged cells, mm³.
+    pub material_left_mm3: f64,
+    /// Stock more than the allowance from the part over the judged cells before the cut, mm³.
+    pub material_to_remove_mm3: f64,
+}
+
+/// The height of the part's top above (`x`, `y`) (workpiece frame) below `z_top_mm`: the
+/// highest point of the column inside the part (sphere-traced down its distance field,
+/// then bisected to 1e-5 mm), or `None` if the column above `z_bottom_mm` misses it.
+pub fn part_top_mm(
+    part: &h4_part::Part,
+    x: f64,
+    y: f64,
+    z_top_mm: f64,
+    z_bottom_mm: f64,
+) -> Option<f64> {
+    let mut above = z_top_mm + 1e-3;
+    let mut z = above;
+    loop {
+        let d = part.signed_distance_mm([x, y, z]);
+        if d <= 0.0 {
+            if z >= above {
+                return Some(z);
+            }
+            let (mut lo, mut hi) = (z, above);
+            for _ in 0..32 {
+                let m = 0.5 * (lo + hi);
+                if part.signed_distance_mm([x, y, m]) <= 0.0 {
+                    lo = m;
+                } else {
+                    hi = m;
+                }
+                if hi - lo < 1e-5 {
+                    break;
+                }
+            }
+            return Some(lo);
+        }
+        if z <= z_bottom_mm {
+            return None;
+        }
+        above = z;
+        z = (z - d.max(0.02)).max(z_bottom_mm);
+    }
+}
+
+/// The judged rectangle of a mesh target, `[x_min, x_max, y_min, y_max]`, mm (None: the
+/// whole block).
+fn mesh_region_mm(t: &CutTarget) -> Option<[f64; 4]> {
+    let [sx, sy] = t.size_mm;
+    if sx <= 0.0 || sy <= 0.0 {
+        return None;
+    }
+    let [cx, cy] = t.centre_mm;
+    Some([cx - 0.5 * sx, cx + 0.5 * sx, cy - 0.5 * sy, cy + 0.5 * sy])
+}
+
+/// Judges the block against a mesh target: per cell, the machined height against the
+/// part's top (vertical, workpiece frame: through the table's angle, as the height field
+/// is kept); the material more than the allowance from the part integrated up each judged
+/// column in 0.02 mm steps.
+pub fn judge_mesh(stock: &Stock, t: &CutTarget, p: &LoadedPart) -> MeshJudgement {
+    let part = &*p.part;
+    let top = stock.top_mm();
+    let bottom = stock.bottom_mm();
+    let (nx, ny) = stock.dims();
+    let cell = stock.cell_mm();
+    let region = mesh_region_mm(t);
+    let mut errors = Vec::new();
+    let mut gouge: f64 = 0.0;
+    let (mut left, mut to_remove) = (0.0, 0.0);
+    let dz = 0.02;
+    for iy in 0..ny {
+        for ix in 0..nx {
+            let h = stock.height_at(ix, iy);
+            let c = stock.cell_centre_mm(ix, iy);
+            let judged =
+                region.is_none_or(|b| c[0] >= b[0] && c[0] <= b[1] && c[1] >= b[2] && c[1] <= b[3]);
+            let cut = h < top - 1e-9;
+            if !judged && !cut {
+                continue;
+            }
+            let pt = part_top_mm(part, c[0], c[1], top, bottom);
+            if let Some(z) = pt {
+                gouge = gouge.max(z - h);
+            }
+            if !judged {
+                continue;
+            }
+            let base = pt.unwrap_or(bottom);
+            errors.push((h - base).abs());
+            let mut z = base + 0.5 * dz;
+            while z < top {
+                if part.signed_distance_mm([c[0], c[1], z]) > p.allowance_mm {
+                    let len = dz.min(top - (z - 0.5 * dz));
+                    to_remove += len * cell * cell;
+                    if z < h {
+                        left += dz.min(h - (z - 0.5 * dz)).min(len) * cell * cell;
+                    }
+                }
+                z += dz;
+            }
+        }
+    }
+    MeshJudgement {
+        surface_error_p99_mm: p99(&mut errors),
+        gouge_max_mm: gouge.max(0.0),
+        material_left_mm3: left,
+        material_to_remove_mm3: to_remove,
     }
 }
 
@@ -392,9 +733,17 @@ pub fn write_outputs(
     write_stl(&dir.join("part.stl"), stock)?;
     if let Some(t) = target {
         let top = stock.top_mm();
-        write_deviation_png(&dir.join("deviation.png"), stock, 0.5, |x, y| {
-            t.height_mm(x, y, top, tool)
-        })?;
+        if let Some(p) = &t.part {
+            // A mesh: the deviation from the part's top (its allowance shows as + allowance).
+            let bottom = stock.bottom_mm();
+            write_deviation_png(&dir.join("deviation.png"), stock, 0.5, |x, y| {
+                part_top_mm(&p.part, x, y, top, bottom).unwrap_or(bottom)
+            })?;
+        } else {
+            write_deviation_png(&dir.join("deviation.png"), stock, 0.5, |x, y| {
+                t.height_mm(x, y, top, tool)
+            })?;
+        }
     }
     Ok(())
 }
@@ -415,13 +764,18 @@ mod tests {
             radius_mm: 0.0,
             depth_mm: 2.0,
             margin_mm: 3.0,
+            mesh: None,
+            translation_mm: [0.0; 3],
+            rotation_deg: [0.0; 3],
+            mesh_max_file_bytes: MESH_MAX_FILE_BYTES_DEFAULT,
+            part: None,
         };
         let ring = CutTarget {
             kind: TargetKind::Ring,
             centre_mm: [-1.0, 4.0],
             size_mm: [2.0, 0.0],
             radius_mm: 25.0,
-            ..pocket
+            ..pocket.clone()
         };
         for t in [pocket, ring] {
             let b = t.judged_box_mm(&tool);
@@ -461,6 +815,11 @@ mod tests {
             radius_mm: 0.0,
             depth_mm: 2.0,
             margin_mm: 3.0,
+            mesh: None,
+            translation_mm: [0.0; 3],
+            rotation_deg: [0.0; 3],
+            mesh_max_file_bytes: MESH_MAX_FILE_BYTES_DEFAULT,
+            part: None,
         };
         let tool = Tool::default(); // ball, 3 mm
         assert_eq!(t.height_mm(0.0, 0.0, 0.0, &tool), -2.0);
@@ -478,11 +837,111 @@ mod tests {
             radius_mm: 20.0,
             size_mm: [0.0, 0.0],
             centre_mm: [5.0, 0.0],
-            ..t
+            ..t.clone()
         };
         assert_eq!(ring.height_mm(5.0, 20.0, 0.0, &tool), -2.0);
         let h = ring.height_mm(26.0, 0.0, 0.0, &tool);
         assert!((h - (-2.0 + 3.0 - 8f64.sqrt())).abs() < 1e-12, "{h}");
         assert_eq!(ring.height_mm(5.0, 0.0, 0.0, &tool), 0.0);
+    }
+
+    /// A 10 × 10 mm box whose top is 3 mm under a 20 × 20 mm block's top, as a loaded part
+    /// with a 0.3 mm allowance.
+    fn box_part() -> LoadedPart {
+        let c = |i: usize| {
+            [
+                if i & 1 == 1 { 5.0 } else { -5.0 },
+                if i & 2 == 2 { 5.0 } else { -5.0 },
+                if i & 4 == 4 { -3.0 } else { -8.0 },
+            ]
+        };
+        let vertices: Vec<[f32; 3]> = (0..8).map(|i| c(i).map(|x| x as f32)).collect();
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let mut faces = Vec::new();
+        for q in quads {
+            faces.push([q[0], q[1], q[2]]);
+            faces.push([q[0], q[2], q[3]]);
+        }
+        let part = h4_part::Part::from_mesh(
+            &vertices,
+            &faces,
+            h4_part::Placement::default(),
+            None,
+            &h4_part::LoadOptions::default(),
+        )
+        .unwrap();
+        LoadedPart {
+            part: Arc::new(part),
+            allowance_mm: 0.3,
+        }
+    }
+
+    fn mesh_target(size_mm: [f64; 2]) -> CutTarget {
+        CutTarget {
+            kind: TargetKind::Mesh,
+            centre_mm: [0.0, 0.0],
+            size_mm,
+            radius_mm: 0.0,
+            depth_mm: 0.0,
+            margin_mm: 3.0,
+            mesh: Some(PathBuf::from("box.stl")),
+            translation_mm: [0.0; 3],
+            rotation_deg: [0.0; 3],
+            mesh_max_file_bytes: MESH_MAX_FILE_BYTES_DEFAULT,
+            part: Some(box_part()),
+        }
+    }
+
+    /// The mesh judge: the part's top found down each column; an uncut block over the box
+    /// has everything above the allowance to remove and all of it left; a flat end sweeping
+    /// the box's top at the allowance leaves almost nothing and cuts nothing of the part,
+    /// 0.5 mm deeper it gouges 0.5 mm.
+    #[test]
+    fn the_mesh_judge_measures_what_is_left_and_what_is_gouged() {
+        let p = box_part();
+        let top = part_top_mm(&p.part, 1.0, 2.0, 0.0, -10.0).unwrap();
+        assert!((top + 3.0).abs() < 1e-3, "{top}");
+        assert!(part_top_mm(&p.part, 7.0, 0.0, 0.0, -10.0).is_none());
+        let t = mesh_target([8.0, 8.0]);
+        let fresh = Stock::new([0.0, 0.0, 0.0], [20.0, 20.0], 10.0, 0.25).unwrap();
+        let j = judge_mesh(&fresh, &t, &p);
+        // 8 × 8 mm judged, 2.7 mm of each column more than 0.3 mm above the box.
+        let want = 64.0 * 2.7;
+        assert!(
+            (j.material_to_remove_mm3 - want).abs() < 0.02 * want,
+            "{j:?}"
+        );
+        assert_eq!(j.material_left_mm3, j.material_to_remove_mm3);
+        assert!((j.surface_error_p99_mm - 3.0).abs() < 1e-3, "{j:?}");
+        assert_eq!(j.gouge_max_mm, 0.0);
+        let tool = Tool {
+            kind: ToolKind::Flat,
+            radius_mm: 2.0,
+            ..Tool::default()
+        };
+        let raster = |stock: &mut Stock, z: f64| {
+            for k in 0..=12 {
+                let y = -6.0 + f64::from(k);
+                stock.sweep(&tool, [-7.0, y, z], [7.0, y, z]);
+            }
+        };
+        let mut cut = fresh.clone();
+        raster(&mut cut, -2.7);
+        let j = judge_mesh(&cut, &t, &p);
+        assert!(j.material_left_mm3 < 0.01 * want, "{j:?}");
+        assert!((j.surface_error_p99_mm - 0.3).abs() < 0.01, "{j:?}");
+        assert!(j.gouge_max_mm < 1e-3, "{j:?}");
+        let mut deep = fresh.clone();
+        raster(&mut deep, -3.5);
+        let j = judge_mesh(&deep, &t, &p);
+        assert!((j.gouge_max_mm - 0.5).abs() < 0.01, "{j:?}");
+        assert!(j.material_left_mm3 < 1e-9, "{j:?}");
     }
 }
