@@ -1200,8 +1200,10 @@ mod tests {
         let v = c.damping_velocity(&dev, now + 1_000_000);
         // The same position a cycle later: the mean over the 3-cycle window, 2/3 of 50.
         assert!((v[2] + 100.0 / 3.0).abs() < 1e-6, "{v:?}");
-        let mut off = CouplingConfig::default();
-        off.damping_window_mm = 0.0;
+        let off = CouplingConfig {
+            damping_window_mm: 0.0,
+            ..CouplingConfig::default()
+        };
         let mut c = MasterCoupling::new(CouplingParams {
             config: off,
             ..*c.params()
