@@ -73,8 +73,24 @@ pub struct CouplingConfig {
     /// feedback and the handle is free.
     pub brake_on_loss: bool,
     /// Cut-off of the first-order low-pass on the slave force rendered (position–force), Hz
-    /// (0: unfiltered).
+    /// (0: unfiltered). 40 Hz halves the sensor's noise above 20 Hz at the handle (0.032 to
+    /// 0.013 N RMS in a wall-push hold) for 4 ms of lag, but tips one more long-delay metal
+    /// cell into the hand-over's slow oscillation
+    /// (`a_told_round_trip_steadies_the_hand_over_on_metal_over_long_links`); 20 Hz let the
+    /// second wall-push hold at 100 ms round trip oscillate. Off by default.
     pub force_filter_hz: f64,
+    /// The local damping (`master_damping_n_s_per_mm`, `contact_damping_n_s_per_mm`)
+    /// acts on the handle's mean velocity over the shortest window, of at least 3 and at most
+    /// 32 cycles, in which it has moved this far, mm (0: on the device's velocity as it is).
+    /// At rest or creeping the encoders' quantised velocity flickers by a count per cycle
+    /// (0.002 mm in 1 ms through the device's 50 Hz velocity filter: up to 0.54 mm/s); damped
+    /// as it is, the 1.0 N·s/mm of a wall-push hold rendered it as 0.25 N RMS above 20 Hz,
+    /// eight times the slave force's noise. The window (adaptive windowing, after Brown,
+    /// Schneider and Mulligan's and Janabi-Sharifi, Hayward and Chen's encoder velocity
+    /// estimators) is long only when the handle is slow, so fast motion is damped with a
+    /// 3 ms mean's lag (a 10 Hz low-pass on the damped velocity, tried, made the 0 ms hold
+    /// on resin unstable, and a dead band let a creeping hold oscillate at 100 ms).
+    pub damping_window_mm: f64,
     /// Force-guided: share of the slave's measured force along the feed (the cutting
     /// resistance: its component against the direction the tool is guided along the
     /// surface) rendered at the handle, × `scale.force`, through the master port's
@@ -112,6 +128,7 @@ impl Default for CouplingConfig {
             contact_damping_n_s_per_mm: 0.0,
             brake_on_loss: true,
             force_filter_hz: 0.0,
+            damping_window_mm: 0.016,
             feed_force_gain: 0.0,
             model: ModelParams::default().enabled,
             model_stiffness_max_n_per_mm: ModelParams::default().stiffness_max_n_per_mm,
@@ -196,6 +213,13 @@ impl Section for CouplingConfig {
             0.0,
             500.0,
             "Hz",
+        )?;
+        check_range(
+            &f("damping_window_mm"),
+            self.damping_window_mm,
+            0.0,
+            10.0,
+            "mm",
         )?;
         check_range(
             &f("model_stiffness_max_n_per_mm"),
@@ -379,6 +403,11 @@ pub struct MasterCoupling {
     port_force_n: [f64; 3],
     offset_mm: [f64; 3],
     filtered_n: [f64; 3],
+    /// The handle's positions (mm) and their times (ns) over the last
+    /// [`DAMPING_WINDOW_MAX`] cycles, newest at `window_head` (ring, no allocation).
+    window: [([f64; 3], u64); DAMPING_WINDOW_MAX],
+    window_head: usize,
+    window_len: usize,
     /// The local contact model (model-mediated rendering).
     pub model: ContactModel,
     /// The slave targets sent, by sequence number (ring; allocated once).
@@ -399,6 +428,17 @@ pub struct MasterCoupling {
     /// its excess over the nominal period decaying over `damping_hold_memory_ms`.
     hold_s: f64,
 }
+
+/// The longest window of the local damping's velocity, cycles
+/// ([`CouplingConfig::damping_window_mm`]).
+const DAMPING_WINDOW_MAX: usize = 32;
+
+/// Feedback silence after which the local damping acts on the device's velocity instead of
+/// the window's (the brake, `coupling.brake_on_loss`), ms.
+const WINDOW_SILENCE_MS: f64 = 20.0;
+
+/// The shortest window of the local damping's velocity, cycles.
+const DAMPING_WINDOW_MIN: usize = 3;
 
 /// Commands remembered for the contact model (≥ the longest round trip in cycles).
 const SENT_HISTORY: usize = 8192;
@@ -428,6 +468,9 @@ impl MasterCoupling {
             port_force_n: [0.0; 3],
             offset_mm: [0.0; 3],
             filtered_n: [0.0; 3],
+            window: [([0.0; 3], 0); DAMPING_WINDOW_MAX],
+            window_head: 0,
+            window_len: 0,
             model: ContactModel::default(),
             last_step_ns: None,
             hold_s: 0.0,
@@ -719,13 +762,52 @@ impl MasterCoupling {
     /// port observes the force actually applied).
     fn filter_force(&mut self, link_force: &mut [f64; 3], dt_s: f64) {
         let hz = self.p.config.force_filter_hz;
-        if hz > 0.0 {
+        if hz > 0.0 && self.p.config.mode == CouplingMode::PositionForce {
             let a = 1.0 - (-2.0 * std::f64::consts::PI * hz * dt_s).exp();
             for (f, lf) in self.filtered_n.iter_mut().zip(link_force.iter_mut()) {
                 *f += a * (*lf - *f);
                 *lf = *f;
             }
         }
+    }
+
+    /// The handle velocity the local damping acts on, mm/s: the mean over the shortest
+    /// window of the recent positions, from `DAMPING_WINDOW_MIN` to `DAMPING_WINDOW_MAX`
+    /// cycles back, over which the handle moved at least `coupling.damping_window_mm` (the
+    /// longest when it moved less). The device's velocity with no window set, until there
+    /// are `DAMPING_WINDOW_MIN` positions, and for a non-finite reading (which also empties
+    /// the window).
+    fn damping_velocity(&mut self, dev: &DeviceState, now_ns: u64) -> [f64; 3] {
+        let v = [dev.velocity[0], dev.velocity[1], dev.velocity[2]];
+        let x = [dev.pose[0], dev.pose[1], dev.pose[2]];
+        if !x.iter().all(|c| c.is_finite()) {
+            self.window_len = 0;
+            return v;
+        }
+        self.window_head = (self.window_head + 1) % DAMPING_WINDOW_MAX;
+        self.window[self.window_head] = (x, now_ns);
+        self.window_len = (self.window_len + 1).min(DAMPING_WINDOW_MAX);
+        let reach = self.p.config.damping_window_mm;
+        if reach <= 0.0 || self.window_len <= DAMPING_WINDOW_MIN {
+            return v;
+        }
+        let mut back = self.window[self.window_head];
+        for n in DAMPING_WINDOW_MIN..self.window_len {
+            back = self.window[(self.window_head + DAMPING_WINDOW_MAX - n) % DAMPING_WINDOW_MAX];
+            let d = [x[0] - back.0[0], x[1] - back.0[1], x[2] - back.0[2]];
+            if norm3(&d) >= reach {
+                break;
+            }
+        }
+        let dt_s = now_ns.saturating_sub(back.1) as f64 * 1e-9;
+        if dt_s <= 0.0 {
+            return v;
+        }
+        [
+            (x[0] - back.0[0]) / dt_s,
+            (x[1] - back.0[1]) / dt_s,
+            (x[2] - back.0[2]) / dt_s,
+        ]
     }
 
     /// The local damping at the handle: `master_damping_n_s_per_mm`, plus
@@ -786,13 +868,31 @@ impl MasterCoupling {
         out
     }
 
-    /// The local damping's force against `v`, N: `−Σ bₖ (aₖ·v) aₖ` over the principal
-    /// directions `aₖ` with the bounded dampings `b` of
-    /// [`MasterCoupling::local_damping_along`].
-    fn local_damping_force(dev: &DeviceState, b: &[f64; 3], v: &[f64; 3]) -> [f64; 3] {
+    /// The local damping's force, N: `−Σ bₖ uₖ aₖ` over the principal directions `aₖ` with
+    /// the bounded dampings `b` of [`MasterCoupling::local_damping_along`], where `uₖ` is the
+    /// windowed velocity `v_window`'s component along `aₖ` where it agrees in sign with the
+    /// device velocity's `v` and is no larger, the device's where that is smaller, and 0
+    /// where they disagree: never more damping than on the device's velocity, and never a
+    /// force along the motion (a window's mean lags a reversal: damped as it was, it fed
+    /// the handle energy the port could not take back, −3.6 mJ at scale 1 on aluminium).
+    fn local_damping_force(
+        dev: &DeviceState,
+        b: &[f64; 3],
+        v_window: &[f64; 3],
+        v: &[f64; 3],
+    ) -> [f64; 3] {
         let mut f = [0.0; 3];
         for (a, bk) in dev.principal_masses.axes.iter().zip(b.iter()) {
-            let along = bk * (a[0] * v[0] + a[1] * v[1] + a[2] * v[2]);
+            let u_w = a[0] * v_window[0] + a[1] * v_window[1] + a[2] * v_window[2];
+            let u_d = a[0] * v[0] + a[1] * v[1] + a[2] * v[2];
+            let u = if u_w * u_d > 0.0 {
+                u_d.signum() * u_w.abs().min(u_d.abs())
+            } else if u_w == u_d {
+                u_d
+            } else {
+                0.0
+            };
+            let along = bk * u;
             for (fi, ai) in f.iter_mut().zip(a.iter()) {
                 *fi -= along * ai;
             }
@@ -880,6 +980,7 @@ impl MasterCoupling {
         self.update_contact_damping(dt_s);
         self.update_clutch(dev);
         let handle_velocity = [dev.velocity[0], dev.velocity[1], dev.velocity[2]];
+        let damping_velocity = self.damping_velocity(dev, now_ns);
         self.update_normal();
         let mut link_force = [0.0; 3];
         let mut offset = [0.0; 3];
@@ -932,7 +1033,18 @@ impl MasterCoupling {
             // The local damping: faded with the feedback, except that the brake
             // (`brake_on_loss`) keeps it on while the feedback is lost; the brake's share
             // beyond the fade is not the link's (see `brake_extra_n`).
-            let d = Self::local_damping_force(dev, &local_damping, &handle_velocity);
+            // Braking through a feedback silence the damping acts on the device's velocity:
+            // the window's mean, smaller at low speed, let the push on steel run the handle
+            // in (tests/coupling_behaviour.rs, a blackout mid-hold).
+            let silent = self
+                .last_feedback_ns
+                .is_none_or(|t| now_ns.saturating_sub(t) as f64 * 1e-6 > WINDOW_SILENCE_MS);
+            let v_damped = if silent {
+                &handle_velocity
+            } else {
+                &damping_velocity
+            };
+            let d = Self::local_damping_force(dev, &local_damping, v_damped, &handle_velocity);
             let brake = self.brake();
             let extra = (brake - self.fade).max(0.0);
             for ((f, e), di) in force.iter_mut().zip(self.brake_extra_n.iter_mut()).zip(d) {
@@ -1056,6 +1168,51 @@ mod tests {
             50.0,
             1,
         ))
+    }
+
+    /// The damping's velocity: a handle at rest whose encoder flickers by a count every
+    /// other cycle reads at most a count over the longest window (0.06 mm/s for 0.002 mm,
+    /// where the device's filtered velocity reads 0.5 mm/s); one moving at 50 mm/s reads its
+    /// speed over the shortest window; no window set: the device's velocity.
+    #[test]
+    fn the_damping_velocity_is_a_mean_over_a_window_long_only_when_slow() {
+        let mut c = coupling(100.0);
+        let mut dev = DeviceState::default();
+        let mut now = 0u64;
+        let mut largest = 0.0_f64;
+        for k in 0..200 {
+            now += 1_000_000;
+            dev.pose[2] = if k % 2 == 0 { -220.0 } else { -220.002 };
+            dev.velocity[2] = if k % 2 == 0 { 0.5 } else { -0.5 };
+            let v = c.damping_velocity(&dev, now);
+            if k > 40 {
+                largest = largest.max(norm3(&v));
+            }
+        }
+        assert!(largest <= 0.002 / 0.031 + 1e-9, "{largest}");
+        for _ in 0..40 {
+            now += 1_000_000;
+            dev.pose[2] -= 0.05;
+            dev.velocity[2] = -40.0;
+            let v = c.damping_velocity(&dev, now);
+            assert!(v[2] < 0.0, "{v:?}");
+        }
+        let v = c.damping_velocity(&dev, now + 1_000_000);
+        // The same position a cycle later: the mean over the 3-cycle window, 2/3 of 50.
+        assert!((v[2] + 100.0 / 3.0).abs() < 1e-6, "{v:?}");
+        let off = CouplingConfig {
+            damping_window_mm: 0.0,
+            ..CouplingConfig::default()
+        };
+        let mut c = MasterCoupling::new(CouplingParams {
+            config: off,
+            ..*c.params()
+        });
+        dev.velocity[2] = 0.7;
+        for _ in 0..10 {
+            now += 1_000_000;
+            assert_eq!(c.damping_velocity(&dev, now)[2], 0.7);
+        }
     }
 
     /// On time the hold is the period exactly; a late cycle sets it to its interval, which

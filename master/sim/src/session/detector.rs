@@ -7,6 +7,8 @@ use std::ops::Range;
 use h4_shared::config::{ConfigError, Section, check_range};
 use serde::{Deserialize, Serialize};
 
+use h4_slave::filter::Butterworth2;
+
 use super::DT_S;
 
 /// The stability detector.
@@ -232,6 +234,20 @@ pub struct Summary {
     /// (least squares over the settled hold): every oscillation slower than the hold
     /// itself down to 1 / its length counts, N.
     pub hold_ripple_rms_n: f64,
+    /// Chatter the operator's hand feels in a hold: the largest, over the holds (their
+    /// settled cycles, as `hold_force_n`), RMS of the rendered force vector's content above
+    /// 20 Hz (`HF_CUTOFF_HZ`; zero-phase, [`high_frequency_rms`]), N at the master: the
+    /// sensor's noise and the steps at lost feedback that reach the hand (0: no hold).
+    pub rendered_hf_rms_n: f64,
+    /// The same measure of the true contact force, N at the slave: what the wall itself
+    /// does in the holds.
+    pub true_hf_rms_n: f64,
+    /// Largest force rendered to the operator while the handle rests in free space after a
+    /// release: from the end of the first hold on, cycles with no push (below
+    /// `detector.hold_push_min_n`), the intent at rest and the slave out of contact (true
+    /// force at most `detector.contact_threshold_n`) for longer than the mean round trip,
+    /// N (0: no such cycle).
+    pub free_space_rendered_max_n: f64,
     /// Contacts lost and regained, reaching `detector.bounce_force_n`, while the operator
     /// pushes (after the first touch of each push).
     pub bounces: u64,
@@ -284,6 +300,8 @@ pub(super) struct Holds {
     pub(super) target_n: Vec<f64>,
     pub(super) ripple_rms_n: f64,
     pub(super) bounces: u64,
+    /// The settled cycles of each hold.
+    pub(super) settled: Vec<Range<usize>>,
 }
 
 impl Holds {
@@ -372,6 +390,7 @@ pub(super) fn holds(
             h.push_n.push(applied);
             h.target_n.push(applied / force_scale);
             h.ripple_rms_n = h.ripple_rms_n.max(detrended_rms(seg));
+            h.settled.push(start + settle..k);
             first_hold_settled.get_or_insert(start + settle);
         }
     }
@@ -431,6 +450,86 @@ pub(super) fn holds(
     h
 }
 
+/// Cut-off above which the rendered force's content is chatter, Hz
+/// ([`Summary::rendered_hf_rms_n`]): the hand feels a contact's force change through its grip
+/// and arm well below it; above it is the sensor's noise and the loop's steps.
+pub const HF_CUTOFF_HZ: f64 = 20.0;
+
+/// RMS of the content of the vector signal `x` (one sample per 1 ms cycle) above
+/// `cutoff_hz`, N: `x` minus its zero-phase low-pass, a 2nd-order Butterworth at `cutoff_hz`
+/// run forwards then backwards, the window extended at both ends by odd reflection (five
+/// periods of the cut-off) so that a level, a ramp or the window's edges leave nothing. Of a
+/// sine of frequency `f` the residual keeps `(f/fc)⁴ / (1 + (f/fc)⁴)` of the amplitude: 6 %
+/// at half the cut-off, half at it, 94 % at twice it. The components' mean squares are summed
+/// (the RMS of the vector's high-frequency part). Fewer than 3 samples: 0.
+pub fn high_frequency_rms(x: &[[f64; 3]], cutoff_hz: f64) -> f64 {
+    let len = x.len();
+    if len < 3 {
+        return 0.0;
+    }
+    let pad = ((5.0 / (cutoff_hz.max(1e-3) * DT_S)).ceil() as usize).min(len - 1);
+    let mut ext = Vec::with_capacity(len + 2 * pad);
+    let mut sum_sq = 0.0;
+    for i in 0..3 {
+        let (first, last) = (x[0][i], x[len - 1][i]);
+        ext.clear();
+        ext.extend((1..=pad).rev().map(|k| 2.0 * first - x[k][i]));
+        ext.extend(x.iter().map(|v| v[i]));
+        ext.extend((1..=pad).map(|k| 2.0 * last - x[len - 1 - k][i]));
+        let mut f = Butterworth2::new(cutoff_hz, 1.0 / DT_S);
+        f.reset(ext[0]);
+        for e in ext.iter_mut() {
+            *e = f.update(*e);
+        }
+        let mut b = Butterworth2::new(cutoff_hz, 1.0 / DT_S);
+        b.reset(ext[ext.len() - 1]);
+        for e in ext.iter_mut().rev() {
+            *e = b.update(*e);
+        }
+        sum_sq += x
+            .iter()
+            .zip(&ext[pad..pad + len])
+            .map(|(v, lp)| (v[i] - lp) * (v[i] - lp))
+            .sum::<f64>();
+    }
+    (sum_sq / len as f64).sqrt()
+}
+
+/// The largest of `|rendered_n|` while the handle is in free space after a release: cycles
+/// from the end of the first hold (`after`) on in which the operator does not push (below
+/// `hold_push_min_n`), the intent is at rest, and the slave has been out of contact (true
+/// force at most `contact_threshold_n`) for more than `out_for` cycles (the round trip: the
+/// feedback that the slave has left has reached the master). 0 with no such cycle.
+fn free_space_max(
+    rendered_n: &[[f64; 3]],
+    force_n: &[f64],
+    push_n: &[f64],
+    steady: &[bool],
+    after: usize,
+    out_for: usize,
+    d: &DetectorConfig,
+) -> f64 {
+    let len = rendered_n
+        .len()
+        .min(force_n.len())
+        .min(push_n.len())
+        .min(steady.len());
+    let mut out_cycles = 0usize;
+    let mut max = 0.0_f64;
+    for k in 0..len {
+        out_cycles = if force_n[k] > d.contact_threshold_n {
+            0
+        } else {
+            out_cycles + 1
+        };
+        if k >= after && out_cycles > out_for && steady[k] && push_n[k] < d.hold_push_min_n {
+            let r = rendered_n[k];
+            max = nan_max(max, (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt());
+        }
+    }
+    max
+}
+
 /// What the run knows beyond the per-cycle samples.
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct RunFacts {
@@ -465,6 +564,8 @@ pub(super) struct Sample {
     pub(super) true_force_n: f64,
     pub(super) master_force_n: f64,
     pub(super) master_force_vec_n: [f64; 3],
+    /// The true contact force vector at the slave, N.
+    pub(super) true_force_vec_n: [f64; 3],
     pub(super) transparency_abs_n: f64,
     pub(super) slave_force_n: f64,
     pub(super) steady: bool,
@@ -596,6 +697,10 @@ pub(super) struct Evaluator {
     /// The intent at rest, every cycle.
     intent_steady: Vec<bool>,
     tip_z_mm: Vec<f64>,
+    /// The rendered force vector of every cycle, N.
+    rendered_n: Vec<[f64; 3]>,
+    /// The true contact force vector of every cycle, N.
+    true_vec_n: Vec<[f64; 3]>,
     steady_s: f64,
     energy_min: f64,
     max_force: f64,
@@ -624,6 +729,8 @@ impl Evaluator {
             applied_push_n: Vec::with_capacity(cycles),
             intent_steady: Vec::with_capacity(cycles),
             tip_z_mm: Vec::with_capacity(cycles),
+            rendered_n: Vec::with_capacity(cycles),
+            true_vec_n: Vec::with_capacity(cycles),
             steady_s: 0.0,
             energy_min: 0.0,
             max_force: 0.0,
@@ -682,6 +789,8 @@ impl Evaluator {
         self.push_n.push(s.push_n);
         self.applied_push_n.push(s.applied_push_n);
         self.intent_steady.push(s.intent_steady);
+        self.rendered_n.push(s.master_force_vec_n);
+        self.true_vec_n.push(s.true_force_vec_n);
         if let Some(z) = s.tip_z_mm {
             self.tip_z_mm.push(z);
         }
@@ -800,6 +909,31 @@ impl Evaluator {
             fin.force_scale,
             &d,
         );
+        let hf_max = |x: &[[f64; 3]]| {
+            holds
+                .settled
+                .iter()
+                .map(|r| high_frequency_rms(&x[r.clone()], HF_CUTOFF_HZ))
+                .fold(0.0, nan_max)
+        };
+        let rendered_hf_rms_n = hf_max(&self.rendered_n);
+        let true_hf_rms_n = hf_max(&self.true_vec_n);
+        let free_space_rendered_max_n = match holds.settled.first() {
+            Some(first) => free_space_max(
+                &self.rendered_n,
+                &self.force_n,
+                &self.push_n,
+                &self.intent_steady,
+                first.end,
+                if rtt_mean_ms.is_finite() {
+                    (rtt_mean_ms.max(0.0) * 1e-3 / DT_S).ceil() as usize
+                } else {
+                    0
+                },
+                &d,
+            ),
+            None => 0.0,
+        };
         if holds.ripple_rms_n > d.hold_ripple_limit_n {
             reasons.push(format!(
                 "hold ripple: true force {:.2} N RMS around its trend > {} N",
@@ -854,6 +988,9 @@ impl Evaluator {
             hold_push_n: holds.push_n,
             hold_target_n: holds.target_n,
             hold_ripple_rms_n: holds.ripple_rms_n,
+            rendered_hf_rms_n,
+            true_hf_rms_n,
+            free_space_rendered_max_n,
             bounces: holds.bounces,
             slave_safe_stops: fin.slave_safe_stops,
             master_saw_safe_stops: fin.master_saw_safe_stops,
@@ -881,6 +1018,87 @@ mod tests {
             .into_iter()
             .map(|(_, r)| r)
             .collect()
+    }
+
+    /// The high-frequency measure: a level, a ramp and a slow (2 Hz) swing leave next to
+    /// nothing, the window's edges included; a 60 Hz ripple is measured at its RMS (94 % or
+    /// more of it above twice the cut-off), a 20 Hz one at about half; a burst of 1 N for
+    /// 5 ms every 20 ms (a force stepping at lost feedback) is caught.
+    #[test]
+    fn high_frequency_rms_keeps_only_the_content_above_the_cut_off() {
+        let n = 3000;
+        let sig = |f: &dyn Fn(f64) -> f64| -> Vec<[f64; 3]> {
+            (0..n)
+                .map(|k| {
+                    let t = k as f64 * DT_S;
+                    [0.2 * f(t), -1.0, 6.0 + 0.5 * t + f(t)]
+                })
+                .collect()
+        };
+        let sine = |hz: f64, a: f64| move |t: f64| a * (2.0 * std::f64::consts::PI * hz * t).sin();
+        let flat = high_frequency_rms(&sig(&|_| 0.0), HF_CUTOFF_HZ);
+        assert!(flat < 1e-9, "{flat}");
+        let slow = high_frequency_rms(&sig(&sine(2.0, 1.0)), HF_CUTOFF_HZ);
+        assert!(slow < 1e-3, "{slow}");
+        // Amplitude 0.1 N on z and 0.02 N on x: RMS 0.102 / √2.
+        let rms60 = 0.1 * (1.0f64 + 0.04).sqrt() / 2f64.sqrt();
+        let fast = high_frequency_rms(&sig(&sine(60.0, 0.1)), HF_CUTOFF_HZ);
+        assert!(fast > 0.94 * rms60 && fast < 1.01 * rms60, "{fast} {rms60}");
+        let at_cut = high_frequency_rms(&sig(&sine(20.0, 0.1)), HF_CUTOFF_HZ);
+        assert!((at_cut - 0.5 * rms60).abs() < 0.05 * rms60, "{at_cut}");
+        let bursts = high_frequency_rms(
+            &sig(&|t: f64| {
+                if (t * 1e3) as usize % 20 < 5 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }),
+            HF_CUTOFF_HZ,
+        );
+        assert!(bursts > 0.3, "{bursts}");
+        assert_eq!(high_frequency_rms(&[[1.0; 3]; 2], HF_CUTOFF_HZ), 0.0);
+    }
+
+    /// Free space after a release: only the cycles after the first hold with no push, the
+    /// intent at rest and the slave out of contact for longer than the round trip count; a
+    /// force left rendered there is seen, the same force during the hold or within the
+    /// round trip after the contact ends is not.
+    #[test]
+    fn free_space_counts_only_rest_out_of_contact_after_a_release() {
+        let d = DetectorConfig::default();
+        let n = 4000;
+        // Hold until 2000, release move 2000-2300 (not steady), contact lost at 2100, rest.
+        let force: Vec<f64> = (0..n).map(|k| if k < 2100 { 10.0 } else { 0.0 }).collect();
+        let push: Vec<f64> = (0..n).map(|k| if k < 2000 { 5.0 } else { 0.0 }).collect();
+        let steady: Vec<bool> = (0..n).map(|k| !(2000..2300).contains(&k)).collect();
+        let rendered = |left_n: f64| -> Vec<[f64; 3]> {
+            (0..n)
+                .map(|k| {
+                    if k < 2150 {
+                        [0.0, 0.0, 5.0]
+                    } else {
+                        [0.0, left_n, 0.0]
+                    }
+                })
+                .collect()
+        };
+        // With a 100 ms round trip: free from 2300 (rest) on; 2150 is within it anyway.
+        let clean = free_space_max(&rendered(0.0), &force, &push, &steady, 2000, 100, &d);
+        assert_eq!(clean, 0.0);
+        let left = free_space_max(&rendered(0.6), &force, &push, &steady, 2000, 100, &d);
+        assert!((left - 0.6).abs() < 1e-12, "{left}");
+        // A 500 ms round trip: the master cannot know before 2600; the contact's force
+        // rendered until then is not free space's.
+        let mut late = rendered(0.0);
+        for r in late.iter_mut().take(2600).skip(2150) {
+            *r = [0.0, 0.0, 5.0];
+        }
+        assert_eq!(
+            free_space_max(&late, &force, &push, &steady, 2000, 500, &d),
+            0.0
+        );
+        assert!(free_space_max(&late, &force, &push, &steady, 2000, 100, &d) > 4.0);
     }
 
     /// A push and a release (ramps, also at the ends of the episode) are not oscillation;

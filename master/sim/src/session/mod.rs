@@ -48,7 +48,7 @@ pub use config::{
     EnvironmentConfig, HostConfig, OperatorConfig, PassivityConfig, SessionConfig, SlaveConfig,
     StallSide, load, load_with,
 };
-pub use detector::{DetectorConfig, Summary};
+pub use detector::{DetectorConfig, HF_CUTOFF_HZ, Summary, high_frequency_rms};
 pub use run::{Session, run, run_with_outputs};
 
 /// Period of the lockstep cycle, ns.

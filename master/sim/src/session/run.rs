@@ -200,6 +200,7 @@ impl Session {
                 m.rendered_wrench[1],
                 m.rendered_wrench[2],
             ],
+            true_force_vec_n: *true_force_slave_n,
             transparency_abs_n: {
                 let mut d = [0.0; 3];
                 for (i, di) in d.iter_mut().enumerate() {
