@@ -16,34 +16,11 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::time::{Duration, Instant};
-
 use h4_tests::procs::{
-    Running, SESSION, Scratch, WALL_N_PER_MM, binaries, master_args, python_with_zenoh_rosbags,
-    read_json, s, serial, slave_args, workspace,
+    Running, SESSION, Scratch, WALL_N_PER_MM, binaries, free_port, master_args,
+    python_with_zenoh_rosbags, read_json, s, serial, slave_args, wait_for_log, workspace,
 };
 use serde_json::Value;
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// Waits (watchdog `limit_s`) until `run`'s log contains `what`.
-fn wait_for_log(run: &Running, what: &str, limit_s: f64) {
-    let t = Instant::now();
-    while !run.log().contains(what) {
-        assert!(
-            t.elapsed() < Duration::from_secs_f64(limit_s),
-            "no {what:?} within {limit_s} s; log:\n{}",
-            run.log()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 fn u(v: &Value, path: &[&str]) -> u64 {
     let mut x = v;

@@ -8,10 +8,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::time::{Duration, Instant};
-
 use h4_tests::procs::{
-    Running, Scratch, binaries, loopback_args, python_with_zenoh_rosbags, s, serial, workspace,
+    Running, Scratch, binaries, free_port, loopback_args, python_with_zenoh_rosbags, s, serial,
+    wait_for_log, workspace,
 };
 use serde_json::Value;
 
@@ -30,27 +29,6 @@ const MASTER: [(&str, &str); 2] = [
 fn dds(type_name: &str) -> String {
     let p: Vec<&str> = type_name.split('/').collect();
     format!("{}::{}::dds_::{}_", p[0], p[1], p[2])
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// Waits (watchdog `limit_s`) until `run`'s log contains `what`.
-fn wait_for_log(run: &Running, what: &str, limit_s: f64) {
-    let t = Instant::now();
-    while !run.log().contains(what) {
-        assert!(
-            t.elapsed() < Duration::from_secs_f64(limit_s),
-            "no {what:?} within {limit_s} s; log:\n{}",
-            run.log()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 #[test]

@@ -3,6 +3,8 @@
 //! * [`arm`]: the driver boundary, the [`arm::ArmDriver`] interface a robot driver
 //!   implements (the simulated arm and the replay driver are in `h4-slave-sim`;
 //!   docs/drivers.md).
+//! * [`crtk`]: [`crtk::CrtkArm`], an arm reached over ROS 2 (CRTK or cartesian_controllers
+//!   topics; `h4-slave run --arm crtk`).
 //! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
 //!   implicit force control with online environment-stiffness estimation, safe stop).
 //! * [`filter`]: the low-pass filters the controller (and the simulated sensor) use.
@@ -18,6 +20,7 @@
 
 pub mod arm;
 pub mod controller;
+pub mod crtk;
 pub mod filter;
 pub mod ros2;
 pub mod safety;

@@ -152,6 +152,16 @@ pub struct SlaveRunSummary {
     /// Of those, the safe stops a driver that stopped answering started (no fresh reading
     /// for 2 cycles: `h4_slave::teleop::DRIVER_STALE_CYCLES`).
     pub driver_stale_stops: u64,
+    /// A ROS 2 arm (`--arm crtk`): samples refused on its topics, by reason (truncated CDR,
+    /// wrong type on the key or payload, NaN/infinite values, a second publisher, a bad
+    /// attachment; docs/ros2.md). All zero for other drivers.
+    #[serde(default)]
+    pub ros2_rejected: h4_transport::ros2::subscriber::Ros2Rejected,
+    /// A ROS 2 arm: poses and wrenches accepted, times it went stale (no fresh pose or
+    /// wrench within `--arm-timeout-ms`), poses it could not map, set-points not sent,
+    /// commands sent. None for other drivers.
+    #[serde(default)]
+    pub ros2_arm: Option<h4_transport::ros2::arm::ArmReport>,
     /// Silence when the watchdog tripped, ms on the slave's clock (of the trip where the
     /// silence most exceeded the loop's own lateness).
     pub safe_stop_entry_silence_ms: f64,

@@ -160,6 +160,28 @@ impl Drop for Running {
     }
 }
 
+/// A free TCP port on 127.0.0.1 (for a peer's Zenoh listen endpoint).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .expect("bind a free port")
+        .local_addr()
+        .expect("its address")
+        .port()
+}
+
+/// Waits (watchdog `limit_s`) until `run`'s log contains `what`.
+pub fn wait_for_log(run: &Running, what: &str, limit_s: f64) {
+    let t = Instant::now();
+    while !run.log().contains(what) {
+        assert!(
+            t.elapsed() < Duration::from_secs_f64(limit_s),
+            "no {what:?} within {limit_s} s; log:\n{}",
+            run.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 pub fn read_json(path: &Path) -> Value {
     let text =
         std::fs::read_to_string(path).unwrap_or_else(|e| panic!("summary {}: {e}", path.display()));

@@ -58,16 +58,21 @@ pub struct DeviceIo {
     handle: Option<JoinHandle<DeviceIoReport>>,
 }
 
-fn subscribe<M, T>(
+/// Subscribes to `topic` as message type `M`: each sample is checked by an [`Intake`],
+/// counted in the counters `pick` gives (rejected by reason, or accepted) and, accepted,
+/// converted and written into `pick`'s cell of `cells` (shared with `h4-slave`'s arm,
+/// [`super::arm_io`]).
+pub(super) fn subscribe<C, M, T>(
     node: &mut Ros2Node,
     topic: &str,
     owner_timeout_ns: u64,
     epoch: Instant,
-    cells: &Arc<DeviceCells>,
-    pick: fn(&DeviceCells) -> (&LatestCell<T>, &RejectCounters),
+    cells: &Arc<C>,
+    pick: fn(&C) -> (&LatestCell<T>, &RejectCounters),
     convert: fn(&M) -> T,
 ) -> Result<(), Ros2Error>
 where
+    C: Send + Sync + 'static,
     M: Ros2Message + 'static,
     T: Copy + Send + 'static,
 {
@@ -100,7 +105,7 @@ impl DeviceIo {
         let mut node = Ros2Node::open(&cfg.node)?;
         let epoch = Instant::now();
         let t = &cfg.topics;
-        subscribe::<PoseStamped, _>(
+        subscribe::<_, PoseStamped, _>(
             &mut node,
             &t.pose,
             cfg.owner_timeout_ns,
@@ -110,7 +115,7 @@ impl DeviceIo {
             PoseReading::from_msg,
         )?;
         if let Some(twist) = &t.twist {
-            subscribe::<TwistStamped, _>(
+            subscribe::<_, TwistStamped, _>(
                 &mut node,
                 twist,
                 cfg.owner_timeout_ns,
@@ -121,7 +126,7 @@ impl DeviceIo {
             )?;
         }
         if let Some(clutch) = &t.clutch {
-            subscribe::<Joy, _>(
+            subscribe::<_, Joy, _>(
                 &mut node,
                 clutch,
                 cfg.owner_timeout_ns,

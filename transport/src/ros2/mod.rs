@@ -21,6 +21,9 @@
 //! and their messages, pure) and `node` (feature `zenoh`: the node's session, tokens,
 //! publishers and the decimating publishing thread, with the `--ros2` flags).
 
+pub mod arm;
+#[cfg(feature = "zenoh")]
+pub mod arm_io;
 pub mod cdr;
 pub mod device;
 #[cfg(feature = "zenoh")]

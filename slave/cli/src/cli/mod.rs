@@ -1,5 +1,6 @@
 //! The subcommands of `h4-slave`, one module each.
 
+pub mod crtk;
 pub mod experiment;
 pub mod identify;
 pub mod kin;

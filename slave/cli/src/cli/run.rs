@@ -1,4 +1,4 @@
-//! `h4-slave run [--arm sim|replay] [--config world.toml] [--transport iceoryx2|zenoh] [--arm-id N] ...`
+//! `h4-slave run [--arm sim|replay|crtk] [--config world.toml] [--transport iceoryx2|zenoh] [--arm-id N] ...`
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -26,6 +26,10 @@ pub enum ArmKind {
     /// --record` recording): the controller of the world file runs on what that arm read;
     /// the commands move nothing (docs/drivers.md).
     Replay,
+    /// An arm reached over ROS 2 (rmw_zenoh): `measured_cp`/`measured_cf` in, `servo_cp` out,
+    /// or FZI cartesian_controllers' topics (`--arm-profile`, `--arm-ns`; docs/ros2.md). The
+    /// world file gives the arm's geometry and the controller.
+    Crtk,
 }
 
 /// Run the slave process: the 1 kHz force loop on an arm driver, commanded by a master
@@ -81,6 +85,9 @@ pub struct RunArgs {
     /// ROS 2 (`--ros2`, docs/ros2.md).
     #[command(flatten)]
     pub ros2: Ros2Args,
+    /// The ROS 2 arm (`--arm crtk`).
+    #[command(flatten)]
+    pub crtk: super::crtk::CrtkArmArgs,
     /// No valid command for this long puts the arm in its safe state, ms.
     #[arg(long, default_value_t = 20.0)]
     pub watchdog_ms: f64,
@@ -246,7 +253,15 @@ impl RunArgs {
                 return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
             }
             (ArmKind::Replay, Some(file)) => run_replay(&cfg, file, &opts, &outputs, &mut link)?,
-            (ArmKind::Sim, Some(_)) => return Err("--replay needs --arm replay".to_string()),
+            (ArmKind::Crtk, None) if self.inject_fault.is_some() => {
+                return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
+            }
+            (ArmKind::Crtk, None) => super::crtk::run(
+                &self.crtk, &self.ros2, LABEL, &cfg, &opts, &outputs, &mut link,
+            )?,
+            (ArmKind::Sim | ArmKind::Crtk, Some(_)) => {
+                return Err("--replay needs --arm replay".to_string());
+            }
             (ArmKind::Replay, None) => return Err("--arm replay needs --replay FILE".to_string()),
         };
         if let Some(p) = publishing {
