@@ -822,6 +822,43 @@ impl Evaluator {
         }
     }
 
+    /// What the operator's hand feels (issue 32): the rendered and the true force's content
+    /// above [`HF_CUTOFF_HZ`] in the settled holds (worst hold), and the largest rendered force
+    /// in free space after the first hold's release.
+    fn rendered_measures(
+        &self,
+        holds: &Holds,
+        rtt_mean_ms: f64,
+        d: &DetectorConfig,
+    ) -> (f64, f64, f64) {
+        let hf_max = |x: &[[f64; 3]]| {
+            holds
+                .settled
+                .iter()
+                .map(|r| high_frequency_rms(&x[r.clone()], HF_CUTOFF_HZ))
+                .fold(0.0, nan_max)
+        };
+        let rendered_hf_rms_n = hf_max(&self.rendered_n);
+        let true_hf_rms_n = hf_max(&self.true_vec_n);
+        let free_space_rendered_max_n = match holds.settled.first() {
+            Some(first) => free_space_max(
+                &self.rendered_n,
+                &self.force_n,
+                &self.push_n,
+                &self.intent_steady,
+                first.end,
+                if rtt_mean_ms.is_finite() {
+                    (rtt_mean_ms.max(0.0) * 1e-3 / DT_S).ceil() as usize
+                } else {
+                    0
+                },
+                d,
+            ),
+            None => 0.0,
+        };
+        (rendered_hf_rms_n, true_hf_rms_n, free_space_rendered_max_n)
+    }
+
     #[allow(clippy::too_many_arguments)]
     pub(super) fn finish(
         self,
@@ -909,31 +946,8 @@ impl Evaluator {
             fin.force_scale,
             &d,
         );
-        let hf_max = |x: &[[f64; 3]]| {
-            holds
-                .settled
-                .iter()
-                .map(|r| high_frequency_rms(&x[r.clone()], HF_CUTOFF_HZ))
-                .fold(0.0, nan_max)
-        };
-        let rendered_hf_rms_n = hf_max(&self.rendered_n);
-        let true_hf_rms_n = hf_max(&self.true_vec_n);
-        let free_space_rendered_max_n = match holds.settled.first() {
-            Some(first) => free_space_max(
-                &self.rendered_n,
-                &self.force_n,
-                &self.push_n,
-                &self.intent_steady,
-                first.end,
-                if rtt_mean_ms.is_finite() {
-                    (rtt_mean_ms.max(0.0) * 1e-3 / DT_S).ceil() as usize
-                } else {
-                    0
-                },
-                &d,
-            ),
-            None => 0.0,
-        };
+        let (rendered_hf_rms_n, true_hf_rms_n, free_space_rendered_max_n) =
+            self.rendered_measures(&holds, rtt_mean_ms, &d);
         if holds.ripple_rms_n > d.hold_ripple_limit_n {
             reasons.push(format!(
                 "hold ripple: true force {:.2} N RMS around its trend > {} N",
