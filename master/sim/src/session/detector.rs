@@ -495,6 +495,15 @@ pub fn high_frequency_rms(x: &[[f64; 3]], cutoff_hz: f64) -> f64 {
     (sum_sq / len as f64).sqrt()
 }
 
+/// The root mean square of `s` (0 when empty).
+fn rms_of(s: &[f64]) -> f64 {
+    if s.is_empty() {
+        0.0
+    } else {
+        (s.iter().map(|x| x * x).sum::<f64>() / s.len() as f64).sqrt()
+    }
+}
+
 /// The largest of `|rendered_n|` while the handle is in free space after a release: cycles
 /// from the end of the first hold (`after`) on in which the operator does not push (below
 /// `hold_push_min_n`), the intent is at rest, and the slave has been out of contact (true
@@ -889,15 +898,8 @@ impl Evaluator {
                 .into_iter()
                 .unzip();
         let n = residual.len();
-        let rms = |s: &[f64]| {
-            if s.is_empty() {
-                0.0
-            } else {
-                (s.iter().map(|x| x * x).sum::<f64>() / s.len() as f64).sqrt()
-            }
-        };
-        let early = rms(&residual[..win.min(n)]);
-        let late = rms(&residual[n.saturating_sub(win)..]);
+        let early = rms_of(&residual[..win.min(n)]);
+        let late = rms_of(&residual[n.saturating_sub(win)..]);
         let growth = late / early.max(d.oscillation_floor_n);
         let drift = self.settled_drift_mm(&cycle, d.contact_threshold_n);
         let mut reasons = Vec::new();
