@@ -12,7 +12,6 @@
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::Serialize;
@@ -21,7 +20,7 @@ use super::arm::{ArmCells, ArmTopics, WrenchReading};
 use super::device::PoseReading;
 use super::device_io::subscribe;
 use super::msgs::{PoseStamped, Ros2Message, WrenchStamped};
-use super::node::{NodeConfig, RawPublisher, Ros2Error, Ros2Node};
+use super::node::{NodeConfig, RawPublisher, Ros2Error, Ros2Node, StoppableThread};
 
 /// How the arm's node runs.
 #[derive(Clone, Debug)]
@@ -53,8 +52,7 @@ pub struct ArmIoReport {
 
 /// The arm's node and command thread; [`ArmIo::stop`] ends them.
 pub struct ArmIo {
-    stop: Arc<AtomicBool>,
-    handle: Option<JoinHandle<ArmIoReport>>,
+    thread: StoppableThread<ArmIoReport>,
 }
 
 impl ArmIo {
@@ -83,36 +81,17 @@ impl ArmIo {
             WrenchReading::from_msg,
         )?;
         let (publisher, _key) = node.declare_raw_publisher(&t.command, PoseStamped::TYPE_NAME)?;
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop_thread = Arc::clone(&stop);
         let period = Duration::from_secs_f64(1.0 / cfg.command_rate_hz.clamp(1.0, 10_000.0));
         let cfg = cfg.clone();
-        let handle = std::thread::Builder::new()
-            .name("h4-ros2-arm".into())
-            .spawn(move || command_loop(node, publisher, &cfg, &cells, period, &stop_thread))
-            .map_err(|e| Ros2Error::Zenoh(format!("arm thread: {e}")))?;
-        Ok(ArmIo {
-            stop,
-            handle: Some(handle),
-        })
+        let thread = StoppableThread::spawn("h4-ros2-arm", move |stop| {
+            command_loop(node, publisher, &cfg, &cells, period, stop)
+        })?;
+        Ok(ArmIo { thread })
     }
 
     /// Stops the command thread and closes the node; what the thread did.
-    pub fn stop(mut self) -> ArmIoReport {
-        self.stop.store(true, Ordering::Relaxed);
-        self.handle
-            .take()
-            .and_then(|h| h.join().ok())
-            .unwrap_or_default()
-    }
-}
-
-impl Drop for ArmIo {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
+    pub fn stop(self) -> ArmIoReport {
+        self.thread.stop()
     }
 }
 

@@ -12,7 +12,6 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
@@ -22,7 +21,7 @@ use super::device::{
     TwistReading, command_from_wrench,
 };
 use super::msgs::{Joy, PoseStamped, Ros2Message, TwistStamped, WrenchStamped};
-use super::node::{NodeConfig, Ros2Error, Ros2Node};
+use super::node::{NodeConfig, Ros2Error, Ros2Node, StoppableThread};
 use super::subscriber::{Intake, RejectCounters};
 use super::telemetry::{LatestCell, base_frame_id};
 
@@ -54,8 +53,7 @@ pub struct DeviceIoReport {
 
 /// The device's node and command thread; [`DeviceIo::stop`] ends them.
 pub struct DeviceIo {
-    stop: Arc<AtomicBool>,
-    handle: Option<JoinHandle<DeviceIoReport>>,
+    thread: StoppableThread<DeviceIoReport>,
 }
 
 /// Subscribes to `topic` as message type `M`: each sample is checked by an [`Intake`],
@@ -138,36 +136,17 @@ impl DeviceIo {
         }
         let (publisher, _key) =
             node.declare_raw_publisher(&t.command, t.command_kind.type_name())?;
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop_thread = Arc::clone(&stop);
         let period = Duration::from_secs_f64(1.0 / cfg.command_rate_hz.clamp(1.0, 10_000.0));
         let cfg = cfg.clone();
-        let handle = std::thread::Builder::new()
-            .name("h4-ros2-dev".into())
-            .spawn(move || command_loop(node, publisher, &cfg, &cells, period, &stop_thread))
-            .map_err(|e| Ros2Error::Zenoh(format!("device thread: {e}")))?;
-        Ok(DeviceIo {
-            stop,
-            handle: Some(handle),
-        })
+        let thread = StoppableThread::spawn("h4-ros2-dev", move |stop| {
+            command_loop(node, publisher, &cfg, &cells, period, stop)
+        })?;
+        Ok(DeviceIo { thread })
     }
 
     /// Stops the command thread and closes the node; what the thread did.
-    pub fn stop(mut self) -> DeviceIoReport {
-        self.stop.store(true, Ordering::Relaxed);
-        self.handle
-            .take()
-            .and_then(|h| h.join().ok())
-            .unwrap_or_default()
-    }
-}
-
-impl Drop for DeviceIo {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
+    pub fn stop(self) -> DeviceIoReport {
+        self.thread.stop()
     }
 }
 
@@ -248,8 +227,7 @@ pub struct StandinIoReport {
 
 /// A stand-in device's node and publishing thread; [`StandinIo::stop`] ends them.
 pub struct StandinIo {
-    stop: Arc<AtomicBool>,
-    handle: Option<JoinHandle<StandinIoReport>>,
+    thread: StoppableThread<StandinIoReport>,
 }
 
 impl StandinIo {
@@ -299,42 +277,21 @@ impl StandinIo {
             Some(topic) => Some(node.declare_raw_publisher(topic, Joy::TYPE_NAME)?.0),
             None => None,
         };
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop_thread = Arc::clone(&stop);
         let period = Duration::from_secs_f64(1.0 / cfg.rate_hz.clamp(1.0, 10_000.0));
         let frame_id = base_frame_id(&t.namespace);
-        let handle = std::thread::Builder::new()
-            .name("h4-ros2-standin".into())
-            .spawn(move || {
-                let mut pubs = StandinPublishers { pose, twist, joy };
-                let report = standin_loop(&mut pubs, &frame_id, &cells, period, &stop_thread);
-                drop(pubs);
-                drop(node);
-                report
-            })
-            .map_err(|e| Ros2Error::Zenoh(format!("stand-in thread: {e}")))?;
-        Ok(StandinIo {
-            stop,
-            handle: Some(handle),
-        })
+        let thread = StoppableThread::spawn("h4-ros2-standin", move |stop| {
+            let mut pubs = StandinPublishers { pose, twist, joy };
+            let report = standin_loop(&mut pubs, &frame_id, &cells, period, stop);
+            drop(pubs);
+            drop(node);
+            report
+        })?;
+        Ok(StandinIo { thread })
     }
 
     /// Stops the thread and closes the node; what the thread did.
-    pub fn stop(mut self) -> StandinIoReport {
-        self.stop.store(true, Ordering::Relaxed);
-        self.handle
-            .take()
-            .and_then(|h| h.join().ok())
-            .unwrap_or_default()
-    }
-}
-
-impl Drop for StandinIo {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
+    pub fn stop(self) -> StandinIoReport {
+        self.thread.stop()
     }
 }
 

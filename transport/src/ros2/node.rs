@@ -543,6 +543,54 @@ fn publish_loop<T: TelemetrySample>(
     report
 }
 
+/// A named background thread that runs until asked to stop: [`StoppableThread::stop`] sets
+/// its flag, joins it and returns its report (the default if it panicked); dropping it stops
+/// and joins it too. The ROS 2 device's, arm's and stand-in's command threads.
+pub struct StoppableThread<R: Default> {
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<R>>,
+}
+
+impl<R: Default + Send + 'static> StoppableThread<R> {
+    /// Starts `body` on a thread called `name`; `body` returns when the flag it is given is
+    /// set.
+    pub fn spawn(
+        name: &str,
+        body: impl FnOnce(&AtomicBool) -> R + Send + 'static,
+    ) -> Result<Self, Ros2Error> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&stop);
+        let handle = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || body(&flag))
+            .map_err(|e| Ros2Error::Zenoh(format!("{name} thread: {e}")))?;
+        Ok(StoppableThread {
+            stop,
+            handle: Some(handle),
+        })
+    }
+}
+
+impl<R: Default> StoppableThread<R> {
+    /// Stops the thread (after its current round) and returns what it did.
+    pub fn stop(mut self) -> R {
+        self.stop.store(true, Ordering::Relaxed);
+        self.handle
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default()
+    }
+}
+
+impl<R: Default> Drop for StoppableThread<R> {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
