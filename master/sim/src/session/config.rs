@@ -16,6 +16,7 @@ use h4_transport::playout::PlayoutConfig;
 use serde::{Deserialize, Serialize};
 
 use super::cutting::CutTarget;
+use super::timing::SlaveTiming;
 use super::{DetectorConfig, SessionError};
 use crate::arm::MasterArmConfig;
 use crate::operator::{HandConfig, IntentError, IntentSegment, Script};
@@ -203,6 +204,10 @@ pub struct SlaveConfig {
     /// The slave's safety monitor (`h4_slave::safety`: the arm's ratings enforced between
     /// the controller and the arm); `false` is refused without `--unsafe-test-override`.
     pub safety_monitor: bool,
+    /// When the slave's cycle takes the master's command: `phase-locked` (in the period the
+    /// master sent it, its feedback read at the master's next step: what `h4-slave run`
+    /// does) or `own-clock` (a slave on its own clock takes it one period later).
+    pub timing: SlaveTiming,
 }
 
 impl Default for SlaveConfig {
@@ -216,6 +221,7 @@ impl Default for SlaveConfig {
             contact: ContactHandover::default(),
             playout: PlayoutConfig::default(),
             safety_monitor: true,
+            timing: SlaveTiming::default(),
         }
     }
 }

@@ -6,6 +6,7 @@
 //!
 //! * `config`: the session file ([`load`], [`SessionConfig`]), its sections and their checks;
 //! * `run`: [`Session`], both endpoints and the link in lockstep;
+//! * `timing`: when the slave takes the master's command ([`SlaveTiming`], `slave.timing`);
 //! * `record`: the recording's channels and messages;
 //! * `detector`: the stability detector and the [`Summary`];
 //! * [`cutting`]: a cutting session's target shape, its judgement and the part's files.
@@ -24,6 +25,7 @@ pub use h4_slave_sim::plant::cutting::judge as cutting;
 mod detector;
 mod record;
 mod run;
+mod timing;
 
 pub use h4_master::coupling::{CouplingConfig, ScaleConfig};
 pub use h4_master::teleop::MasterCycle;
@@ -50,6 +52,7 @@ pub use config::{
 };
 pub use detector::{DetectorConfig, HF_CUTOFF_HZ, Summary, high_frequency_rms};
 pub use run::{Session, run, run_with_outputs};
+pub use timing::{SlaveInbox, SlaveTiming};
 
 /// Period of the lockstep cycle, ns.
 const CYCLE_NS: u64 = 1_000_000;

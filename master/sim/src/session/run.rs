@@ -23,6 +23,7 @@ use super::SimMasterCycle;
 use super::cutting::{CutEvaluator, CutSummary, RevolutionMean};
 use super::detector::{Evaluator, RunFacts, Sample};
 use super::record::Channels;
+use super::timing::SlaveInbox;
 use super::{CYCLE_NS, DT_S, HostConfig, SessionConfig, SessionError, StallSide, Summary};
 use crate::hand::SimHandDevice;
 use h4_master::device::HapticDevice;
@@ -30,12 +31,14 @@ use h4_master::teleop::MasterTeleop;
 
 type MasterEnd = Impaired<InprocEnd<Command, Feedback>, SimClock, Command, Feedback>;
 /// The slave's end: its feedback impaired on the way out, its commands through its playout
-/// buffer on the way in.
-type SlaveEnd = Playout<
-    Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>,
-    SimClock,
-    Feedback,
-    Command,
+/// buffer on the way in, taken when `slave.timing` says.
+type SlaveEnd = SlaveInbox<
+    Playout<
+        Impaired<InprocEnd<Feedback, Command>, SimClock, Feedback, Command>,
+        SimClock,
+        Feedback,
+        Command,
+    >,
 >;
 
 /// A session ready to run: both sides and the link.
@@ -110,10 +113,13 @@ impl Session {
         let mut up = cfg.link;
         up.seed = rng.next_u64();
         let master_end = Impaired::new(m_end, clock.clone(), down, CYCLE_NS)?;
-        let slave_end = Playout::new(
-            Impaired::new(s_end, clock.clone(), up, CYCLE_NS)?,
-            clock.clone(),
-            cfg.slave.playout,
+        let slave_end = SlaveInbox::new(
+            Playout::new(
+                Impaired::new(s_end, clock.clone(), up, CYCLE_NS)?,
+                clock.clone(),
+                cfg.slave.playout,
+            ),
+            cfg.slave.timing,
         );
 
         let (arm, ctrl) = cfg
@@ -154,9 +160,11 @@ impl Session {
         })
     }
 
-    /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms. A
-    /// loop frozen by a host stall (`[host]`) does not step: its device holds what it was
-    /// last given, and the cycle returns that loop's last cycle.
+    /// One lockstep cycle: master step, slave step, physics of both arms, clock + 1 ms (the
+    /// slave takes the master's command of this period or, `slave.timing = "own-clock"`, of
+    /// the previous one: [`SlaveInbox`]). A loop frozen by a host stall (`[host]`) does not
+    /// step: its device holds what it was last given, and the cycle returns that loop's last
+    /// cycle.
     pub fn cycle(&mut self) -> Result<(SimMasterCycle, TeleopCycle), SessionError> {
         let now = self.clock.now_ns();
         let (master_frozen, slave_frozen) = self.stalls.frozen(now);
@@ -180,6 +188,10 @@ impl Session {
             _ => self.slave.step(&mut self.slave_end, now, DT_S),
         };
         self.last = Some((m, s));
+        // An own-clock slave's poll for the next period: what has arrived by now, before the
+        // master's next command (here, not at the next cycle's start, so that the poll
+        // releases no message of the link's delay earlier than the slave's own step would).
+        self.slave_end.poll()?;
         self.master.device_mut().advance(CYCLE_NS);
         self.slave.arm_mut().advance(CYCLE_NS);
         self.clock.advance_ns(CYCLE_NS);
@@ -265,7 +277,7 @@ impl Session {
         ch.write_cut(r, t_ns, &self.slave)?;
         ch.write_link_events(r, "command", |f| self.master_end.drain_events(f))?;
         ch.write_link_events(r, "feedback", |f| {
-            self.slave_end.inner_mut().drain_events(f)
+            self.slave_end.inner_mut().inner_mut().drain_events(f)
         })
     }
 
@@ -355,7 +367,8 @@ impl Session {
         let wall_time_s = wall.elapsed().as_secs_f64();
         let dissipated =
             self.master.coupling().port.energy.dissipated_j + self.slave.port().energy.dissipated_j;
-        let lost = self.master_end.counters.dropped() + self.slave_end.inner().counters.dropped();
+        let lost =
+            self.master_end.counters.dropped() + self.slave_end.inner().inner().counters.dropped();
         let rejected =
             self.master.gate_counters().rejected() + self.slave.gate_counters().rejected();
         let rtt = self.master.round_trip().mean_ms();
