@@ -166,28 +166,40 @@ impl Session {
     /// step: its device holds what it was last given, and the cycle returns that loop's last
     /// cycle.
     pub fn cycle(&mut self) -> Result<(SimMasterCycle, TeleopCycle), SessionError> {
+        self.step_cycle()?;
+        self.last
+            .ok_or(SessionError::Link(h4_transport::LinkError::Closed))
+    }
+
+    /// [`Session::cycle`] without handing the cycle out: both sides' cycles are written in
+    /// place into `self.last` (no copies of the two cycles' structs per cycle; the run loop
+    /// reads them there).
+    fn step_cycle(&mut self) -> Result<(), SessionError> {
         let now = self.clock.now_ns();
         let (master_frozen, slave_frozen) = self.stalls.frozen(now);
-        let last = self.last;
-        let m = match last {
-            Some((mut m, _)) if master_frozen => {
-                // The hand is physics: it goes on while the loop is frozen.
-                m.hand = self.master.device_mut().hand_step(now, DT_S);
-                m
-            }
-            _ => {
-                let cycle = self.master.step(&mut self.master_end, now, DT_S);
-                SimMasterCycle {
-                    cycle,
-                    hand: self.master.device().hand(),
+        match &mut self.last {
+            Some((m, s)) => {
+                if master_frozen {
+                    // The hand is physics: it goes on while the loop is frozen.
+                    m.hand = self.master.device_mut().hand_step(now, DT_S);
+                } else {
+                    m.cycle = self.master.step(&mut self.master_end, now, DT_S);
+                    m.hand = self.master.device().hand();
+                }
+                if !slave_frozen {
+                    *s = self.slave.step(&mut self.slave_end, now, DT_S);
                 }
             }
-        };
-        let s = match last {
-            Some((_, s)) if slave_frozen => s,
-            _ => self.slave.step(&mut self.slave_end, now, DT_S),
-        };
-        self.last = Some((m, s));
+            None => {
+                let cycle = self.master.step(&mut self.master_end, now, DT_S);
+                let m = SimMasterCycle {
+                    cycle,
+                    hand: self.master.device().hand(),
+                };
+                let s = self.slave.step(&mut self.slave_end, now, DT_S);
+                self.last = Some((m, s));
+            }
+        }
         // An own-clock slave's poll for the next period: what has arrived by now, before the
         // master's next command (here, not at the next cycle's start, so that the poll
         // releases no message of the link's delay earlier than the slave's own step would).
@@ -195,7 +207,7 @@ impl Session {
         self.master.device_mut().advance(CYCLE_NS);
         self.slave.arm_mut().advance(CYCLE_NS);
         self.clock.advance_ns(CYCLE_NS);
-        Ok((m, s))
+        Ok(())
     }
 
     /// What the detector takes from one cycle: the master's cycle `m`, the slave's `s`, the
@@ -340,7 +352,10 @@ impl Session {
         let mut cycles = 0;
         while cycles < planned {
             let t_ns = self.clock.now_ns();
-            let (m, s) = self.cycle()?;
+            self.step_cycle()?;
+            let Some((m, s)) = self.last.as_ref() else {
+                break;
+            };
             let true_wrench_slave = self.slave.arm().true_contact_wrench();
             // Cutting: the true force averaged over a spindle revolution (the instant's sample
             // aliases the tooth-passing pulses into the detector's 1 kHz record).
@@ -352,11 +367,13 @@ impl Session {
                     true_wrench_slave[2],
                 ],
             };
-            ev.push(self.sample(&m, &s, &true_force_slave_n));
-            if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.slave.cut_sample(&s)) {
+            ev.push(self.sample(m, s, &true_force_slave_n));
+            if let (Some(ce), Some(cs)) = (cut_ev.as_mut(), self.slave.cut_sample(s)) {
                 ce.push(&cs);
             }
-            if let (Some(r), Some(ch)) = (recorder.as_deref_mut(), channels.as_ref()) {
+            if let (Some(r), Some(ch), Some((m, s))) =
+                (recorder.as_deref_mut(), channels.as_ref(), self.last)
+            {
                 self.record(r, ch, t_ns + CYCLE_NS, (&m, &s), true_force_slave_n)?;
             }
             cycles += 1;
