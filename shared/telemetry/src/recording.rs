@@ -1064,4 +1064,87 @@ mod tests {
             Err(RecordingError::UnknownChannel(42))
         ));
     }
+
+    /// A polled channel: written by the recording thread with its schema's and messages'
+    /// encodings as given, each message once per poll that has one, beside the queued JSON
+    /// records. Control: a recording without it has only the JSON channel.
+    #[test]
+    fn polled_channels_are_written_by_the_recording_thread() {
+        let dir = std::env::temp_dir().join(format!("h4-polled-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("polled.mcap");
+        let mut left = 3u64;
+        let polled = PolledChannels {
+            channels: vec![EncodedChannel {
+                topic: "/h4/measured_cp".into(),
+                schema_name: "geometry_msgs/msg/PoseStamped".into(),
+                schema_encoding: "ros2msg".into(),
+                schema_data: "std_msgs/Header header\n".into(),
+                message_encoding: "cdr".into(),
+            }],
+            period: std::time::Duration::from_millis(1),
+            poll: Box::new(move |write| {
+                if left > 0 {
+                    write(0, 100 - left, &[0, 1, 0, 0, left as u8]);
+                    left -= 1;
+                }
+            }),
+        };
+        let mut rec = BackgroundRecorder::<Typed>::start_two_for_polled(
+            Some(&path),
+            "/a",
+            "A",
+            None,
+            Some(polled),
+        )
+        .unwrap();
+        rec.push(
+            5,
+            Typed {
+                force_n: 1.0,
+                count: 1,
+            },
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(Result::unwrap)
+            .collect();
+        let ros: Vec<_> = msgs
+            .iter()
+            .filter(|m| m.channel.topic == "/h4/measured_cp")
+            .collect();
+        assert_eq!(ros.len(), 3);
+        assert_eq!(ros[0].channel.message_encoding, "cdr");
+        let schema = ros[0].channel.schema.as_ref().unwrap();
+        assert_eq!(schema.encoding, "ros2msg");
+        assert_eq!(schema.name, "geometry_msgs/msg/PoseStamped");
+        assert_eq!(&schema.data[..], b"std_msgs/Header header\n");
+        assert_eq!(
+            ros.iter().map(|m| m.log_time).collect::<Vec<_>>(),
+            [97, 98, 99]
+        );
+        assert_eq!(&ros[2].data[..], &[0, 1, 0, 0, 1]);
+        assert_eq!(msgs.iter().filter(|m| m.channel.topic == "/a").count(), 1);
+        // Control: without the polled channels, only the JSON one.
+        let plain = dir.join("plain.mcap");
+        let mut rec = BackgroundRecorder::<Typed>::start_for(Some(&plain), "/a", "A").unwrap();
+        rec.push(
+            5,
+            Typed {
+                force_n: 1.0,
+                count: 1,
+            },
+        );
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&plain).unwrap();
+        let topics: Vec<String> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap().channel.topic.clone())
+            .collect();
+        assert_eq!(topics, ["/a"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
