@@ -162,6 +162,9 @@ def main():
                 ]
             elif schema.name == "crtk_msgs/msg/OperatingState":
                 t["last_state"] = decoded.state
+                t.setdefault("states", [])
+                if decoded.state not in t["states"]:
+                    t["states"].append(decoded.state)
                 t["last_is_homed"] = decoded.is_homed
     for t in topics.values():
         t.pop("last_stamp_ns", None)
