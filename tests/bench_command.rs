@@ -114,6 +114,50 @@ fn the_round_trip_and_lateness_parts_measure_every_path() {
     );
 }
 
+/// `--only ros2`: the CRTK round trip, the bare Zenoh reference and the telemetry's cost
+/// are all measured (not judged: figures depend on the host).
+#[test]
+fn the_ros2_part_measures_every_path() {
+    let _g = serial();
+    let scratch = Scratch::new("bench-ros2");
+    let json = scratch.path("bench.json");
+    let (code, stdout, stderr) = bench(&[
+        "--only",
+        "ros2",
+        "--duration-s",
+        "1",
+        "--json",
+        &json.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "stdout:\n{stdout}\nstderr:\n{stderr}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("JSON");
+    assert_eq!(report["skipped"], Value::Array(vec![]), "{report:#}");
+    for name in [
+        "ros2: CRTK device round trip",
+        "ros2: bare Zenoh link round trip",
+        "ros2: loop hand-off, --ros2",
+        "ros2: loop hand-off, without --ros2",
+    ] {
+        latency_row_is_measured(row(&report, name));
+    }
+    // A lateness may be 0 (the pacer spins to its deadline): counted and ordered.
+    for name in [
+        "ros2: loop lateness, --ros2",
+        "ros2: loop lateness, without --ros2",
+    ] {
+        let r = row(&report, name);
+        assert!(fig(r, "samples") >= 100.0, "{r:#}");
+        assert!(fig(r, "p99") <= fig(r, "max"), "{r:#}");
+    }
+    let ratios = report["ratios"].as_array().expect("ratios");
+    assert_eq!(ratios.len(), 2, "{report:#}");
+    assert!(
+        stdout.contains("ros2 CRTK round trip p99 / bare Zenoh p99"),
+        "{stdout}"
+    );
+}
+
 #[test]
 fn bad_arguments_are_refused_before_anything_runs() {
     let (code, _, stderr) = bench(&["--only", "everything"]);

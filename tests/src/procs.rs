@@ -431,7 +431,7 @@ pub fn python_with_zenoh_rosbags() -> &'static Path {
         python_venv(
             "python-ros2",
             "python-ros2-requirements.txt",
-            "import zenoh, rosbags.typesys",
+            "import zenoh, rosbags.typesys, mcap.reader, mcap_ros2.decoder, zstandard",
             Some("H4_TEST_PYTHON_ROS2"),
         )
     })

@@ -25,6 +25,9 @@ pub struct RunOutputs {
     /// With `--ros2`: the cell the ROS 2 publishing thread reads (each cycle is written
     /// into it, `h4_master::ros2::Ros2Tee`).
     pub ros2: Option<std::sync::Arc<h4_transport::ros2::telemetry::LatestCell<MasterSample>>>,
+    /// With `--record-ros2`: the CRTK topics the recording also holds, sampled from `ros2`
+    /// (which must then be set; [`h4_slave_sim::server::ros2_polled`]).
+    pub ros2_record: Option<h4_transport::ros2::telemetry::Ros2Recording>,
 }
 
 /// The master's endpoint of a session file, for `arm_id` (the master's sections only: no
@@ -45,13 +48,16 @@ pub fn outputs(
     out: &RunOutputs,
     opts: &MasterRunOptions,
 ) -> Result<Outputs<CycleRecord>, MasterRunError> {
-    Outputs::start(
+    let polled = h4_slave_sim::server::ros2_polled(out.ros2_record.as_ref(), out.ros2.as_ref())
+        .map_err(|e| MasterRunError::Outputs(e.to_string()))?;
+    Outputs::start_polled(
         out.record.as_deref(),
         out.foxglove_ws.as_deref(),
         "h4-master",
         ("/master/cycle", "h4.MasterProcessCycle"),
         None,
         1e9 / opts.period_ns.max(1) as f64,
+        polled,
     )
     .map_err(|e| MasterRunError::Outputs(e.to_string()))
 }

@@ -357,6 +357,45 @@ impl Recorder {
             .map_err(mcap_err)
     }
 
+    /// Adds a channel of messages encoded elsewhere ([`EncodedChannel`]: e.g. ROS 2 CDR
+    /// with a `ros2msg` schema); its messages are written with [`Recorder::write_encoded`].
+    pub fn add_encoded_channel(&mut self, c: &EncodedChannel) -> Result<ChannelId, RecordingError> {
+        let writer = self.writer.as_mut().ok_or(RecordingError::Finished)?;
+        let schema_id = writer
+            .add_schema(&c.schema_name, &c.schema_encoding, c.schema_data.as_bytes())
+            .map_err(mcap_err)?;
+        let id = writer
+            .add_channel(schema_id, &c.topic, &c.message_encoding, &BTreeMap::new())
+            .map_err(mcap_err)?;
+        self.topics.push((id, c.topic.clone(), 0));
+        Ok(ChannelId(id))
+    }
+
+    /// Writes one already encoded message, timestamped `log_time_ns` (log and publish time).
+    pub fn write_encoded(
+        &mut self,
+        channel: ChannelId,
+        log_time_ns: u64,
+        data: &[u8],
+    ) -> Result<(), RecordingError> {
+        let writer = self.writer.as_mut().ok_or(RecordingError::Finished)?;
+        let entry = self
+            .topics
+            .iter_mut()
+            .find(|(id, _, _)| *id == channel.0)
+            .ok_or(RecordingError::UnknownChannel(channel.0))?;
+        let header = mcap::records::MessageHeader {
+            channel_id: channel.0,
+            sequence: entry.2,
+            log_time: log_time_ns,
+            publish_time: log_time_ns,
+        };
+        entry.2 = entry.2.wrapping_add(1);
+        writer
+            .write_to_known_channel(&header, data)
+            .map_err(mcap_err)
+    }
+
     /// Writes the summary and closes the file.
     pub fn finish(mut self) -> Result<(), RecordingError> {
         let mut writer = self.writer.take().ok_or(RecordingError::Finished)?;
@@ -535,6 +574,49 @@ pub struct BackgroundRecorder<T: Send + 'static, U: Send + 'static = ()> {
     dropped: u64,
 }
 
+/// A channel whose messages arrive already encoded, with its schema as text: e.g. a ROS 2
+/// topic (`message_encoding` `cdr`, `schema_encoding` `ros2msg`, `schema_name`
+/// `geometry_msgs/msg/PoseStamped`, `schema_data` the complete `.msg` definition).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EncodedChannel {
+    /// The topic, e.g. `/h4/measured_cp`.
+    pub topic: String,
+    /// The schema's name.
+    pub schema_name: String,
+    /// The schema's encoding, e.g. `ros2msg`.
+    pub schema_encoding: String,
+    /// The schema itself.
+    pub schema_data: String,
+    /// The messages' encoding, e.g. `cdr`.
+    pub message_encoding: String,
+}
+
+/// Writes `(channel index, log time ns, message)`; the index is into
+/// [`PolledChannels::channels`].
+pub type PolledWrite<'a> = dyn FnMut(usize, u64, &[u8]) + 'a;
+
+/// Channels a [`BackgroundRecorder`]'s own thread fills by polling, every `period`, a source
+/// another thread keeps up to date (the ROS 2 CRTK topics, sampled from the cell the 1 kHz
+/// loop writes: the loop does nothing more for them). `poll` is called on the recording
+/// thread and hands each new message to the writer it is given.
+pub struct PolledChannels {
+    /// The channels.
+    pub channels: Vec<EncodedChannel>,
+    /// How often `poll` is called.
+    pub period: std::time::Duration,
+    /// Takes what is new since the last call.
+    pub poll: Box<dyn FnMut(&mut PolledWrite<'_>) + Send>,
+}
+
+impl std::fmt::Debug for PolledChannels {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PolledChannels")
+            .field("channels", &self.channels)
+            .field("period", &self.period)
+            .finish()
+    }
+}
+
 /// A queued record of either channel.
 enum Either<T, U> {
     First(T),
@@ -548,11 +630,29 @@ struct ChannelSpec<'a> {
     json_schema: String,
 }
 
+/// One poll of `p` on the recording thread: writes what it hands out on the channels `ids`
+/// (the first error ends the recording, as for the queued records).
+fn poll_into(rec: &mut Recorder, p: &mut PolledChannels, ids: &[ChannelId]) -> Result<(), String> {
+    let mut result = Ok(());
+    (p.poll)(&mut |i, time_ns, data| {
+        if result.is_ok() {
+            result = match ids.get(i) {
+                Some(&ch) => rec.write_encoded(ch, time_ns, data),
+                None => Err(RecordingError::UnknownChannel(
+                    u16::try_from(i).unwrap_or(u16::MAX),
+                )),
+            };
+        }
+    });
+    result.map_err(|e| e.to_string())
+}
+
 impl<T: Serialize + Send + 'static, U: Serialize + Send + 'static> BackgroundRecorder<T, U> {
     fn start_channels(
         path: Option<&Path>,
         first: ChannelSpec,
         second: Option<ChannelSpec>,
+        polled: Option<PolledChannels>,
     ) -> Result<Self, RecordingError> {
         let Some(path) = path else {
             return Ok(BackgroundRecorder {
@@ -567,13 +667,35 @@ impl<T: Serialize + Send + 'static, U: Serialize + Send + 'static> BackgroundRec
             Some(c) => Some(rec.add_channel(c.topic, c.schema_name, &c.json_schema)?),
             None => None,
         };
+        let mut polled = match polled {
+            Some(p) => {
+                let mut ids = Vec::with_capacity(p.channels.len());
+                for c in &p.channels {
+                    ids.push(rec.add_encoded_channel(c)?);
+                }
+                Some((p, ids, std::time::Instant::now()))
+            }
+            None => None,
+        };
         let (tx, rx) = std::sync::mpsc::sync_channel::<(u64, Either<T, U>)>(8192);
         let handle = std::thread::spawn(move || -> Result<(), String> {
             use std::sync::mpsc::RecvTimeoutError;
             let mut next = std::time::Instant::now() + CHECKPOINT_INTERVAL;
             loop {
-                let wait = next.saturating_duration_since(std::time::Instant::now());
-                match rx.recv_timeout(wait) {
+                let until = match &polled {
+                    Some((_, _, poll_at)) => next.min(*poll_at),
+                    None => next,
+                };
+                let wait = until.saturating_duration_since(std::time::Instant::now());
+                let received = rx.recv_timeout(wait);
+                if let Some((p, ids, poll_at)) = &mut polled
+                    && (std::time::Instant::now() >= *poll_at
+                        || matches!(received, Err(RecvTimeoutError::Disconnected)))
+                {
+                    poll_into(&mut rec, p, ids)?;
+                    *poll_at = (*poll_at + p.period).max(std::time::Instant::now());
+                }
+                match received {
                     Ok((time_ns, Either::First(item))) => rec
                         .write(first, time_ns, &item)
                         .map_err(|e| e.to_string())?,
@@ -611,7 +733,7 @@ impl<T: Serialize + Send + 'static, U: Serialize + Send + 'static> BackgroundRec
             schema_name,
             json_schema: json_schema.to_string(),
         };
-        Self::start_channels(path, first, None)
+        Self::start_channels(path, first, None, None)
     }
 
     /// [`BackgroundRecorder::start`] with the schema generated from `T`
@@ -641,6 +763,22 @@ impl<T: Serialize + Send + 'static, U: Serialize + Send + 'static> BackgroundRec
         T: schemars::JsonSchema,
         U: schemars::JsonSchema,
     {
+        Self::start_two_for_polled(path, topic, schema_name, second, None)
+    }
+
+    /// [`BackgroundRecorder::start_two_for`] with `polled`'s channels too (written by the
+    /// recording thread itself, [`PolledChannels`]).
+    pub fn start_two_for_polled(
+        path: Option<&Path>,
+        topic: &str,
+        schema_name: &str,
+        second: Option<(&str, &str)>,
+        polled: Option<PolledChannels>,
+    ) -> Result<Self, RecordingError>
+    where
+        T: schemars::JsonSchema,
+        U: schemars::JsonSchema,
+    {
         let first = ChannelSpec {
             topic,
             schema_name,
@@ -654,7 +792,7 @@ impl<T: Serialize + Send + 'static, U: Serialize + Send + 'static> BackgroundRec
             }),
             None => None,
         };
-        Self::start_channels(path, first, second)
+        Self::start_channels(path, first, second, polled)
     }
 
     /// Queues one record stamped `time_ns`; never blocks.
@@ -925,5 +1063,88 @@ mod tests {
             rec.write(ChannelId(42), 0, &Sample { t: 0.0 }),
             Err(RecordingError::UnknownChannel(42))
         ));
+    }
+
+    /// A polled channel: written by the recording thread with its schema's and messages'
+    /// encodings as given, each message once per poll that has one, beside the queued JSON
+    /// records. Control: a recording without it has only the JSON channel.
+    #[test]
+    fn polled_channels_are_written_by_the_recording_thread() {
+        let dir = std::env::temp_dir().join(format!("h4-polled-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("polled.mcap");
+        let mut left = 3u64;
+        let polled = PolledChannels {
+            channels: vec![EncodedChannel {
+                topic: "/h4/measured_cp".into(),
+                schema_name: "geometry_msgs/msg/PoseStamped".into(),
+                schema_encoding: "ros2msg".into(),
+                schema_data: "std_msgs/Header header\n".into(),
+                message_encoding: "cdr".into(),
+            }],
+            period: std::time::Duration::from_millis(1),
+            poll: Box::new(move |write| {
+                if left > 0 {
+                    write(0, 100 - left, &[0, 1, 0, 0, left as u8]);
+                    left -= 1;
+                }
+            }),
+        };
+        let mut rec = BackgroundRecorder::<Typed>::start_two_for_polled(
+            Some(&path),
+            "/a",
+            "A",
+            None,
+            Some(polled),
+        )
+        .unwrap();
+        rec.push(
+            5,
+            Typed {
+                force_n: 1.0,
+                count: 1,
+            },
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(Result::unwrap)
+            .collect();
+        let ros: Vec<_> = msgs
+            .iter()
+            .filter(|m| m.channel.topic == "/h4/measured_cp")
+            .collect();
+        assert_eq!(ros.len(), 3);
+        assert_eq!(ros[0].channel.message_encoding, "cdr");
+        let schema = ros[0].channel.schema.as_ref().unwrap();
+        assert_eq!(schema.encoding, "ros2msg");
+        assert_eq!(schema.name, "geometry_msgs/msg/PoseStamped");
+        assert_eq!(&schema.data[..], b"std_msgs/Header header\n");
+        assert_eq!(
+            ros.iter().map(|m| m.log_time).collect::<Vec<_>>(),
+            [97, 98, 99]
+        );
+        assert_eq!(&ros[2].data[..], &[0, 1, 0, 0, 1]);
+        assert_eq!(msgs.iter().filter(|m| m.channel.topic == "/a").count(), 1);
+        // Control: without the polled channels, only the JSON one.
+        let plain = dir.join("plain.mcap");
+        let mut rec = BackgroundRecorder::<Typed>::start_for(Some(&plain), "/a", "A").unwrap();
+        rec.push(
+            5,
+            Typed {
+                force_n: 1.0,
+                count: 1,
+            },
+        );
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&plain).unwrap();
+        let topics: Vec<String> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap().channel.topic.clone())
+            .collect();
+        assert_eq!(topics, ["/a"]);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -77,9 +77,24 @@ where
         second: Option<TopicName<'_>>,
         loop_hz: f64,
     ) -> Result<Self, OutputsError> {
-        let recorder =
-            crate::recording::BackgroundRecorder::start_two_for(record, first.0, first.1, second)
-                .map_err(|e| OutputsError::Recording(e.to_string()))?;
+        Self::start_polled(record, live_addr, server_name, first, second, loop_hz, None)
+    }
+
+    /// [`Outputs::start`], the recording also holding `polled`'s channels (written by the
+    /// recording thread, sampled at their own rate: the ROS 2 topics of `--record-ros2`).
+    pub fn start_polled(
+        record: Option<&std::path::Path>,
+        live_addr: Option<&str>,
+        server_name: &str,
+        first: TopicName<'_>,
+        second: Option<TopicName<'_>>,
+        loop_hz: f64,
+        polled: Option<crate::recording::PolledChannels>,
+    ) -> Result<Self, OutputsError> {
+        let recorder = crate::recording::BackgroundRecorder::start_two_for_polled(
+            record, first.0, first.1, second, polled,
+        )
+        .map_err(|e| OutputsError::Recording(e.to_string()))?;
         let server = crate::live::LiveServer::start_if(live_addr, server_name)?;
         let live = crate::live::topic_or_off::<T>(server.as_ref(), first.0, first.1, loop_hz);
         let live_second = match second {

@@ -11,9 +11,10 @@ use h4_shared::wire::{Command, Feedback};
 use h4_slave::controller::SlaveController;
 use h4_slave::server::{Diagnostics, RunOptions, ServerError, SlaveRunSummary};
 use h4_slave::teleop::{SlaveTeleop, TeleopCycle, TeleopError};
+use h4_telemetry::recording::{EncodedChannel, PolledChannels};
 use h4_telemetry::sink::{Outputs, OutputsError};
 use h4_transport::Link;
-use h4_transport::ros2::telemetry::{LatestCell, SlaveSample};
+use h4_transport::ros2::telemetry::{LatestCell, Ros2Recording, SlaveSample, TelemetrySample};
 use serde::{Deserialize, Serialize};
 
 use crate::cut::{CutCycle, CutTeleop};
@@ -35,6 +36,50 @@ pub struct RunOutputs {
     /// With `--ros2`: the cell the ROS 2 publishing thread reads (each cycle is written
     /// into it, `h4_slave::ros2::Ros2Tee`).
     pub ros2: Option<std::sync::Arc<LatestCell<SlaveSample>>>,
+    /// With `--record-ros2`: the CRTK topics the recording also holds, sampled from `ros2`
+    /// (which must then be set).
+    pub ros2_record: Option<Ros2Recording>,
+}
+
+impl RunOutputs {
+    /// The recording's ROS 2 channels (`--record-ros2`), if any.
+    pub fn ros2_polled(&self) -> Result<Option<PolledChannels>, OutputsError> {
+        ros2_polled(self.ros2_record.as_ref(), self.ros2.as_ref())
+    }
+}
+
+/// The ROS 2 channels `--record-ros2` adds to a recording: `record`'s topics of `T`'s side
+/// (CDR messages, `ros2msg` schemas), sampled from `cell` by the recording thread at
+/// `record.rate_hz` (the 1 kHz loop only writes the cell, as for `--ros2`). None without
+/// `record` or `cell`.
+pub fn ros2_polled<T: TelemetrySample>(
+    record: Option<&Ros2Recording>,
+    cell: Option<&std::sync::Arc<LatestCell<T>>>,
+) -> Result<Option<PolledChannels>, OutputsError> {
+    let (Some(record), Some(cell)) = (record, cell) else {
+        return Ok(None);
+    };
+    let topics = record
+        .topics::<T>()
+        .map_err(|e| OutputsError::Recording(format!("--record-ros2: {e}")))?;
+    let channels = topics
+        .into_iter()
+        .map(|t| EncodedChannel {
+            topic: t.topic,
+            schema_name: t.type_name.to_owned(),
+            schema_encoding: "ros2msg".to_owned(),
+            schema_data: t.definition,
+            message_encoding: "cdr".to_owned(),
+        })
+        .collect();
+    let mut poller = record.poller(std::sync::Arc::clone(cell));
+    Ok(Some(PolledChannels {
+        channels,
+        period: std::time::Duration::from_secs_f64(1.0 / record.rate_hz.clamp(1.0, 1000.0)),
+        poll: Box::new(move |write| {
+            poller.poll(write);
+        }),
+    }))
 }
 
 /// What a run on the simulated arm reports: the product's summary, and the cut's fields
@@ -288,13 +333,14 @@ pub fn run_with_fault<L: Link<Feedback, Command>>(
             .inject_fault(plan, cfg.arm.ratings.sensor_range_n);
     }
     // `/slave/cut` beside the cycles when the arm cuts.
-    let sink = Outputs::start(
+    let sink = Outputs::start_polled(
         outputs.record.as_deref(),
         outputs.foxglove_ws.as_deref(),
         "h4-slave",
         ("/slave/cycle", "h4.SlaveProcessCycle"),
         teleop.cut_cycle().map(|_| ("/slave/cut", "h4.CutCycle")),
         1e9 / period_ns as f64,
+        outputs.ros2_polled()?,
     )?;
     let sink = h4_slave::ros2::Ros2Tee::new(sink, outputs.ros2.clone());
     let mut diag = SimDiagnostics::new(&teleop, opts.duration_s, period_ns);

@@ -32,7 +32,7 @@ use serde::Serialize;
 use sha2::{Digest, Sha256};
 
 use super::keys::{Attachment, Distro, EntityKind, GID_LEN, KeyError, NodeInfo, Qos, TopicInfo};
-use super::telemetry::{LatestCell, TelemetrySample, base_frame_id};
+use super::telemetry::{LatestCell, Ros2Recording, TelemetrySample, base_frame_id};
 use super::{CrtkTopic, Ros2Names};
 
 /// Which ROS 2 distribution's key format (`--ros2-distro`).
@@ -77,6 +77,11 @@ pub struct Ros2Args {
     /// The key format's distribution.
     #[arg(long, value_enum, default_value_t = DistroArg::Jazzy)]
     pub ros2_distro: DistroArg,
+    /// With `--record`: also record this side's CRTK topics as ROS 2 messages (CDR, `ros2msg`
+    /// schemas, under the `--ros2-ns` namespace, at `--ros2-rate-hz`), so ROS 2 bag tools and
+    /// Foxglove open them as ROS 2 messages; works with or without `--ros2` (docs/ros2.md).
+    #[arg(long)]
+    pub record_ros2: bool,
 }
 
 impl Ros2Args {
@@ -116,10 +121,63 @@ impl Ros2Args {
         }))
     }
 
+    /// What `--record-ros2` records for a side whose default namespace is `default_ns`;
+    /// None without it. The namespace and rate are checked as for `--ros2`.
+    pub fn recording(&self, default_ns: &str) -> Result<Option<Ros2Recording>, Ros2Error> {
+        if !self.record_ros2 {
+            return Ok(None);
+        }
+        if !(self.ros2_rate_hz.is_finite() && (1.0..=1000.0).contains(&self.ros2_rate_hz)) {
+            return Err(Ros2Error::Flag(format!(
+                "--ros2-rate-hz {} is out of range: allowed 1 to 1000",
+                self.ros2_rate_hz
+            )));
+        }
+        let ns = self.ros2_ns.as_deref().unwrap_or(default_ns);
+        let names =
+            Ros2Names::new(ns).map_err(|e| Ros2Error::Flag(format!("--ros2-ns {ns}: {e}")))?;
+        Ok(Some(Ros2Recording {
+            names,
+            rate_hz: self.ros2_rate_hz,
+        }))
+    }
+
+    /// The cell a run's loop writes and what `--record-ros2` records (for a side whose
+    /// default namespace is `default_ns`): the publishing's cell with `--ros2`, a cell of
+    /// its own for the recording with `--record-ros2` alone, none without either.
+    /// `--record-ros2` needs `--record` (`recording`: whether the run records).
+    pub fn cell_and_recording<T: TelemetrySample>(
+        &self,
+        publishing: Option<&Ros2Publishing<T>>,
+        default_ns: &str,
+        recording: bool,
+    ) -> Result<(Option<Arc<LatestCell<T>>>, Option<Ros2Recording>), String> {
+        let rec = self.recording(default_ns).map_err(|e| e.to_string())?;
+        if rec.is_some() && !recording {
+            return Err("--record-ros2 needs --record FILE".to_string());
+        }
+        let cell = match (publishing, &rec) {
+            (Some(p), _) => Some(Arc::clone(&p.cell)),
+            (None, Some(_)) => Some(Arc::new(LatestCell::new())),
+            (None, None) => None,
+        };
+        Ok((cell, rec))
+    }
+
     /// The flags again, for a child process (`loopback`'s slave).
     pub fn to_args(&self) -> Vec<String> {
         if !self.ros2 {
-            return Vec::new();
+            let mut a = Vec::new();
+            if self.record_ros2 {
+                a.push("--record-ros2".to_owned());
+                a.push("--ros2-rate-hz".to_owned());
+                a.push(self.ros2_rate_hz.to_string());
+                if let Some(ns) = &self.ros2_ns {
+                    a.push("--ros2-ns".to_owned());
+                    a.push(ns.clone());
+                }
+            }
+            return a;
         }
         let mut a = vec![
             "--ros2".to_owned(),
@@ -139,6 +197,9 @@ impl Ros2Args {
         if let Some(ns) = &self.ros2_ns {
             a.push("--ros2-ns".to_owned());
             a.push(ns.clone());
+        }
+        if self.record_ros2 {
+            a.push("--record-ros2".to_owned());
         }
         a
     }
@@ -608,7 +669,36 @@ mod tests {
             ros2_ns: None,
             ros2_rate_hz: 100.0,
             ros2_distro: DistroArg::Humble,
+            record_ros2: false,
         };
+        assert!(on.recording("/h4").unwrap().is_none());
+        let rec_only = Ros2Args {
+            ros2: false,
+            record_ros2: true,
+            ros2_ns: Some("/psm1".into()),
+            ..on.clone()
+        };
+        let r = rec_only.recording("/h4").unwrap().unwrap();
+        assert_eq!(r.names.namespace(), "/psm1");
+        assert!(rec_only.node_config("/h4", "h4_slave").unwrap().is_none());
+        assert_eq!(
+            rec_only.to_args(),
+            [
+                "--record-ros2",
+                "--ros2-rate-hz",
+                "100",
+                "--ros2-ns",
+                "/psm1"
+            ]
+        );
+        assert!(
+            Ros2Args {
+                ros2_rate_hz: 0.0,
+                ..rec_only.clone()
+            }
+            .recording("/h4")
+            .is_err()
+        );
         let cfg = on.node_config("/h4", "h4_slave").unwrap().unwrap();
         assert_eq!(cfg.names.namespace(), "/h4");
         assert_eq!(cfg.distro, Distro::Humble);

@@ -10,15 +10,16 @@
 //! write; samples are plain `Copy` values in project units (mm, rad, N, N·mm), converted to
 //! SI by [`super::units`] on the publishing thread.
 
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
-use super::CrtkTopic;
 use super::cdr::CdrError;
 use super::msgs::{
     Header, OperatingState, PoseStamped, Ros2Message, Time, TwistStamped, WrenchStamped,
 };
+use super::type_hash::TypeHashError;
 use super::units;
+use super::{CrtkTopic, Ros2Names};
 
 /// A single-slot cell holding the newest value a writer offered, for one reader that
 /// samples it at its own rate. Writing never blocks and never allocates.
@@ -265,6 +266,98 @@ pub fn base_frame_id(namespace: &str) -> String {
     }
 }
 
+/// What `--record-ros2` adds to a recording: a side's CRTK topics under its names, as ROS 2
+/// messages (CDR, `ros2msg` schemas), sampled from the loop's [`LatestCell`] at `rate_hz` by
+/// the recording thread ([`CellPoller`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ros2Recording {
+    /// The topic names (`/h4/measured_cp`, ...).
+    pub names: Ros2Names,
+    /// How often the cell is sampled, Hz (`--ros2-rate-hz`).
+    pub rate_hz: f64,
+}
+
+/// One recorded ROS 2 topic: its name, its type (the MCAP schema's name,
+/// `geometry_msgs/msg/PoseStamped`) and the type's complete `ros2msg` definition
+/// ([`super::type_hash::ros2msg_definition`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RecordedTopic {
+    /// The fully qualified topic name.
+    pub topic: String,
+    /// `pkg/msg/Name`.
+    pub type_name: &'static str,
+    /// The `.msg` text with its dependencies.
+    pub definition: String,
+}
+
+impl Ros2Recording {
+    /// The topics of `T`'s side, in [`TelemetrySample::TOPICS`] order.
+    pub fn topics<T: TelemetrySample>(&self) -> Result<Vec<RecordedTopic>, TypeHashError> {
+        T::TOPICS
+            .iter()
+            .map(|&t| {
+                Ok(RecordedTopic {
+                    topic: self.names.topic(t),
+                    type_name: t.type_name(),
+                    definition: super::type_hash::ros2msg_definition(t.type_name())?,
+                })
+            })
+            .collect()
+    }
+
+    /// The poller of `cell` for these topics.
+    pub fn poller<T: TelemetrySample>(&self, cell: Arc<LatestCell<T>>) -> CellPoller<T> {
+        CellPoller {
+            cell,
+            seen: 0,
+            frame_id: base_frame_id(self.names.namespace()),
+            buf: Vec::with_capacity(256),
+            errors: 0,
+        }
+    }
+}
+
+/// Samples a [`LatestCell`] for a recording thread: each call hands out the newest sample
+/// not seen before, encoded on each topic of its side (the same messages `--ros2`
+/// publishes), into one reused buffer.
+#[derive(Debug)]
+pub struct CellPoller<T: TelemetrySample> {
+    cell: Arc<LatestCell<T>>,
+    seen: u64,
+    frame_id: String,
+    buf: Vec<u8>,
+    errors: u64,
+}
+
+impl<T: TelemetrySample> CellPoller<T> {
+    /// Hands `write(topic index, stamp ns, CDR payload)` the newest sample on every topic
+    /// (nothing if the loop wrote none since the last call); returns the number of samples
+    /// taken (0 or 1).
+    pub fn poll(&mut self, write: &mut dyn FnMut(usize, u64, &[u8])) -> u64 {
+        let Some((version, sample)) = self.cell.newer_than(self.seen) else {
+            return 0;
+        };
+        self.seen = version;
+        let stamp = sample.stamp_unix_ns();
+        for (i, &topic) in T::TOPICS.iter().enumerate() {
+            let buf = std::mem::take(&mut self.buf);
+            match sample.encode(topic, &self.frame_id, buf) {
+                Ok(b) => {
+                    write(i, stamp, &b);
+                    self.buf = b;
+                }
+                Err(_) => self.errors += 1,
+            }
+        }
+        1
+    }
+
+    /// Samples that could not be encoded (one per topic).
+    pub fn errors(&self) -> u64 {
+        self.errors
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -365,5 +458,43 @@ mod tests {
         assert_eq!(base_frame_id("/h4"), "h4_base");
         assert_eq!(base_frame_id("/lab/h4_master"), "h4_master_base");
         assert_eq!(base_frame_id("/"), "base");
+    }
+
+    #[test]
+    fn the_poller_records_each_new_sample_once_on_every_topic() {
+        let rec = Ros2Recording {
+            names: Ros2Names::slave_default(),
+            rate_hz: 100.0,
+        };
+        let topics = rec.topics::<SlaveSample>().unwrap();
+        let names: Vec<&str> = topics.iter().map(|t| t.topic.as_str()).collect();
+        assert_eq!(names[0], "/h4/measured_cp");
+        assert_eq!(names[4], "/h4/operating_state");
+        assert_eq!(topics[4].type_name, "crtk_msgs/msg/OperatingState");
+        assert!(topics[0].definition.starts_with("std_msgs/Header header\n"));
+        let cell = Arc::new(LatestCell::new());
+        let mut poller = rec.poller(Arc::clone(&cell));
+        let mut got: Vec<(usize, u64, Vec<u8>)> = Vec::new();
+        assert_eq!(poller.poll(&mut |i, t, b| got.push((i, t, b.to_vec()))), 0);
+        let s = SlaveSample {
+            stamp_unix_ns: 42,
+            pose_mm_rad: [1.0, 2.0, 300.0, 0.0],
+            ..SlaveSample::default()
+        };
+        cell.offer(s);
+        assert_eq!(poller.poll(&mut |i, t, b| got.push((i, t, b.to_vec()))), 1);
+        assert_eq!(poller.poll(&mut |i, t, b| got.push((i, t, b.to_vec()))), 0);
+        assert_eq!(got.len(), 5);
+        assert_eq!(got.iter().map(|g| g.0).collect::<Vec<_>>(), [0, 1, 2, 3, 4]);
+        assert!(got.iter().all(|g| g.1 == 42));
+        let p = PoseStamped::decode(&got[0].2).unwrap();
+        assert_eq!(p.header.frame_id, "h4_base");
+        assert!((p.pose.position.z - 0.3).abs() < 1e-12);
+        assert_eq!(
+            got[4].2,
+            s.encode(CrtkTopic::OperatingState, "h4_base", Vec::new())
+                .unwrap()
+        );
+        assert_eq!(poller.errors(), 0);
     }
 }

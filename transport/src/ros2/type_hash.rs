@@ -563,6 +563,96 @@ fn push_json_string(out: &mut String, s: &str) {
     out.push('"');
 }
 
+/// The line between the definitions of a `ros2msg` schema: 80 `=` (rosbag2's
+/// `docs/message_definition_encoding.md`).
+pub const ROS2MSG_DELIMITER: &str =
+    "================================================================================";
+
+/// The complete message definition of `type_name` in rosbag2's `ros2msg` encoding, as MCAP
+/// schemas of ROS 2 channels carry it (schema encoding `ros2msg`): the type's `.msg` text
+/// first, then each type it refers to (directly or not, once each, in name order) after a line
+/// of [`ROS2MSG_DELIMITER`] and a line `MSG: pkg/msg/Name`. Rendered from the same
+/// descriptions the RIHS01 hashes are computed from (fields only: the descriptions carry no
+/// comments, constants or default values, which decoders do not need).
+pub fn ros2msg_definition(type_name: &str) -> Result<String, TypeHashError> {
+    let d = describe(type_name)?;
+    let mut out = String::with_capacity(1024);
+    push_msg_fields(&mut out, d.type_description)?;
+    for r in &d.referenced_type_descriptions {
+        out.push_str(ROS2MSG_DELIMITER);
+        out.push_str("\nMSG: ");
+        out.push_str(r.type_name);
+        out.push('\n');
+        push_msg_fields(&mut out, r)?;
+    }
+    Ok(out)
+}
+
+/// One `.msg` line per field: `<type> <name>`.
+fn push_msg_fields(out: &mut String, d: &IndividualTypeDescription) -> Result<(), TypeHashError> {
+    for f in d.fields {
+        out.push_str(
+            &msg_field_type(&f.field_type).ok_or_else(|| TypeHashError::UnknownType {
+                type_name: format!("{} (field {}: no .msg form)", d.type_name, f.name),
+            })?,
+        );
+        out.push(' ');
+        out.push_str(f.name);
+        out.push('\n');
+    }
+    Ok(())
+}
+
+/// A field's type as a `.msg` file writes it (`float64`, `std_msgs/Header`, `int32[]`,
+/// `float64[36]`, `string<=8`); None for ids with no `.msg` form (`long double`, not set).
+pub fn msg_field_type(t: &FieldType) -> Option<String> {
+    let (element, suffix) = match t.type_id {
+        id @ 1..=48 => (id, String::new()),
+        id @ 49..=96 => (id - FIELD_TYPE_ARRAY_OFFSET, format!("[{}]", t.capacity)),
+        id @ 97..=144 => (
+            id - FIELD_TYPE_BOUNDED_SEQUENCE_OFFSET,
+            format!("[<={}]", t.capacity),
+        ),
+        id @ 145..=192 => (id - FIELD_TYPE_UNBOUNDED_SEQUENCE_OFFSET, "[]".to_owned()),
+        _ => return None,
+    };
+    let base = match element {
+        FIELD_TYPE_NESTED_TYPE => {
+            // `pkg/msg/Name` is written `pkg/Name` in a field.
+            let mut parts = t.nested_type_name.split('/');
+            match (parts.next(), parts.next(), parts.next(), parts.next()) {
+                (Some(pkg), Some("msg"), Some(name), None) => format!("{pkg}/{name}"),
+                _ => return None,
+            }
+        }
+        FIELD_TYPE_BOUNDED_STRING => format!("string<={}", t.string_capacity),
+        FIELD_TYPE_BOUNDED_WSTRING => format!("wstring<={}", t.string_capacity),
+        id => msg_primitive_name(id)?.to_owned(),
+    };
+    Some(base + &suffix)
+}
+
+fn msg_primitive_name(id: u8) -> Option<&'static str> {
+    Some(match id {
+        FIELD_TYPE_INT8 => "int8",
+        FIELD_TYPE_UINT8 => "uint8",
+        FIELD_TYPE_INT16 => "int16",
+        FIELD_TYPE_UINT16 => "uint16",
+        FIELD_TYPE_INT32 => "int32",
+        FIELD_TYPE_UINT32 => "uint32",
+        FIELD_TYPE_INT64 => "int64",
+        FIELD_TYPE_UINT64 => "uint64",
+        FIELD_TYPE_FLOAT => "float32",
+        FIELD_TYPE_DOUBLE => "float64",
+        FIELD_TYPE_CHAR => "char",
+        FIELD_TYPE_BOOLEAN => "bool",
+        FIELD_TYPE_BYTE => "byte",
+        FIELD_TYPE_STRING => "string",
+        FIELD_TYPE_WSTRING => "wstring",
+        _ => return None,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -658,5 +748,105 @@ mod tests {
         assert!(TypeHash::parse("RIHS01_00").is_err());
         assert!(TypeHash::parse("TypeHashNotSupported").is_err());
         assert!(TypeHash::parse(&h.to_string().to_uppercase()).is_err());
+    }
+
+    #[test]
+    fn ros2msg_definition_of_pose_stamped() {
+        let text = ros2msg_definition("geometry_msgs/msg/PoseStamped").unwrap();
+        let bar = "=".repeat(80);
+        let expected = format!(
+            "std_msgs/Header header\ngeometry_msgs/Pose pose\n\
+             {bar}\nMSG: builtin_interfaces/msg/Time\nint32 sec\nuint32 nanosec\n\
+             {bar}\nMSG: geometry_msgs/msg/Point\nfloat64 x\nfloat64 y\nfloat64 z\n\
+             {bar}\nMSG: geometry_msgs/msg/Pose\n\
+             geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n\
+             {bar}\nMSG: geometry_msgs/msg/Quaternion\n\
+             float64 x\nfloat64 y\nfloat64 z\nfloat64 w\n\
+             {bar}\nMSG: std_msgs/msg/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+        );
+        assert_eq!(text, expected);
+        assert_eq!(ROS2MSG_DELIMITER, bar);
+    }
+
+    /// Parses a `ros2msg` text back into (type name, [(field type, field name)]) per
+    /// definition, the first one named `top`.
+    fn parse_ros2msg(top: &str, text: &str) -> Vec<(String, Vec<(String, String)>)> {
+        let mut defs = vec![(top.to_owned(), Vec::new())];
+        let mut lines = text.lines();
+        while let Some(line) = lines.next() {
+            if line == ROS2MSG_DELIMITER {
+                let name = lines.next().unwrap().strip_prefix("MSG: ").unwrap();
+                defs.push((name.to_owned(), Vec::new()));
+                continue;
+            }
+            let (ty, name) = line.split_once(' ').unwrap();
+            defs.last_mut()
+                .unwrap()
+                .1
+                .push((ty.to_owned(), name.to_owned()));
+        }
+        defs
+    }
+
+    /// Every type's schema text parses back into exactly its description and those of all
+    /// it refers to (names, order, field types). Control: a changed description no longer
+    /// matches the text.
+    #[test]
+    fn ros2msg_text_parses_back_into_the_type_descriptions() {
+        for d in DESCRIPTIONS {
+            let text = ros2msg_definition(d.type_name).unwrap();
+            let defs = parse_ros2msg(d.type_name, &text);
+            let full = describe(d.type_name).unwrap();
+            let expected: Vec<&IndividualTypeDescription> = std::iter::once(full.type_description)
+                .chain(full.referenced_type_descriptions.iter().copied())
+                .collect();
+            assert_eq!(defs.len(), expected.len(), "{}", d.type_name);
+            for ((name, fields), e) in defs.iter().zip(&expected) {
+                assert_eq!(name, e.type_name);
+                let want: Vec<(String, String)> = e
+                    .fields
+                    .iter()
+                    .map(|f| (msg_field_type(&f.field_type).unwrap(), f.name.to_owned()))
+                    .collect();
+                assert_eq!(fields, &want, "{name}");
+            }
+        }
+        let joy = ros2msg_definition("sensor_msgs/msg/Joy").unwrap();
+        assert!(joy.starts_with("std_msgs/Header header\nfloat32[] axes\nint32[] buttons\n"));
+        let fma = ros2msg_definition("std_msgs/msg/Float64MultiArray").unwrap();
+        assert!(
+            fma.contains(
+                "MSG: std_msgs/msg/MultiArrayLayout\nstd_msgs/MultiArrayDimension[] dim\n"
+            )
+        );
+        // Control: the same parse of another type's text differs.
+        let other = parse_ros2msg(
+            "geometry_msgs/msg/TwistStamped",
+            &ros2msg_definition("geometry_msgs/msg/WrenchStamped").unwrap(),
+        );
+        assert_ne!(
+            other[0].1[1],
+            ("geometry_msgs/Twist".to_owned(), "twist".to_owned())
+        );
+    }
+
+    #[test]
+    fn msg_field_types_of_arrays_and_bounds() {
+        assert_eq!(
+            msg_field_type(&FieldType::array(FIELD_TYPE_DOUBLE, 36)).as_deref(),
+            Some("float64[36]")
+        );
+        let bounded = FieldType {
+            type_id: FIELD_TYPE_BOUNDED_STRING + FIELD_TYPE_BOUNDED_SEQUENCE_OFFSET,
+            capacity: 3,
+            string_capacity: 8,
+            nested_type_name: "",
+        };
+        assert_eq!(msg_field_type(&bounded).as_deref(), Some("string<=8[<=3]"));
+        assert_eq!(
+            msg_field_type(&FieldType::primitive(FIELD_TYPE_LONG_DOUBLE)),
+            None
+        );
+        assert_eq!(msg_field_type(&FieldType::nested("no_msg_part")), None);
     }
 }

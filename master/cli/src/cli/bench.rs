@@ -1,4 +1,4 @@
-//! `h4-master bench [--duration-s S] [--json FILE] [--only round-trip,lateness,sim]`: the
+//! `h4-master bench [--duration-s S] [--json FILE] [--only round-trip,lateness,sim,ros2]`: the
 //! figures of issue 33 measured in one run on one host, as ratios where the issue asks for
 //! them, printed as a table and written as JSON (docs/results.md, "Bench").
 //!
@@ -10,6 +10,8 @@
 //!   processes / bare at p99. The same loopback again with both cores loaded by two busy
 //!   threads of this process (ratio: loaded / idle at p99).
 //! * **Loop lateness**: a 1 kHz [`Pacer`] alone, idle and with both cores loaded.
+//! * **ROS 2** (issue 35): the CRTK device round trip through Zenoh and the telemetry's cost
+//!   to the 1 kHz loop ([`ros2`]).
 //! * **Simulation speed**: the six experiments, the wall-push session, each cutting session
 //!   (simulated time / wall time, the fastest of three runs; and over the thread's CPU time,
 //!   which other work on a shared host does not inflate) and the shipped 384-cell matrix
@@ -31,6 +33,8 @@ use h4_telemetry::rt::{Histogram, Pacer, RealtimeMode};
 use h4_transport::Link;
 use serde::Serialize;
 
+mod ros2;
+
 const LABEL: &str = "h4-master bench";
 const PERIOD: Duration = Duration::from_millis(1);
 const SPIN: Duration = Duration::from_micros(200);
@@ -48,6 +52,10 @@ pub enum Part {
     Lateness,
     /// Simulation speed per session kind and the matrix.
     Sim,
+    /// ROS 2 (issue 35): the CRTK device round trip through Zenoh against the bare Zenoh
+    /// link, and the telemetry's cost to the 1 kHz loop with and without `--ros2`
+    /// ([`ros2`]).
+    Ros2,
 }
 
 /// Measure round trips, loop lateness and simulation speed on this host in one run.
@@ -604,6 +612,9 @@ impl BenchArgs {
             if let Err(e) = sim_rows(&mut report) {
                 report.skipped.push(format!("simulation speed: {e}"));
             }
+        }
+        if self.wants(Part::Ros2) {
+            ros2::rows(&mut report, d, realtime, self.no_zenoh);
         }
         report.realtime_applied = FIFO_APPLIED.load(Ordering::Relaxed);
         print_table(&report);

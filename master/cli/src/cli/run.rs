@@ -121,10 +121,16 @@ impl RunArgs {
             h4_transport::ros2::Ros2Names::MASTER_NAMESPACE,
             "h4_master",
         )?;
+        let (ros2, ros2_record) = self.ros2.cell_and_recording(
+            publishing.as_ref(),
+            h4_transport::ros2::Ros2Names::MASTER_NAMESPACE,
+            self.run.record.is_some(),
+        )?;
         let out = RunOutputs {
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
-            ros2: publishing.as_ref().map(|p| std::sync::Arc::clone(&p.cell)),
+            ros2,
+            ros2_record,
         };
         let summary = match self.device {
             DeviceKind::Sim => {

@@ -234,11 +234,17 @@ impl RunArgs {
             h4_transport::ros2::Ros2Names::SLAVE_NAMESPACE,
             "h4_slave",
         )?;
+        let (ros2, ros2_record) = self.ros2.cell_and_recording(
+            publishing.as_ref(),
+            h4_transport::ros2::Ros2Names::SLAVE_NAMESPACE,
+            self.run.record.is_some(),
+        )?;
         let outputs = RunOutputs {
             record: self.run.record.clone(),
             foxglove_ws: self.live.foxglove_ws.clone(),
             out_dir: self.out.clone(),
-            ros2: publishing.as_ref().map(|p| std::sync::Arc::clone(&p.cell)),
+            ros2,
+            ros2_record,
         };
         let summary = match (self.arm, &self.replay) {
             (ArmKind::Sim, None) => h4_slave_sim::server::run_with_fault(
@@ -253,6 +259,9 @@ impl RunArgs {
                 return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
             }
             (ArmKind::Replay, Some(file)) => run_replay(&cfg, file, &opts, &outputs, &mut link)?,
+            (ArmKind::Crtk, None) if outputs.ros2_record.is_some() => {
+                return Err("--record-ros2 needs --arm sim or replay (not yet crtk)".to_string());
+            }
             (ArmKind::Crtk, None) if self.inject_fault.is_some() => {
                 return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
             }
@@ -300,13 +309,14 @@ fn run_replay<L: h4_transport::Link<h4_shared::wire::Feedback, h4_shared::wire::
     let period_ns = opts.period_ns.max(1);
     let mut teleop =
         SlaveTeleop::new(opts.teleop_params(), ctrl, arm, period_ns).map_err(|e| e.to_string())?;
-    let sink = Outputs::<server::CycleRecord>::start(
+    let sink = Outputs::<server::CycleRecord>::start_polled(
         outputs.record.as_deref(),
         outputs.foxglove_ws.as_deref(),
         "h4-slave",
         ("/slave/cycle", "h4.SlaveProcessCycle"),
         None,
         1e9 / period_ns as f64,
+        outputs.ros2_polled().map_err(|e| e.to_string())?,
     )
     .map_err(|e| e.to_string())?;
     let sink = h4_slave::ros2::Ros2Tee::new(sink, outputs.ros2.clone());
