@@ -126,6 +126,16 @@ impl RoundTripEstimator {
     pub fn histogram(&self) -> &Histogram {
         &self.histogram
     }
+
+    /// The session's `(p50, p99, p95 − p50)`, ms (NaN without a sample): the summaries'
+    /// `rtt_measured_p50_ms`, `rtt_measured_p99_ms`, `rtt_jitter_ms`.
+    pub fn summary_ms(&self) -> (f64, f64, f64) {
+        if self.samples() == 0 {
+            return (f64::NAN, f64::NAN, f64::NAN);
+        }
+        let q = |p| self.histogram.quantile(p) as f64 * 1e-6;
+        (q(0.5), q(0.99), (q(0.95) - q(0.5)).max(0.0))
+    }
 }
 
 #[cfg(test)]
