@@ -416,3 +416,54 @@ fn a_command_outside_the_arms_limits_is_rejected_as_out_of_range_not_clamped() {
         r.cycle(&[&Cmd::position(SESSION, seq, HOME).bytes()]);
     }
 }
+
+/// Protocol 3, from docs/wire.md alone: the outside master echoes the newest feedback it has,
+/// held back 40 cycles (a 40 ms round trip: the feedback sent at cycle k is echoed by the
+/// command the slave takes at cycle k + 40), and the slave measures that round trip itself;
+/// pressed onto the resin block, its feedback reports the contact, a unit normal along +z and
+/// a positive stiffness. Control: echoes withheld (zero), the slave has no measurement and
+/// uses its fallback, counted in `round_trip_fallback_cycles`.
+#[test]
+fn the_slave_measures_the_round_trip_an_outside_master_echoes_and_reports_its_surface() {
+    let run = |echo: bool| {
+        let mut r = Rig::new();
+        let mut received: Vec<Fb> = Vec::new();
+        for seq in 1..=300u64 {
+            let mut c = Cmd::position(SESSION, seq, HOME);
+            if echo && received.len() > 40 {
+                let f = received[received.len() - 41];
+                (c.echo_seq, c.echo_send_time_ns) = (f.seq, f.send_time_ns);
+            }
+            r.cycle(&[&c.bytes()]);
+            received.push(r.last_fb.unwrap());
+        }
+        r
+    };
+    let r = run(true);
+    let (rtt_ms, measured) = r.ep.round_trip_in_use_ms();
+    assert!(measured);
+    // The echo of the feedback sent at cycle k arrives with the command of cycle k + 41 (the
+    // feedback of a cycle is read after it): 41 ms on the slave's clock, exactly.
+    assert_eq!(rtt_ms, 41.0);
+    assert_eq!(r.ep.round_trip().jitter_ms(), Some(0.0));
+    assert_eq!(r.ep.counters().round_trip_echoes_refused, 0);
+    let fb = r.last_fb.unwrap();
+    assert_eq!(fb.contact_state, 1, "free space 2 mm above the block");
+    let control = run(false);
+    assert_eq!(control.ep.round_trip_in_use_ms(), (0.0, false));
+    assert_eq!(control.ep.round_trip().samples(), 0);
+    assert!(control.ep.counters().round_trip_fallback_cycles >= 299);
+    assert_eq!(r.ep.counters().round_trip_fallback_cycles, 41);
+    // Pressed 3 mm into the block (its surface at z = −260 mm).
+    let mut r = r;
+    for seq in 301..=1300u64 {
+        r.cycle(&[&Cmd::position(SESSION, seq, [0.0, 0.0, -263.0, 0.0]).bytes()]);
+    }
+    let fb = r.last_fb.unwrap();
+    assert_eq!(fb.contact_state, 2, "{fb:?}");
+    let n = fb.contact_normal;
+    assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() < 1e-6);
+    assert!(n[2] > 0.99, "outward normal of a horizontal block: {n:?}");
+    assert!((fb.contact_point_mm[2] + 260.0).abs() < 2.0, "{fb:?}");
+    assert!(fb.contact_stiffness_n_per_mm > 0.0, "{fb:?}");
+}

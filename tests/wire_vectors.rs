@@ -12,7 +12,7 @@
 use std::path::PathBuf;
 
 use h4_shared::wire::{
-    CMD_FLAG_CLUTCH, Command, FAULT_CONTACT_LOST, FAULT_FORCE_LIMIT, Feedback, Mode,
+    CMD_FLAG_CLUTCH, Command, ContactState, FAULT_CONTACT_LOST, FAULT_FORCE_LIMIT, Feedback, Mode,
     PROTOCOL_VERSION, RejectReason, SlaveState, WireError,
 };
 use serde_json::{Value, json};
@@ -38,6 +38,7 @@ fn command_fields(c: &Command) -> Value {
         "force_setpoint_n": c.force_setpoint_n, "energy_in_j": c.energy_in_j,
         "energy_out_j": c.energy_out_j, "protocol_version": c.protocol_version,
         "arm_id": c.arm_id, "mode": c.mode, "reserved": c.reserved, "flags": c.flags,
+        "echo_seq": c.echo_seq, "echo_send_time_ns": c.echo_send_time_ns,
     })
 }
 
@@ -49,14 +50,21 @@ fn feedback_fields(f: &Feedback) -> Value {
         "wrench_measured": f.wrench_measured, "wrench_desired": f.wrench_desired,
         "energy_in_j": f.energy_in_j, "energy_out_j": f.energy_out_j,
         "protocol_version": f.protocol_version, "arm_id": f.arm_id, "state": f.state,
-        "reserved": f.reserved, "fault_flags": f.fault_flags,
+        "contact_state": f.contact_state, "fault_flags": f.fault_flags,
         "rejected_reasons": f.rejected_reasons, "rejected_count": f.rejected_count,
+        "contact_point_mm": f.contact_point_mm, "contact_normal": f.contact_normal,
+        "contact_stiffness_n_per_mm": f.contact_stiffness_n_per_mm,
     })
 }
 
 fn f4(v: &Value) -> [f64; 4] {
     let a = v.as_array().unwrap();
     [0, 1, 2, 3].map(|i| a[i].as_f64().unwrap())
+}
+
+fn f3(v: &Value) -> [f64; 3] {
+    let a = v.as_array().unwrap();
+    [0, 1, 2].map(|i| a[i].as_f64().unwrap())
 }
 
 fn command_from(v: &Value) -> Command {
@@ -74,6 +82,8 @@ fn command_from(v: &Value) -> Command {
         mode: v["mode"].as_u64().unwrap() as u8,
         reserved: v["reserved"].as_u64().unwrap() as u8,
         flags: v["flags"].as_u64().unwrap() as u16,
+        echo_seq: v["echo_seq"].as_u64().unwrap(),
+        echo_send_time_ns: v["echo_send_time_ns"].as_u64().unwrap(),
     }
 }
 
@@ -92,10 +102,13 @@ fn feedback_from(v: &Value) -> Feedback {
         protocol_version: v["protocol_version"].as_u64().unwrap() as u16,
         arm_id: v["arm_id"].as_u64().unwrap() as u16,
         state: v["state"].as_u64().unwrap() as u8,
-        reserved: v["reserved"].as_u64().unwrap() as u8,
+        contact_state: v["contact_state"].as_u64().unwrap() as u8,
         fault_flags: v["fault_flags"].as_u64().unwrap() as u16,
         rejected_reasons: v["rejected_reasons"].as_u64().unwrap() as u32,
         rejected_count: v["rejected_count"].as_u64().unwrap() as u32,
+        contact_point_mm: f3(&v["contact_point_mm"]),
+        contact_normal: f3(&v["contact_normal"]),
+        contact_stiffness_n_per_mm: v["contact_stiffness_n_per_mm"].as_f64().unwrap(),
     }
 }
 
@@ -125,6 +138,8 @@ fn make_vectors() -> Value {
         arm_id: 3,
         mode: Mode::ForceGuided as u8,
         flags: CMD_FLAG_CLUTCH,
+        echo_seq: 6,
+        echo_send_time_ns: 1_764_620_000_119_000_000,
         ..Command::default()
     };
     let hold = Command {
@@ -150,6 +165,18 @@ fn make_vectors() -> Value {
         fault_flags: FAULT_FORCE_LIMIT | FAULT_CONTACT_LOST,
         rejected_reasons: RejectReason::OutOfRange.bit() | RejectReason::Stale.bit(),
         rejected_count: 17,
+        contact_state: ContactState::Contact as u8,
+        contact_point_mm: [10.01, -5.49, -253.0],
+        contact_normal: [0.0, 0.6, 0.8],
+        contact_stiffness_n_per_mm: 1000.0,
+        ..Feedback::default()
+    };
+    let free = Feedback {
+        session_id: 0xA1B2_C3D4_E5F6_0718,
+        seq: 1,
+        send_time_ns: 5_000_000,
+        state: SlaveState::Idle as u8,
+        contact_state: ContactState::Free as u8,
         ..Feedback::default()
     };
     let good = encode_command(&cmd);
@@ -161,13 +188,27 @@ fn make_vectors() -> Value {
         }));
     };
     let mut b = good.clone();
-    b[2] = 3;
+    b[2] = 4;
     bad(
-        "protocol version 3 in the header",
+        "protocol version 4 in the header",
         b,
         WireError::WrongVersion {
             ours: PROTOCOL_VERSION,
-            theirs: 3,
+            theirs: 4,
+        },
+    );
+    // A protocol-2 master's command (128 bytes, body 112, version 2 in header and body): the
+    // layout without the echo, refused as another version.
+    let mut b = good[..128].to_vec();
+    b[2] = 2;
+    b[6..8].copy_from_slice(&112u16.to_le_bytes());
+    b[120] = 2;
+    bad(
+        "a protocol version 2 command",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 2,
         },
     );
     // A version-1 command (8-byte header, 120 bytes): refused as another version.
@@ -192,13 +233,13 @@ fn make_vectors() -> Value {
         },
     );
     let mut b = good.clone();
-    b[6] = 111;
+    b[6] = 127;
     bad(
-        "header body length 111",
+        "header body length 127",
         b,
         WireError::LengthMismatch {
-            declared: 111,
-            expected: 112,
+            declared: 127,
+            expected: 128,
         },
     );
     let mut b = good.clone();
@@ -233,7 +274,7 @@ fn make_vectors() -> Value {
     bad("bad magic", b, WireError::BadMagic);
     let fb_bytes = encode_feedback(&fb);
     let mut b = fb_bytes[..Command::WIRE_SIZE].to_vec();
-    b[6..8].copy_from_slice(&112u16.to_le_bytes());
+    b[6..8].copy_from_slice(&128u16.to_le_bytes());
     bad(
         "feedback kind on the command key",
         b,
@@ -290,14 +331,14 @@ fn make_vectors() -> Value {
         WireError::BadMagic,
     );
     let mut b = good.clone();
-    b[2] = 3;
+    b[2] = 4;
     b[4] = 2;
     bad(
-        "version 3 and the feedback kind: the version before the kind",
+        "version 4 and the feedback kind: the version before the kind",
         b,
         WireError::WrongVersion {
             ours: PROTOCOL_VERSION,
-            theirs: 3,
+            theirs: 4,
         },
     );
     let mut b = good.clone();
@@ -313,9 +354,9 @@ fn make_vectors() -> Value {
     );
     let mut b = good.clone();
     b[5] = 1;
-    b[6] = 111;
+    b[6] = 127;
     bad(
-        "header reserved byte and body length 111: the reserved byte first",
+        "header reserved byte and body length 127: the reserved byte first",
         b,
         WireError::ReservedSet {
             field: "header.reserved",
@@ -323,34 +364,34 @@ fn make_vectors() -> Value {
         },
     );
     let mut b = good[..good.len() - 1].to_vec();
-    b[6] = 111;
+    b[6] = 127;
     bad(
-        "body length 111 and one byte short: the body length before the size",
+        "body length 127 and one byte short: the body length before the size",
         b,
         WireError::LengthMismatch {
-            declared: 111,
-            expected: 112,
+            declared: 127,
+            expected: 128,
         },
     );
     let mut b = good.clone();
-    b[120] = 3;
+    b[120] = 4;
     bad(
-        "version 3 in the body only",
+        "version 4 in the body only",
         b,
         WireError::WrongVersion {
             ours: PROTOCOL_VERSION,
-            theirs: 3,
+            theirs: 4,
         },
     );
     let mut b = good.clone();
-    b[120] = 3;
+    b[120] = 4;
     b[32..40].copy_from_slice(&f64::NAN.to_le_bytes());
     bad(
-        "body version 3 and NaN in pose[0]: the body version first",
+        "body version 4 and NaN in pose[0]: the body version first",
         b,
         WireError::WrongVersion {
             ours: PROTOCOL_VERSION,
-            theirs: 3,
+            theirs: 4,
         },
     );
     let mut b = good.clone();
@@ -388,6 +429,8 @@ fn make_vectors() -> Value {
         b,
         WireError::NonFinite { field: "velocity" },
     );
+    let invalid_feedback = invalid_feedback_vectors(&fb_bytes);
+    invalid.extend(invalid_feedback);
     json!({
         "protocol_version": PROTOCOL_VERSION,
         "command_size": Command::WIRE_SIZE,
@@ -397,11 +440,78 @@ fn make_vectors() -> Value {
              "bytes": hex(&good), "fields": command_fields(&cmd)},
             {"name": "hold command", "kind": "command",
              "bytes": hex(&encode_command(&hold)), "fields": command_fields(&hold)},
-            {"name": "active feedback with faults", "kind": "feedback",
+            {"name": "active feedback with faults, in contact", "kind": "feedback",
              "bytes": hex(&fb_bytes), "fields": feedback_fields(&fb)},
+            {"name": "idle feedback in free space, no surface known", "kind": "feedback",
+             "bytes": hex(&encode_feedback(&free)), "fields": feedback_fields(&free)},
         ],
         "invalid": invalid,
     })
+}
+
+/// Invalid feedback (what the master refuses): a protocol-2 slave's feedback, the contact
+/// state, the surface estimate's ranges.
+fn invalid_feedback_vectors(good: &[u8]) -> Vec<Value> {
+    let mut invalid = Vec::new();
+    let mut bad = |name: &str, bytes: Vec<u8>, error: WireError| {
+        invalid.push(json!({
+            "name": name, "kind": "feedback", "bytes": hex(&bytes), "error": format!("{error:?}"),
+            "counter": error.reason().name(),
+        }));
+    };
+    // A protocol-2 slave's feedback (176 bytes, body 160, version 2 in header and body).
+    let mut b = good[..176].to_vec();
+    b[2] = 2;
+    b[6..8].copy_from_slice(&160u16.to_le_bytes());
+    b[160] = 2;
+    bad(
+        "a protocol version 2 feedback",
+        b,
+        WireError::WrongVersion {
+            ours: PROTOCOL_VERSION,
+            theirs: 2,
+        },
+    );
+    let mut b = good.to_vec();
+    b[165] = 3;
+    bad("contact state 3", b, WireError::BadContactState(3));
+    let mut b = good.to_vec();
+    b[200..208].copy_from_slice(&0.5f64.to_le_bytes());
+    bad(
+        "contact normal not unit",
+        b,
+        WireError::SurfaceOutOfRange {
+            field: "contact_normal",
+        },
+    );
+    let mut b = good.to_vec();
+    b[224..232].copy_from_slice(&(-1.0f64).to_le_bytes());
+    bad(
+        "negative contact stiffness",
+        b,
+        WireError::SurfaceOutOfRange {
+            field: "contact_stiffness_n_per_mm",
+        },
+    );
+    let mut b = good.to_vec();
+    b[176..184].copy_from_slice(&2e4f64.to_le_bytes());
+    bad(
+        "contact point 20 m away",
+        b,
+        WireError::SurfaceOutOfRange {
+            field: "contact_point_mm",
+        },
+    );
+    let mut b = good.to_vec();
+    b[184..192].copy_from_slice(&f64::NAN.to_le_bytes());
+    bad(
+        "NaN in contact_point_mm[1]",
+        b,
+        WireError::NonFinite {
+            field: "contact_point_mm",
+        },
+    );
+    invalid
 }
 
 #[test]
@@ -437,7 +547,10 @@ fn vectors_decode_to_their_fields_and_fields_encode_to_their_bytes() {
     }
     for v in file["invalid"].as_array().unwrap() {
         let bytes = unhex(v["bytes"].as_str().unwrap());
-        let err = Command::decode(&bytes).unwrap_err();
+        let err = match v["kind"].as_str().unwrap() {
+            "command" => Command::decode(&bytes).unwrap_err(),
+            _ => Feedback::decode(&bytes).unwrap_err(),
+        };
         assert_eq!(
             format!("{err:?}"),
             v["error"].as_str().unwrap(),
@@ -447,7 +560,7 @@ fn vectors_decode_to_their_fields_and_fields_encode_to_their_bytes() {
         assert_eq!(err.reason().name(), v["counter"], "{}", v["name"]);
         checked += 1;
     }
-    assert_eq!(checked, 3 + 11 + 17);
+    assert_eq!(checked, 4 + 12 + 17 + 6);
 }
 
 #[test]
@@ -462,13 +575,15 @@ fn documented_offsets_match_the_encoding() {
         arm_id: 0xBEEF,
         mode: 2,
         flags: 1,
+        echo_seq: 0x1112_1314_1516_1718,
+        echo_send_time_ns: 77,
         ..Command::default()
     };
     let b = encode_command(&cmd);
     assert_eq!(&b[0..2], b"H4");
     assert_eq!(u16::from_le_bytes([b[2], b[3]]), PROTOCOL_VERSION);
     assert_eq!((b[4], b[5]), (1, 0));
-    assert_eq!(u16::from_le_bytes([b[6], b[7]]), 112);
+    assert_eq!(u16::from_le_bytes([b[6], b[7]]), 128);
     assert_eq!(
         u64::from_le_bytes(b[8..16].try_into().unwrap()),
         cmd.session_id
@@ -479,7 +594,9 @@ fn documented_offsets_match_the_encoding() {
     assert_eq!(u16::from_le_bytes([b[120], b[121]]), PROTOCOL_VERSION);
     assert_eq!(u16::from_le_bytes([b[122], b[123]]), 0xBEEF);
     assert_eq!((b[124], b[125], b[126], b[127]), (2, 0, 1, 0));
-    assert_eq!(b.len(), 128);
+    assert_eq!(b[128], 0x18);
+    assert_eq!(u64::from_le_bytes(b[136..144].try_into().unwrap()), 77);
+    assert_eq!(b.len(), 144);
     let fb = Feedback {
         session_id: 5,
         echo_send_time_ns: 99,
@@ -487,10 +604,19 @@ fn documented_offsets_match_the_encoding() {
         fault_flags: FAULT_FORCE_LIMIT,
         rejected_reasons: 0x210,
         rejected_count: 0x0A0B_0C0D,
+        contact_state: ContactState::Contact as u8,
+        contact_point_mm: [1.0, 2.0, 3.0],
+        contact_normal: [0.0, 0.0, 1.0],
+        contact_stiffness_n_per_mm: 250.0,
         ..Feedback::default()
     };
     let b = encode_feedback(&fb);
-    assert_eq!((b[4], u16::from_le_bytes([b[6], b[7]])), (2, 160));
+    assert_eq!((b[4], u16::from_le_bytes([b[6], b[7]])), (2, 216));
+    assert_eq!(b[165], 2);
+    assert_eq!(&b[176..184], &1.0f64.to_le_bytes());
+    assert_eq!(&b[192..200], &3.0f64.to_le_bytes());
+    assert_eq!(&b[216..224], &1.0f64.to_le_bytes());
+    assert_eq!(&b[224..232], &250.0f64.to_le_bytes());
     assert_eq!(u64::from_le_bytes(b[8..16].try_into().unwrap()), 5);
     assert_eq!(u64::from_le_bytes(b[40..48].try_into().unwrap()), 99);
     assert_eq!(&b[152..160], &1.5f64.to_le_bytes());
@@ -500,5 +626,5 @@ fn documented_offsets_match_the_encoding() {
         u32::from_le_bytes(b[172..176].try_into().unwrap()),
         0x0A0B_0C0D
     );
-    assert_eq!(b.len(), 176);
+    assert_eq!(b.len(), 232);
 }

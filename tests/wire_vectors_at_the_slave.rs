@@ -41,6 +41,8 @@ fn invalid_vectors() -> Vec<(String, Vec<u8>, String)> {
         .as_array()
         .unwrap()
         .iter()
+        // The feedback vectors are the master's to refuse (tests/wire_vectors_at_the_master.rs).
+        .filter(|v| v["kind"] == "command")
         .map(|v| {
             let hex = v["bytes"].as_str().unwrap();
             let bytes = (0..hex.len())

@@ -37,6 +37,12 @@ pub fn wire_decode(data: &[u8]) {
         let mut b = [0u8; Feedback::WIRE_SIZE];
         f.encode(&mut b);
         assert_eq!(&b[..], data, "feedback does not round-trip");
+        // Protocol 3's surface estimate passed its checks: a unit normal in contact.
+        assert!(f.validate().is_ok());
+        if f.contact_state == h4_shared::wire::ContactState::Contact as u8 {
+            let n = f.contact_normal;
+            assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() <= 1e-6);
+        }
     }
     if let Err(e) = Command::decode(data) {
         let _ = e.reason();

@@ -1145,6 +1145,9 @@ impl MasterCoupling {
                 } else {
                     0
                 },
+            // Set by the endpoint (`MasterTeleop`), which holds the newest feedback.
+            echo_seq: 0,
+            echo_send_time_ns: 0,
         }
     }
 }

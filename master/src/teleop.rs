@@ -401,6 +401,11 @@ impl<D: HapticDevice> MasterTeleop<D> {
         let rendered_wrench = self.device.write_wrench(&step.wrench);
         let mut cmd = self.coupling.finish(&rendered_wrench, &dev, now_ns);
         cmd.session_id = self.session_id;
+        // Protocol 3: echo the newest feedback accepted, so the slave measures its round trip.
+        if let Some(f) = self.gate.latest() {
+            cmd.echo_seq = f.seq;
+            cmd.echo_send_time_ns = f.send_time_ns;
+        }
         self.last_command_seq = cmd.seq;
         match link.publish(&cmd) {
             Ok(()) => self.counters.commands_published += 1,

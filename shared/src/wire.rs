@@ -16,8 +16,10 @@
 use crate::kinematics::{Pose, Workspace};
 
 /// Version of the message layout and encoding. Bump on any change to either.
-/// Version 2 added the session id to the header and the rejection report to the feedback.
-pub const PROTOCOL_VERSION: u16 = 2;
+/// Version 2 added the session id to the header and the rejection report to the feedback;
+/// version 3 the command's echo of the newest feedback (the slave measures its round trip)
+/// and the feedback's surface estimate (contact point, normal, stiffness, contact state).
+pub const PROTOCOL_VERSION: u16 = 3;
 
 const MAGIC: [u8; 2] = *b"H4";
 /// Bytes before the message's `session_id`: magic, version, kind, reserved, body length.
@@ -80,6 +82,17 @@ pub enum WireError {
         /// Its value.
         value: u8,
     },
+    /// The feedback's contact-state byte names no [`ContactState`].
+    #[error("unknown contact state {0}")]
+    BadContactState(u8),
+    /// A field of the feedback's surface estimate is finite but outside its range (a
+    /// contact point beyond [`SURFACE_POINT_LIMIT_MM`], a normal neither unit nor zero, or
+    /// not unit in contact, a stiffness outside [0, [`SURFACE_STIFFNESS_MAX_N_PER_MM`]]).
+    #[error("surface estimate: {field} out of range")]
+    SurfaceOutOfRange {
+        /// The field.
+        field: &'static str,
+    },
     /// Bits of the feedback's `rejected_reasons` that this version does not define are set.
     #[error("unknown rejection-reason bits {0:#x}")]
     BadReasonBits(u32),
@@ -102,12 +115,14 @@ impl WireError {
             | WireError::BadFlags(_)
             | WireError::BadReasonBits(_) => RejectReason::ReservedBits,
             WireError::LengthMismatch { .. } => RejectReason::LengthMismatch,
+            WireError::SurfaceOutOfRange { .. } => RejectReason::OutOfRange,
             WireError::WrongSize { .. }
             | WireError::BadMagic
             | WireError::WrongKind { .. }
             | WireError::NonFinite { .. }
             | WireError::BadMode(_)
-            | WireError::BadState(_) => RejectReason::Undecodable,
+            | WireError::BadState(_)
+            | WireError::BadContactState(_) => RejectReason::Undecodable,
         }
     }
 }
@@ -251,6 +266,40 @@ impl SlaveState {
     }
 }
 
+/// What the slave knows of the surface under its tool (feedback `contact_state`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[repr(u8)]
+pub enum ContactState {
+    /// The slave does not say (idle, safe stop): the surface fields carry nothing to render.
+    #[default]
+    Unknown = 0,
+    /// In free space; the surface fields are the last surface touched (all zero before the
+    /// first touch).
+    Free = 1,
+    /// Touching: the surface fields are the current contact's.
+    Contact = 2,
+}
+
+impl ContactState {
+    /// Contact state from its wire byte.
+    pub fn from_u8(b: u8) -> Result<Self, WireError> {
+        match b {
+            0 => Ok(ContactState::Unknown),
+            1 => Ok(ContactState::Free),
+            2 => Ok(ContactState::Contact),
+            other => Err(WireError::BadContactState(other)),
+        }
+    }
+}
+
+/// Largest magnitude of a coordinate of the feedback's `contact_point_mm`, mm (10 m: far
+/// beyond any H-4 workspace, so only a corrupt figure is refused).
+pub const SURFACE_POINT_LIMIT_MM: f64 = 1e4;
+/// Largest stiffness of the feedback's surface estimate, N/mm (0 means not estimated).
+pub const SURFACE_STIFFNESS_MAX_N_PER_MM: f64 = 1e6;
+/// How far from 1 the length of a unit normal may be.
+pub const SURFACE_NORMAL_TOLERANCE: f64 = 1e-6;
+
 /// Command flag: the operator holds the clutch (the slave holds still; re-anchor on release).
 pub const CMD_FLAG_CLUTCH: u16 = 1 << 0;
 /// Command flag: the master has seen the slave's safe stop, faded its rendering out and
@@ -308,6 +357,11 @@ pub struct Command {
     pub reserved: u8,
     /// `CMD_FLAG_*` bits.
     pub flags: u16,
+    /// `seq` of the newest feedback the master accepted (0 before the first).
+    pub echo_seq: u64,
+    /// That feedback's `send_time_ns`, on the slave's clock (0 before the first): the slave's
+    /// round trip is its own clock now minus this.
+    pub echo_send_time_ns: u64,
 }
 
 /// Slave → master, once per slave cycle.
@@ -340,8 +394,8 @@ pub struct Feedback {
     pub arm_id: u16,
     /// [`SlaveState`] as a byte.
     pub state: u8,
-    /// Reserved, zero.
-    pub reserved: u8,
+    /// [`ContactState`] as a byte (protocol 2's reserved byte).
+    pub contact_state: u8,
     /// `FAULT_*` bits.
     pub fault_flags: u16,
     /// Why commands were rejected since the previous feedback: one bit per [`RejectReason`]
@@ -349,6 +403,12 @@ pub struct Feedback {
     pub rejected_reasons: u32,
     /// Commands rejected since the slave started, all reasons (saturating).
     pub rejected_count: u32,
+    /// The surface estimate: the contact point `[x_mm, y_mm, z_mm]`, slave frame.
+    pub contact_point_mm: [f64; 3],
+    /// The surface's outward unit normal, slave frame (zero when none is known).
+    pub contact_normal: [f64; 3],
+    /// The surface's stiffness as the slave's force controller estimates it, N/mm (0: none).
+    pub contact_stiffness_n_per_mm: f64,
 }
 
 impl Default for Command {
@@ -367,6 +427,8 @@ impl Default for Command {
             mode: Mode::Hold as u8,
             reserved: 0,
             flags: 0,
+            echo_seq: 0,
+            echo_send_time_ns: 0,
         }
     }
 }
@@ -387,10 +449,13 @@ impl Default for Feedback {
             protocol_version: PROTOCOL_VERSION,
             arm_id: 0,
             state: SlaveState::Idle as u8,
-            reserved: 0,
+            contact_state: ContactState::Unknown as u8,
             fault_flags: 0,
             rejected_reasons: 0,
             rejected_count: 0,
+            contact_point_mm: [0.0; 3],
+            contact_normal: [0.0; 3],
+            contact_stiffness_n_per_mm: 0.0,
         }
     }
 }
@@ -414,7 +479,7 @@ impl Writer<'_> {
     fn f64(&mut self, v: f64) {
         self.bytes(&v.to_le_bytes());
     }
-    fn f64s(&mut self, v: &[f64; 4]) {
+    fn f64s<const N: usize>(&mut self, v: &[f64; N]) {
         for x in v {
             self.f64(*x);
         }
@@ -450,8 +515,12 @@ impl Reader<'_> {
     fn f64(&mut self) -> f64 {
         f64::from_le_bytes(self.take())
     }
-    fn f64s(&mut self) -> [f64; 4] {
-        [self.f64(), self.f64(), self.f64(), self.f64()]
+    fn f64s<const N: usize>(&mut self) -> [f64; N] {
+        let mut out = [0.0; N];
+        for x in out.iter_mut() {
+            *x = self.f64();
+        }
+        out
     }
     fn u16(&mut self) -> u16 {
         u16::from_le_bytes(self.take())
@@ -525,7 +594,7 @@ fn read_header<'a>(bytes: &'a [u8], kind: u8, body_len: usize) -> Result<Reader<
 
 impl Command {
     /// Size of the encoded command, bytes.
-    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 2 + 8 * 4 * 2 + 8 * 3 + 2 + 2 + 1 + 1 + 2;
+    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 2 + 8 * 4 * 2 + 8 * 3 + 2 + 2 + 1 + 1 + 2 + 8 * 2;
     /// Size of the body after the header, bytes (the header's body length).
     pub const BODY_LEN: usize = Self::WIRE_SIZE - HEADER_LEN;
 
@@ -589,6 +658,8 @@ impl Command {
         w.u8(self.mode);
         w.u8(self.reserved);
         w.u16(self.flags);
+        w.u64(self.echo_seq);
+        w.u64(self.echo_send_time_ns);
     }
 
     /// Decodes and validates a command: the header (magic, version, kind, reserved byte, body
@@ -609,6 +680,8 @@ impl Command {
             mode: r.u8(),
             reserved: r.u8(),
             flags: r.u16(),
+            echo_seq: r.u64(),
+            echo_send_time_ns: r.u64(),
         };
         cmd.validate()?;
         Ok(cmd)
@@ -617,14 +690,16 @@ impl Command {
 
 impl Feedback {
     /// Size of the encoded feedback, bytes.
-    pub const WIRE_SIZE: usize = HEADER_LEN + 8 * 4 + 8 * 4 * 3 + 8 * 2 + 2 + 2 + 1 + 1 + 2 + 4 + 4;
+    pub const WIRE_SIZE: usize =
+        HEADER_LEN + 8 * 4 + 8 * 4 * 3 + 8 * 2 + 2 + 2 + 1 + 1 + 2 + 4 + 4 + 8 * 7;
     /// Size of the body after the header, bytes (the header's body length).
     pub const BODY_LEN: usize = Self::WIRE_SIZE - HEADER_LEN;
 
     /// Checks a feedback body, received over any transport, in this order (the first failure
-    /// is the error): body version, state, reserved byte, fault flag bits, reason bits, then
-    /// every number finite (fields in wire order). The byte path ([`Feedback::decode`]) checks
-    /// the header and the size first.
+    /// is the error): body version, state, contact state, fault flag bits, reason bits, every
+    /// number finite (fields in wire order), then the surface estimate's ranges (point,
+    /// normal, stiffness). The byte path ([`Feedback::decode`]) checks the header and the
+    /// size first.
     pub fn validate(&self) -> Result<(), WireError> {
         if self.protocol_version != PROTOCOL_VERSION {
             return Err(WireError::WrongVersion {
@@ -633,12 +708,7 @@ impl Feedback {
             });
         }
         SlaveState::from_u8(self.state)?;
-        if self.reserved != 0 {
-            return Err(WireError::ReservedSet {
-                field: "reserved",
-                value: self.reserved,
-            });
-        }
+        let contact = ContactState::from_u8(self.contact_state)?;
         if self.fault_flags & !FAULT_FLAGS_KNOWN != 0 {
             return Err(WireError::BadFlags(self.fault_flags & !FAULT_FLAGS_KNOWN));
         }
@@ -647,14 +717,52 @@ impl Feedback {
                 self.rejected_reasons & !REJECT_REASONS_KNOWN,
             ));
         }
-        let fields: [(&'static str, &[f64]); 5] = [
+        let fields: [(&'static str, &[f64]); 8] = [
             ("pose", &self.pose),
             ("wrench_measured", &self.wrench_measured),
             ("wrench_desired", &self.wrench_desired),
             ("energy_in_j", core::slice::from_ref(&self.energy_in_j)),
             ("energy_out_j", core::slice::from_ref(&self.energy_out_j)),
+            ("contact_point_mm", &self.contact_point_mm),
+            ("contact_normal", &self.contact_normal),
+            (
+                "contact_stiffness_n_per_mm",
+                core::slice::from_ref(&self.contact_stiffness_n_per_mm),
+            ),
         ];
-        check_all_finite(&fields)
+        check_all_finite(&fields)?;
+        self.check_surface(contact)
+    }
+
+    /// The surface estimate's ranges: every coordinate of the point within
+    /// ±[`SURFACE_POINT_LIMIT_MM`]; the normal of unit length (within
+    /// [`SURFACE_NORMAL_TOLERANCE`]) or, out of contact, all zero; the stiffness within
+    /// [0, [`SURFACE_STIFFNESS_MAX_N_PER_MM`]].
+    fn check_surface(&self, contact: ContactState) -> Result<(), WireError> {
+        let out = |field| Err(WireError::SurfaceOutOfRange { field });
+        if self
+            .contact_point_mm
+            .iter()
+            .any(|x| x.abs() > SURFACE_POINT_LIMIT_MM)
+        {
+            return out("contact_point_mm");
+        }
+        let n = &self.contact_normal;
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let unit = (len - 1.0).abs() <= SURFACE_NORMAL_TOLERANCE;
+        let zero = len == 0.0 && contact != ContactState::Contact;
+        if !unit && !zero {
+            return out("contact_normal");
+        }
+        if !(0.0..=SURFACE_STIFFNESS_MAX_N_PER_MM).contains(&self.contact_stiffness_n_per_mm) {
+            return out("contact_stiffness_n_per_mm");
+        }
+        Ok(())
+    }
+
+    /// The contact state, checked.
+    pub fn contact_state(&self) -> Result<ContactState, WireError> {
+        ContactState::from_u8(self.contact_state)
     }
 
     /// The slave state, checked.
@@ -678,10 +786,13 @@ impl Feedback {
         w.u16(self.protocol_version);
         w.u16(self.arm_id);
         w.u8(self.state);
-        w.u8(self.reserved);
+        w.u8(self.contact_state);
         w.u16(self.fault_flags);
         w.u32(self.rejected_reasons);
         w.u32(self.rejected_count);
+        w.f64s(&self.contact_point_mm);
+        w.f64s(&self.contact_normal);
+        w.f64(self.contact_stiffness_n_per_mm);
     }
 
     /// Decodes and validates feedback: the header (magic, version, kind, reserved byte, body
@@ -703,10 +814,13 @@ impl Feedback {
             protocol_version: r.u16(),
             arm_id: r.u16(),
             state: r.u8(),
-            reserved: r.u8(),
+            contact_state: r.u8(),
             fault_flags: r.u16(),
             rejected_reasons: r.u32(),
             rejected_count: r.u32(),
+            contact_point_mm: r.f64s(),
+            contact_normal: r.f64s(),
+            contact_stiffness_n_per_mm: r.f64(),
         };
         fb.validate()?;
         Ok(fb)
@@ -868,11 +982,93 @@ mod tests {
             arm_id: 3,
             mode: Mode::ForceGuided as u8,
             flags: CMD_FLAG_CLUTCH,
+            echo_seq: 41,
+            echo_send_time_ns: 99_000_000,
             ..Command::default()
         };
         let mut buf = [0u8; Command::WIRE_SIZE];
         cmd.encode(&mut buf);
         assert_eq!(Command::decode(&buf), Ok(cmd));
+    }
+
+    /// The surface estimate: a unit normal in contact, a zero one allowed out of contact, a
+    /// point and a stiffness in range; each bound refused just past it, as `out_of_range`.
+    #[test]
+    fn the_surface_estimate_is_checked() {
+        let ok = Feedback {
+            contact_state: ContactState::Contact as u8,
+            contact_point_mm: [1.0, -2.0, -253.0],
+            contact_normal: [0.0, 0.6, 0.8],
+            contact_stiffness_n_per_mm: 2000.0,
+            ..Feedback::default()
+        };
+        let mut buf = [0u8; Feedback::WIRE_SIZE];
+        ok.encode(&mut buf);
+        assert_eq!(Feedback::decode(&buf), Ok(ok));
+        let free_unknown_normal = Feedback {
+            contact_state: ContactState::Free as u8,
+            contact_normal: [0.0; 3],
+            ..ok
+        };
+        assert_eq!(free_unknown_normal.validate(), Ok(()));
+        let refused = |f: Feedback, field| {
+            let e = f.validate().unwrap_err();
+            assert_eq!(e, WireError::SurfaceOutOfRange { field });
+            assert_eq!(e.reason(), RejectReason::OutOfRange);
+        };
+        refused(
+            Feedback {
+                contact_normal: [0.0; 3],
+                ..ok
+            },
+            "contact_normal",
+        );
+        refused(
+            Feedback {
+                contact_normal: [0.0, 0.0, 1.0 + 2e-6],
+                ..ok
+            },
+            "contact_normal",
+        );
+        refused(
+            Feedback {
+                contact_point_mm: [0.0, 0.0, -1.0001e4],
+                ..ok
+            },
+            "contact_point_mm",
+        );
+        refused(
+            Feedback {
+                contact_stiffness_n_per_mm: -0.001,
+                ..ok
+            },
+            "contact_stiffness_n_per_mm",
+        );
+        refused(
+            Feedback {
+                contact_stiffness_n_per_mm: 1.000001e6,
+                ..ok
+            },
+            "contact_stiffness_n_per_mm",
+        );
+        assert_eq!(
+            Feedback {
+                contact_state: 3,
+                ..ok
+            }
+            .validate(),
+            Err(WireError::BadContactState(3))
+        );
+        assert_eq!(
+            Feedback {
+                contact_normal: [f64::NAN, 0.0, 1.0],
+                ..ok
+            }
+            .validate(),
+            Err(WireError::NonFinite {
+                field: "contact_normal"
+            })
+        );
     }
 
     #[test]

@@ -8,6 +8,8 @@
 //! * [`controller`]: [`controller::SlaveController`], the pure 1 kHz step (position mode,
 //!   implicit force control with online environment-stiffness estimation, safe stop).
 //! * [`filter`]: the low-pass filters the controller (and the simulated sensor) use.
+//! * [`round_trip`]: [`round_trip::RoundTripEstimator`], the slave's own round trip from
+//!   the commands' echo of its feedback (protocol 3).
 //! * [`safety`]: [`safety::SafetyMonitor`], the arm's ratings enforced between the
 //!   controller and the driver every cycle.
 //! * [`teleop`]: [`teleop::SlaveTeleop`], the slave's per-cycle teleoperation endpoint
@@ -23,6 +25,7 @@ pub mod controller;
 pub mod crtk;
 pub mod filter;
 pub mod ros2;
+pub mod round_trip;
 pub mod safety;
 pub mod server;
 pub mod teleop;

@@ -26,9 +26,9 @@ use h4_shared::passivity::{AdmittancePort, AdmittanceStep, PassivityParams};
 use h4_shared::vec3::norm3;
 use h4_shared::watchdog::Watchdog;
 use h4_shared::wire::{
-    CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, FAULT_COMMAND_REJECTED, FAULT_COMMAND_TIMEOUT,
-    FAULT_FORCE_LIMIT, FAULT_SAFETY_TRIP, FAULT_SENSOR, Feedback, Mode, PROTOCOL_VERSION,
-    SlaveState,
+    CMD_FLAG_ACK_SAFE_STOP, Command, CommandLimits, ContactState, FAULT_COMMAND_REJECTED,
+    FAULT_COMMAND_TIMEOUT, FAULT_FORCE_LIMIT, FAULT_SAFETY_TRIP, FAULT_SENSOR, Feedback, Mode,
+    PROTOCOL_VERSION, SURFACE_POINT_LIMIT_MM, SURFACE_STIFFNESS_MAX_N_PER_MM, SlaveState,
 };
 use h4_transport::Link;
 use h4_transport::gate::{EnergyBound, Gate, GateCounters};
@@ -36,6 +36,7 @@ use serde::Serialize;
 
 use crate::arm::ArmDriver;
 use crate::controller::{ControllerInput, ControllerOutput, SlaveCommand, SlaveController, Status};
+use crate::round_trip::RoundTripEstimator;
 use crate::safety::{SafetyLimits, SafetyMonitor, SafetyTrips, TripReason};
 
 /// Settings of the endpoint.
@@ -97,9 +98,11 @@ impl Default for SafetyParams {
 /// hand and back, and the hand's damping cannot grow past what the handle's mass allows; the
 /// delayed spring then holds only while `K·T` stays below about
 /// `stiffness_delay_n_s_per_mm` (measured: docs/sessions.md, "The hand-over spring against
-/// the round trip"). The slave cannot measure `T` (only the master sees the round trip), so
-/// the deployment tells it, `round_trip_ms` (0: not told), and the spring softens to
-/// `min(stiffness_n_per_mm, stiffness_delay_n_s_per_mm / T)`.
+/// the round trip"). Since protocol 3 the slave measures `T` itself from the commands' echo
+/// of its feedback ([`crate::round_trip`]) and the spring softens to
+/// `min(stiffness_n_per_mm, stiffness_delay_n_s_per_mm / T)`; before the first echo (and with
+/// `measure_round_trip = false`) it uses the figure the deployment tells it, `round_trip_ms`
+/// (0: not told, the spring stays `stiffness_n_per_mm`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ContactHandover {
@@ -116,9 +119,14 @@ pub struct ContactHandover {
     /// Largest set-point, as a share of the controller's force limit.
     pub force_share: f64,
     /// The link's round trip as the deployment knows it (the master's measured round trip,
-    /// `round_trip_p50_us` in its summary), ms; 0: not told, the spring stays
-    /// `stiffness_n_per_mm`.
+    /// `round_trip_p50_us` in its summary), ms: the fallback before the slave has measured
+    /// its own (the first echo arrives one round trip after the slave's first feedback);
+    /// 0: not told, the spring stays `stiffness_n_per_mm` until then.
     pub round_trip_ms: f64,
+    /// The slave measures its round trip from the commands' echo (protocol 3) and uses it
+    /// instead of `round_trip_ms`; false: the told figure only (protocol 2's behaviour, for
+    /// the controls).
+    pub measure_round_trip: bool,
     /// The largest spring × round trip, N·s/mm: the spring softens to this over the told
     /// round trip.
     pub stiffness_delay_n_s_per_mm: f64,
@@ -133,6 +141,7 @@ impl Default for ContactHandover {
             release_mm: 0.3,
             force_share: 0.8,
             round_trip_ms: 0.0,
+            measure_round_trip: true,
             stiffness_delay_n_s_per_mm: 0.5,
         }
     }
@@ -186,10 +195,15 @@ impl ContactHandover {
         )
     }
 
-    /// The virtual spring in effect, N/mm: `stiffness_n_per_mm`, softened over a told round
-    /// trip to `stiffness_delay_n_s_per_mm / T`.
+    /// The virtual spring over the told round trip, N/mm: `stiffness_n_per_mm`, softened
+    /// to `stiffness_delay_n_s_per_mm / T`.
     pub fn effective_stiffness_n_per_mm(&self) -> f64 {
-        let t_s = self.round_trip_ms / 1000.0;
+        self.stiffness_at_n_per_mm(self.round_trip_ms)
+    }
+
+    /// The virtual spring over a round trip of `round_trip_ms` (measured or told), N/mm.
+    pub fn stiffness_at_n_per_mm(&self, round_trip_ms: f64) -> f64 {
+        let t_s = round_trip_ms / 1000.0;
         if t_s > 0.0 {
             self.stiffness_n_per_mm
                 .min(self.stiffness_delay_n_s_per_mm / t_s)
@@ -306,6 +320,12 @@ pub struct TeleopCounters {
     pub feedback_published: u64,
     /// The safety monitor's trips by reason (each also a safe stop).
     pub safety_trips: SafetyTrips,
+    /// Active cycles that used the told round trip (the fallback) because none was measured
+    /// yet (no echo) or measuring is off (`contact.measure_round_trip = false`).
+    pub round_trip_fallback_cycles: u64,
+    /// Echoes refused by the round-trip estimator (of a feedback this slave cannot have
+    /// sent: a sequence number it has not reached, a send time after now).
+    pub round_trip_echoes_refused: u64,
 }
 
 /// What one cycle did (plain data, no allocation).
@@ -341,6 +361,11 @@ pub struct TeleopCycle {
     pub dissipated_j: f64,
     /// Sequence number of the newest accepted command (0: none).
     pub command_seq: u64,
+    /// The round trip the hand-over uses this cycle, ms: the measured one, or the told
+    /// fallback (`contact.round_trip_ms`, 0: none) when `round_trip_measured` is false.
+    pub round_trip_ms: f64,
+    /// Whether `round_trip_ms` is the slave's own measurement (false: the fallback).
+    pub round_trip_measured: bool,
     /// The arm's reading this cycle (encoders and force/torque sensor), as the driver gave it.
     pub reading: crate::arm::ArmReading,
 }
@@ -370,6 +395,8 @@ pub struct SlaveTeleop<A: ArmDriver> {
     known_surface: Option<([f64; 3], [f64; 3])>,
     seq: u64,
     counters: TeleopCounters,
+    /// The slave's own round trip, from the commands' echo.
+    rtt: RoundTripEstimator,
     /// The safety monitor.
     monitor: SafetyMonitor,
     /// The trip that put the arm into its safe stop (cleared on re-arm).
@@ -462,6 +489,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             known_surface: None,
             seq: 0,
             counters: TeleopCounters::default(),
+            rtt: RoundTripEstimator::new(),
             monitor: SafetyMonitor::new(SafetyLimits::new(
                 p.safety.ratings,
                 *ctrl_ws,
@@ -496,6 +524,21 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     /// Counters.
     pub fn counters(&self) -> &TeleopCounters {
         &self.counters
+    }
+
+    /// The slave's measurement of its round trip.
+    pub fn round_trip(&self) -> &RoundTripEstimator {
+        &self.rtt
+    }
+
+    /// The round trip the hand-over uses, ms, and whether it is measured: the slave's own
+    /// (the estimator's median) once an echo has arrived and measuring is on, else the told
+    /// `contact.round_trip_ms` (0: none).
+    pub fn round_trip_in_use_ms(&self) -> (f64, bool) {
+        match self.rtt.round_trip_ms() {
+            Some(ms) if self.p.contact.measure_round_trip => (ms, true),
+            _ => (self.p.contact.round_trip_ms, false),
+        }
     }
 
     /// What the receive gate accepted and rejected.
@@ -615,6 +658,11 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         self.last_out = Some(out);
         let command_seq = self.publish(link, &out, now_ns);
         self.counters.cycles += 1;
+        let (round_trip_ms, round_trip_measured) = self.round_trip_in_use_ms();
+        if !round_trip_measured && self.state == SlaveState::Active {
+            self.counters.round_trip_fallback_cycles += 1;
+        }
+        self.counters.round_trip_echoes_refused = self.rtt.refused();
         let energy = self.port.energy;
         TeleopCycle {
             out,
@@ -632,6 +680,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             energy_out_j: energy.out_j,
             dissipated_j: energy.dissipated_j,
             command_seq,
+            round_trip_ms,
+            round_trip_measured,
             reading,
         }
     }
@@ -671,6 +721,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     ) -> (bool, bool) {
         let port = &mut self.port;
         let latest = &mut self.latest;
+        let rtt = &mut self.rtt;
+        let own_seq = self.seq;
         let safe_stopped = self.state == SlaveState::SafeStop;
         let mut acked = false;
         let mut ignored = 0;
@@ -678,6 +730,8 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         let d = self
             .gate
             .drain(link, now_ns, MAX_RECEIVED_PER_CYCLE, |c: &Command| {
+                // Every accepted command's echo is a round trip, followed or not.
+                rtt.observe(c.echo_seq, c.echo_send_time_ns, own_seq, now_ns);
                 if safe_stopped && !acked {
                     if c.flags & CMD_FLAG_ACK_SAFE_STOP == 0 || spindle_stalled {
                         ignored += 1;
@@ -953,6 +1007,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         dt_s: f64,
     ) -> PortCommand {
         let c = self.p.contact;
+        let k = c.stiffness_at_n_per_mm(self.round_trip_in_use_ms().0);
         let v_d = intent.desired_velocity;
         // The port drives the virtual spring. Out of contact (the force loop approaching, a
         // bounce) the measured force is about zero: the port bounds and books the motion
@@ -970,7 +1025,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         });
         let touching = norm3(&measured) >= self.ctrl.params().contact_threshold_n;
         let spring = |depth: f64| {
-            let f = handover_setpoint_n(&c, depth);
+            let f = handover_setpoint_n(&c, k, depth);
             [f * n[0], f * n[1], f * n[2]]
         };
         let depth = depth_mm(h, &h.virtual_mm);
@@ -1003,7 +1058,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
         self.held = Some(*h);
         let f_end = spring(depth_mm(h, &h.virtual_mm));
         let limit = self.ctrl.params().force_limit_n * c.force_share;
-        let sp = handover_setpoint_n(&c, depth_mm(h, &h.virtual_mm));
+        let sp = handover_setpoint_n(&c, k, depth_mm(h, &h.virtual_mm));
         // Along the surface: the command's velocity without its normal part.
         let n = h.normal;
         let vn = v_d[0] * n[0] + v_d[1] * n[1] + v_d[2] * n[2];
@@ -1103,6 +1158,7 @@ impl<A: ArmDriver> SlaveTeleop<A> {
     ) -> u64 {
         self.seq += 1;
         let (echo_seq, echo_t) = self.latest.map_or((0, 0), |c| (c.seq, c.send_time_ns));
+        let surface = self.surface_estimate(out);
         let fb = Feedback {
             seq: self.seq,
             send_time_ns: now_ns,
@@ -1116,11 +1172,14 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             protocol_version: PROTOCOL_VERSION,
             arm_id: self.p.arm_id,
             state: self.state as u8,
-            reserved: 0,
+            contact_state: surface.state as u8,
             fault_flags: self.faults,
             session_id: self.session_id,
             rejected_reasons: self.gate.take_reasons(),
             rejected_count: u32::try_from(self.gate.counters.rejected()).unwrap_or(u32::MAX),
+            contact_point_mm: surface.point_mm,
+            contact_normal: surface.normal,
+            contact_stiffness_n_per_mm: surface.stiffness_n_per_mm,
         };
         if fb.validate().is_ok() {
             match link.publish(&fb) {
@@ -1129,6 +1188,89 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             }
         }
         echo_seq
+    }
+}
+
+/// The slave's surface estimate, as the feedback carries it (protocol 3).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceEstimate {
+    /// Free, contact or unknown.
+    pub state: ContactState,
+    /// The contact point, mm, slave frame.
+    pub point_mm: [f64; 3],
+    /// The outward unit normal (zero: none known).
+    pub normal: [f64; 3],
+    /// The environment's stiffness the force controller estimates, N/mm (0: none).
+    pub stiffness_n_per_mm: f64,
+}
+
+impl<A: ArmDriver> SlaveTeleop<A> {
+    /// The surface estimate from what the slave already estimates: in contact (a contact the
+    /// hand-over holds, or the measured force above the controller's contact threshold) the
+    /// tool's measured position, the controller's contact normal (the hand-over's when the
+    /// controller has none) and its online stiffness estimate (`env_stiffness_n_per_mm`, the
+    /// recursive least squares of `controller::estimator`); in free space the last surface
+    /// touched (all zero before the first touch) with the stiffness estimate as it was left;
+    /// unknown while not active (idle, safe stop). Any figure that would not pass the
+    /// receiver's checks (`Feedback::validate`) is sent as unknown.
+    fn surface_estimate(&self, out: &ControllerOutput) -> SurfaceEstimate {
+        let unknown = SurfaceEstimate {
+            state: ContactState::Unknown,
+            point_mm: [0.0; 3],
+            normal: [0.0; 3],
+            stiffness_n_per_mm: 0.0,
+        };
+        if self.state != SlaveState::Active {
+            return unknown;
+        }
+        let force = [
+            out.wrench_measured[0],
+            out.wrench_measured[1],
+            out.wrench_measured[2],
+        ];
+        let touching =
+            self.held.is_some() || norm3(&force) > self.ctrl.params().contact_threshold_n;
+        let unit = |n: [f64; 3]| {
+            let l = norm3(&n);
+            (l.is_finite() && l > 1e-9).then(|| [n[0] / l, n[1] / l, n[2] / l])
+        };
+        let k = out.env_stiffness_n_per_mm;
+        let k = if k.is_finite() && (0.0..=SURFACE_STIFFNESS_MAX_N_PER_MM).contains(&k) {
+            k
+        } else {
+            0.0
+        };
+        let est = if touching {
+            let normal = unit(out.contact_normal)
+                .or_else(|| self.held.and_then(|h| unit(h.normal)))
+                .or_else(|| unit(force));
+            let Some(normal) = normal else {
+                return unknown;
+            };
+            let m = out.measured_pose;
+            SurfaceEstimate {
+                state: ContactState::Contact,
+                point_mm: [m[0], m[1], m[2]],
+                normal,
+                stiffness_n_per_mm: k,
+            }
+        } else {
+            let (point_mm, normal) = self
+                .known_surface
+                .and_then(|(p, n)| unit(n).map(|n| (p, n)))
+                .unwrap_or(([0.0; 3], [0.0; 3]));
+            SurfaceEstimate {
+                state: ContactState::Free,
+                point_mm,
+                normal,
+                stiffness_n_per_mm: if normal == [0.0; 3] { 0.0 } else { k },
+            }
+        };
+        let in_range = est
+            .point_mm
+            .iter()
+            .all(|x| x.is_finite() && x.abs() <= SURFACE_POINT_LIMIT_MM);
+        if in_range { est } else { unknown }
     }
 }
 
@@ -1170,9 +1312,9 @@ const SURFACE_MARGIN_MM: f64 = 1.0;
 
 /// The hand-over's virtual spring: the force set-point at `depth_mm` of the virtual
 /// position beyond the contact's start point (released over `release_mm` outside it), N.
-fn handover_setpoint_n(c: &ContactHandover, depth_mm: f64) -> f64 {
+fn handover_setpoint_n(c: &ContactHandover, stiffness_n_per_mm: f64, depth_mm: f64) -> f64 {
     if depth_mm >= 0.0 {
-        c.hold_min_n + c.effective_stiffness_n_per_mm() * depth_mm
+        c.hold_min_n + stiffness_n_per_mm * depth_mm
     } else {
         c.hold_min_n * (1.0 + depth_mm / c.release_mm.max(1e-6)).max(0.0)
     }
@@ -1269,7 +1411,8 @@ mod tests {
                 "{rtt_ms} ms"
             );
         }
-        assert!((handover_setpoint_n(&c, 4.0) - (c.hold_min_n + 1.0)).abs() < 1e-12);
+        let k = c.effective_stiffness_n_per_mm();
+        assert!((handover_setpoint_n(&c, k, 4.0) - (c.hold_min_n + 1.0)).abs() < 1e-12);
         assert!(c.validate_at("").is_ok());
         c.round_trip_ms = -1.0;
         assert!(c.validate_at("contact.").is_err());

@@ -29,12 +29,15 @@ pub struct Cmd {
     pub mode: u8,
     pub reserved: u8,
     pub flags: u16,
+    /// Protocol 3: the newest feedback's `seq` and `send_time_ns` (0 before the first).
+    pub echo_seq: u64,
+    pub echo_send_time_ns: u64,
 }
 
-/// docs/wire.md: protocol version 2, command 128 bytes, body 112.
-pub const VERSION: u16 = 2;
-pub const COMMAND_LEN: usize = 128;
-pub const FEEDBACK_LEN: usize = 176;
+/// docs/wire.md: protocol version 3, command 144 bytes (body 128), feedback 232 (body 216).
+pub const VERSION: u16 = 3;
+pub const COMMAND_LEN: usize = 144;
+pub const FEEDBACK_LEN: usize = 232;
 
 /// Reason bits of the feedback's `rejected_reasons` (docs/wire.md, "What the receiver checks").
 pub const BIT_UNDECODABLE: u32 = 1 << 0;
@@ -55,7 +58,7 @@ impl Cmd {
             header_version: VERSION,
             kind: 1,
             header_reserved: 0,
-            body_len: 112,
+            body_len: 128,
             session_id,
             seq,
             send_time_ns: seq * 1_000_000,
@@ -69,6 +72,8 @@ impl Cmd {
             mode: 1,
             reserved: 0,
             flags: 0,
+            echo_seq: 0,
+            echo_send_time_ns: 0,
         }
     }
 
@@ -94,6 +99,8 @@ impl Cmd {
         b.push(self.mode);
         b.push(self.reserved);
         b.extend_from_slice(&self.flags.to_le_bytes());
+        b.extend_from_slice(&self.echo_seq.to_le_bytes());
+        b.extend_from_slice(&self.echo_send_time_ns.to_le_bytes());
         assert_eq!(b.len(), COMMAND_LEN);
         b
     }
@@ -104,6 +111,7 @@ impl Cmd {
 pub struct Fb {
     pub session_id: u64,
     pub seq: u64,
+    pub send_time_ns: u64,
     pub echo_seq: u64,
     pub pose: [f64; 4],
     pub wrench_measured: [f64; 4],
@@ -111,6 +119,11 @@ pub struct Fb {
     pub fault_flags: u16,
     pub rejected_reasons: u32,
     pub rejected_count: u32,
+    /// Protocol 3's surface estimate: 0 unknown, 1 free, 2 contact.
+    pub contact_state: u8,
+    pub contact_point_mm: [f64; 3],
+    pub contact_normal: [f64; 3],
+    pub contact_stiffness_n_per_mm: f64,
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
@@ -121,6 +134,9 @@ fn u32_at(b: &[u8], at: usize) -> u32 {
 }
 fn u64_at(b: &[u8], at: usize) -> u64 {
     u64::from_le_bytes(b[at..at + 8].try_into().unwrap())
+}
+fn f64_at(b: &[u8], at: usize) -> f64 {
+    f64::from_le_bytes(b[at..at + 8].try_into().unwrap())
 }
 fn f64s_at(b: &[u8], at: usize) -> [f64; 4] {
     [0, 1, 2, 3].map(|i| f64::from_le_bytes(b[at + 8 * i..at + 8 * i + 8].try_into().unwrap()))
@@ -133,13 +149,14 @@ impl Fb {
             || &b[0..2] != b"H4"
             || u16_at(b, 2) != VERSION
             || b[4] != 2
-            || u16_at(b, 6) != 160
+            || u16_at(b, 6) != 216
         {
             return None;
         }
         Some(Fb {
             session_id: u64_at(b, 8),
             seq: u64_at(b, 16),
+            send_time_ns: u64_at(b, 24),
             echo_seq: u64_at(b, 32),
             pose: f64s_at(b, 48),
             wrench_measured: f64s_at(b, 80),
@@ -147,6 +164,10 @@ impl Fb {
             fault_flags: u16_at(b, 166),
             rejected_reasons: u32_at(b, 168),
             rejected_count: u32_at(b, 172),
+            contact_state: b[165],
+            contact_point_mm: [0, 1, 2].map(|i| f64_at(b, 176 + 8 * i)),
+            contact_normal: [0, 1, 2].map(|i| f64_at(b, 200 + 8 * i)),
+            contact_stiffness_n_per_mm: f64_at(b, 224),
         })
     }
 
@@ -214,7 +235,7 @@ pub fn bad_messages(ok: &Cmd, rng: &mut u64) -> Vec<Bad> {
         BIT_UNDECODABLE,
     );
     push(
-        "truncated (60 of 128 bytes)",
+        "truncated (60 of 144 bytes)",
         next(ok).bytes()[..60].to_vec(),
         "undecodable",
         BIT_UNDECODABLE,
@@ -245,10 +266,25 @@ pub fn bad_messages(ok: &Cmd, rng: &mut u64) -> Vec<Bad> {
         "wrong_version",
         BIT_WRONG_VERSION,
     );
+    // Protocol 2's layout: 128 bytes (body 112), without the echo; refused as another version.
+    let mut v2 = Cmd {
+        header_version: 2,
+        protocol_version: 2,
+        body_len: 112,
+        ..next(ok)
+    }
+    .bytes();
+    v2.truncate(128);
     push(
-        "version 3 in the body only",
+        "a protocol-2 command (128 bytes)",
+        v2,
+        "wrong_version",
+        BIT_WRONG_VERSION,
+    );
+    push(
+        "version 4 in the body only",
         Cmd {
-            protocol_version: 3,
+            protocol_version: 4,
             ..next(ok)
         }
         .bytes(),
@@ -286,9 +322,9 @@ pub fn bad_messages(ok: &Cmd, rng: &mut u64) -> Vec<Bad> {
         BIT_RESERVED_BITS,
     );
     push(
-        "header body length 111",
+        "header body length 127",
         Cmd {
-            body_len: 111,
+            body_len: 127,
             ..next(ok)
         }
         .bytes(),

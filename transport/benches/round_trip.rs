@@ -108,6 +108,8 @@ fn command(seq: u64) -> Command {
         mode: 1,
         reserved: 0,
         flags: 0,
+        echo_seq: 0,
+        echo_send_time_ns: 0,
     }
 }
 
@@ -126,10 +128,13 @@ fn feedback(echo_seq: u64) -> Feedback {
         protocol_version: PROTOCOL_VERSION,
         arm_id: 1,
         state: 1,
-        reserved: 0,
+        contact_state: 0,
         fault_flags: 0,
         rejected_reasons: 0,
         rejected_count: 0,
+        contact_point_mm: [0.0; 3],
+        contact_normal: [0.0; 3],
+        contact_stiffness_n_per_mm: 0.0,
     }
 }
 

@@ -153,9 +153,13 @@ pub struct Case {
     pub handover: bool,
     /// The session's seed.
     pub seed: u64,
-    /// The round trip the slave is told (`slave.contact.round_trip_ms`), as a share of the
-    /// cell's: 1 the nominal one (shipped), 0 not told.
+    /// The round trip the slave is told (`slave.contact.round_trip_ms`, its fallback before
+    /// it has measured one), as a share of the cell's: 1 the nominal one, 0 not told
+    /// (shipped since protocol 3: the slave measures its round trip).
     pub round_trip_told: f64,
+    /// The slave measures its round trip from the commands' echo
+    /// (`slave.contact.measure_round_trip`, shipped on); off: only the told figure.
+    pub measure_round_trip: bool,
 }
 
 impl Case {
@@ -171,7 +175,8 @@ impl Case {
             model: false,
             handover: true,
             seed: 4,
-            round_trip_told: 1.0,
+            round_trip_told: 0.0,
+            measure_round_trip: true,
         }
     }
 
@@ -184,11 +189,15 @@ impl Case {
             format!("passivity.enabled={}", self.passivity),
             format!("coupling.model={}", self.model),
             format!("slave.contact.enabled={}", self.handover),
-            // The deployment tells the slave its link's round trip (the hand-over spring
-            // softens over it); a cell's is its nominal one.
+            // The slave measures its link's round trip (the hand-over spring softens over
+            // it); a told one is its fallback before the first echo.
             format!(
                 "slave.contact.round_trip_ms={}",
                 self.rtt_ms * self.round_trip_told
+            ),
+            format!(
+                "slave.contact.measure_round_trip={}",
+                self.measure_round_trip
             ),
             format!("scale.force={}", self.force_scale),
             format!(
@@ -222,10 +231,14 @@ impl Case {
             on(self.passivity),
             on(self.model),
             on(self.handover),
-        ) + &if self.round_trip_told == 1.0 {
+        ) + &if self.round_trip_told == 0.0 {
             String::new()
         } else {
             format!(", round trip told ×{}", self.round_trip_told)
+        } + if self.measure_round_trip {
+            ""
+        } else {
+            ", round trip not measured"
         }
     }
 }

@@ -45,6 +45,8 @@ pub fn command(arm_id: u16, seq: u64) -> Command {
         mode: 0,
         reserved: 0,
         flags: 0,
+        echo_seq: 0,
+        echo_send_time_ns: 0,
     }
 }
 
@@ -64,10 +66,13 @@ pub fn feedback(arm_id: u16, seq: u64) -> Feedback {
         protocol_version: PROTOCOL_VERSION,
         arm_id,
         state: SlaveState::Idle as u8,
-        reserved: 0,
+        contact_state: 0,
         fault_flags: 0,
         rejected_reasons: 0,
         rejected_count: 0,
+        contact_point_mm: [0.0; 3],
+        contact_normal: [0.0; 3],
+        contact_stiffness_n_per_mm: 0.0,
     }
 }
 

@@ -194,6 +194,8 @@ fn command(seq: u64) -> Command {
         mode: 0,
         reserved: 0,
         flags: 0,
+        echo_seq: 0,
+        echo_send_time_ns: 0,
     }
 }
 
@@ -212,10 +214,13 @@ fn answer(c: &Command) -> Feedback {
         protocol_version: PROTOCOL_VERSION,
         arm_id: c.arm_id,
         state: SlaveState::Idle as u8,
-        reserved: 0,
+        contact_state: 0,
         fault_flags: 0,
         rejected_reasons: 0,
         rejected_count: 0,
+        contact_point_mm: [0.0; 3],
+        contact_normal: [0.0; 3],
+        contact_stiffness_n_per_mm: 0.0,
     }
 }
 

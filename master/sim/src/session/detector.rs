@@ -202,6 +202,17 @@ pub struct Summary {
     pub master_gate: h4_transport::gate::GateCounters,
     /// Mean round-trip time measured by the master from the echoed send times, ms.
     pub rtt_mean_ms: f64,
+    /// The slave's own round trip (protocol 3: now − the echoed send time of its feedback),
+    /// median over the session, ms; NaN (null) when no command echoed a feedback.
+    pub rtt_measured_p50_ms: f64,
+    /// Its 99th percentile, ms.
+    pub rtt_measured_p99_ms: f64,
+    /// Its jitter over the session, p95 − p50, ms (what a playout buffer must add to cover
+    /// 95 % of the commands).
+    pub rtt_jitter_ms: f64,
+    /// Active slave cycles that used the told round trip (`slave.contact.round_trip_ms`, the
+    /// fallback) because the slave had measured none yet or measuring was off.
+    pub rtt_fallback_cycles: u64,
     /// Settled contact time (contact episodes after `detector.settle_s`), s.
     pub contact_time_s: f64,
     /// Times the tool lost and regained contact within `detector.contact_gap_s` (bounces).
@@ -996,6 +1007,10 @@ impl Evaluator {
             slave_rejected_cycles: self.rejected,
             slave_gate: Default::default(),
             master_gate: Default::default(),
+            rtt_measured_p50_ms: f64::NAN,
+            rtt_measured_p99_ms: f64::NAN,
+            rtt_jitter_ms: f64::NAN,
+            rtt_fallback_cycles: 0,
             cycles,
             sim_time_s,
             wall_time_s,

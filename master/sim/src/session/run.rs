@@ -409,6 +409,12 @@ impl Session {
         );
         summary.slave_gate = *self.slave.gate_counters();
         summary.master_gate = *self.master.gate_counters();
+        (
+            summary.rtt_measured_p50_ms,
+            summary.rtt_measured_p99_ms,
+            summary.rtt_jitter_ms,
+        ) = self.slave.round_trip().summary_ms();
+        summary.rtt_fallback_cycles = self.slave.counters().round_trip_fallback_cycles;
         if let Some(ce) = cut_ev {
             summary.cutting = self.finish_cut(ce, out_dir)?;
         }
