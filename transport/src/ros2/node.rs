@@ -84,6 +84,10 @@ pub struct Ros2Args {
     pub record_ros2: bool,
 }
 
+/// The cell a run's loop writes and what `--record-ros2` records
+/// ([`Ros2Args::cell_and_recording`]).
+pub type CellAndRecording<T> = (Option<Arc<LatestCell<T>>>, Option<Ros2Recording>);
+
 impl Ros2Args {
     /// The node these flags describe, for a side whose default namespace is `default_ns`
     /// and whose node is called `node_name`; None without `--ros2`.
@@ -101,15 +105,7 @@ impl Ros2Args {
                 self.ros2_domain
             )));
         }
-        if !(self.ros2_rate_hz.is_finite() && (1.0..=1000.0).contains(&self.ros2_rate_hz)) {
-            return Err(Ros2Error::Flag(format!(
-                "--ros2-rate-hz {} is out of range: allowed 1 to 1000",
-                self.ros2_rate_hz
-            )));
-        }
-        let ns = self.ros2_ns.as_deref().unwrap_or(default_ns);
-        let names =
-            Ros2Names::new(ns).map_err(|e| Ros2Error::Flag(format!("--ros2-ns {ns}: {e}")))?;
+        let names = self.checked_names(default_ns)?;
         Ok(Some(NodeConfig {
             domain_id: self.ros2_domain,
             connect: self.ros2_connect.clone(),
@@ -121,12 +117,9 @@ impl Ros2Args {
         }))
     }
 
-    /// What `--record-ros2` records for a side whose default namespace is `default_ns`;
-    /// None without it. The namespace and rate are checked as for `--ros2`.
-    pub fn recording(&self, default_ns: &str) -> Result<Option<Ros2Recording>, Ros2Error> {
-        if !self.record_ros2 {
-            return Ok(None);
-        }
+    /// The namespace's names after checking `--ros2-rate-hz` and `--ros2-ns` (shared by
+    /// `--ros2` and `--record-ros2`).
+    fn checked_names(&self, default_ns: &str) -> Result<Ros2Names, Ros2Error> {
         if !(self.ros2_rate_hz.is_finite() && (1.0..=1000.0).contains(&self.ros2_rate_hz)) {
             return Err(Ros2Error::Flag(format!(
                 "--ros2-rate-hz {} is out of range: allowed 1 to 1000",
@@ -134,8 +127,16 @@ impl Ros2Args {
             )));
         }
         let ns = self.ros2_ns.as_deref().unwrap_or(default_ns);
-        let names =
-            Ros2Names::new(ns).map_err(|e| Ros2Error::Flag(format!("--ros2-ns {ns}: {e}")))?;
+        Ros2Names::new(ns).map_err(|e| Ros2Error::Flag(format!("--ros2-ns {ns}: {e}")))
+    }
+
+    /// What `--record-ros2` records for a side whose default namespace is `default_ns`;
+    /// None without it. The namespace and rate are checked as for `--ros2`.
+    pub fn recording(&self, default_ns: &str) -> Result<Option<Ros2Recording>, Ros2Error> {
+        if !self.record_ros2 {
+            return Ok(None);
+        }
+        let names = self.checked_names(default_ns)?;
         Ok(Some(Ros2Recording {
             names,
             rate_hz: self.ros2_rate_hz,
@@ -151,7 +152,7 @@ impl Ros2Args {
         publishing: Option<&Ros2Publishing<T>>,
         default_ns: &str,
         recording: bool,
-    ) -> Result<(Option<Arc<LatestCell<T>>>, Option<Ros2Recording>), String> {
+    ) -> Result<CellAndRecording<T>, String> {
         let rec = self.recording(default_ns).map_err(|e| e.to_string())?;
         if rec.is_some() && !recording {
             return Err("--record-ros2 needs --record FILE".to_string());
