@@ -880,6 +880,24 @@ impl Evaluator {
     }
 
     #[allow(clippy::too_many_arguments)]
+    /// The force transparency error, % of the reference (NaN without one).
+    fn transparency_err_pct(&self) -> f64 {
+        if self.trans_ref > 0.0 {
+            100.0 * self.trans_abs / self.trans_ref
+        } else {
+            f64::NAN
+        }
+    }
+
+    /// The position tracking error's RMS, mm (NaN without a sample).
+    fn tracking_err_mm(&self) -> f64 {
+        if self.track_n > 0 {
+            (self.track_sq / self.track_n as f64).sqrt()
+        } else {
+            f64::NAN
+        }
+    }
+
     pub(super) fn finish(
         self,
         name: String,
@@ -987,16 +1005,8 @@ impl Evaluator {
             oscillation_late_n: late,
             position_drift_mm: drift,
             position_drift_max_mm: self.drift_max,
-            force_transparency_err_pct: if self.trans_ref > 0.0 {
-                100.0 * self.trans_abs / self.trans_ref
-            } else {
-                f64::NAN
-            },
-            position_tracking_err_mm: if self.track_n > 0 {
-                (self.track_sq / self.track_n as f64).sqrt()
-            } else {
-                f64::NAN
-            },
+            force_transparency_err_pct: self.transparency_err_pct(),
+            position_tracking_err_mm: self.tracking_err_mm(),
             passivity_dissipated_j: dissipated_j,
             packets_lost,
             packets_rejected,
