@@ -206,7 +206,7 @@ pub struct SlaveRunSummary {
     /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
     pub realtime: h4_telemetry::rt::RealtimeStatus,
     /// The round trip the slave measured from the commands' echo of its feedback (protocol 3,
-    /// docs/wire.md "The echo"), over the run: median, ms (null: no echo taken).
+    /// docs/wire.md "The command's echo"), over the run: median, ms (null: no echo taken).
     pub rtt_measured_p50_ms: Option<f64>,
     /// Its 99th percentile, ms (null: no echo taken).
     pub rtt_measured_p99_ms: Option<f64>,
