@@ -250,7 +250,12 @@ fn the_slave_process_measures_the_round_trip_an_outside_client_echoes() {
     (c.echo_seq, c.echo_send_time_ns) = (1 << 62, newest.send_time_ns);
     client.send(&c.bytes());
     let fb = until(&client, |_| {}, |fb| fb.echo_seq > COMMANDS);
-    assert_eq!(fb.echo_seq, COMMANDS + 1, "taken and followed: {}", sl.log());
+    assert_eq!(
+        fb.echo_seq,
+        COMMANDS + 1,
+        "taken and followed: {}",
+        sl.log()
+    );
     assert_eq!(fb.state, 1);
     sl.stop();
     let v = read_json(&scratch.path("slave.json"));
@@ -258,7 +263,9 @@ fn the_slave_process_measures_the_round_trip_an_outside_client_echoes() {
     assert_eq!(v["round_trip_echoes_refused"].as_u64(), Some(1), "{v:#}");
     let samples = v["round_trip_samples"].as_u64().unwrap();
     assert!(samples >= COMMANDS / 2, "{samples} of {COMMANDS}: {v:#}");
-    let p50 = v["rtt_measured_p50_ms"].as_f64().expect("a measured round trip");
+    let p50 = v["rtt_measured_p50_ms"]
+        .as_f64()
+        .expect("a measured round trip");
     let p99 = v["rtt_measured_p99_ms"].as_f64().unwrap();
     assert!(p50 > 0.0 && p99 >= p50, "{v:#}");
     assert!(v["rtt_jitter_ms"].as_f64().unwrap() >= 0.0, "{v:#}");

@@ -133,8 +133,8 @@ fn every_invalid_feedback_vector_is_counted_by_its_name_at_the_master_over_zenoh
         .local_addr()
         .unwrap()
         .port();
-    let link = MasterZenohLink::open(ARM, &ZenohConfig::listen_on_loopback(port))
-        .expect("master end");
+    let link =
+        MasterZenohLink::open(ARM, &ZenohConfig::listen_on_loopback(port)).expect("master end");
     let mut config = zenoh::Config::default();
     config.insert_json5("mode", "\"client\"").unwrap();
     config
@@ -196,7 +196,11 @@ fn every_invalid_feedback_vector_is_counted_by_its_name_at_the_master_over_zenoh
         send(&mark(seq));
         rig.poll_until_taken(seq, name);
         let after = *rig.ep.gate_counters();
-        assert_eq!(after.accepted, before.accepted + 1, "{name}: the marker only");
+        assert_eq!(
+            after.accepted,
+            before.accepted + 1,
+            "{name}: the marker only"
+        );
         assert_eq!(
             counter(&after, reason) - counter(&before, reason),
             1,

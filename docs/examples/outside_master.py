@@ -104,8 +104,13 @@ def main():
             seq += 1
             pub.put(command(session, seq, pose_at(k / n), echo()))
             t += 0.001
-            while time.perf_counter() < t:  # 1 kHz: the slave's watchdog wants ≤ 20 ms gaps
-                pass
+            # 1 kHz (the slave's watchdog wants ≤ 20 ms gaps), sleeping, not spinning: a
+            # spinning loop holds Python's GIL and starves the feedback callback, so the echo
+            # would name feedback far older than the link's round trip (docs/wire.md, "The
+            # command's echo").
+            dt = t - time.perf_counter()
+            if dt > 0:
+                time.sleep(dt)
 
     stream(1.0, lambda a: home)
     goal = (home[0] + 10.0, home[1], home[2], home[3])
