@@ -1,3 +1,8 @@
+//! Pins a bug this test found: a feedback whose surface estimate is out of range
+//! (`SurfaceOutOfRange`, protocol 3), refused by the Zenoh link's decoder, was counted as
+//! `undecodable` (the link's `DecodeRejects` had no `out_of_range`), where docs/wire.md and
+//! the vectors say `out_of_range`.
+//!
 //! The master's side of `tests/wire_vectors_at_the_slave.rs`: every invalid *feedback* vector
 //! of `tests/data/wire_vectors.json` (a protocol-2 slave's 176-byte feedback, an unknown
 //! contact state, the surface estimate's ranges, a NaN in it) goes, as raw bytes from an
