@@ -104,12 +104,12 @@ impl RoundTripEstimator {
 
     /// The round trip (the window's median), ms; None before the first echo.
     pub fn round_trip_ms(&self) -> Option<f64> {
-        self.measured().then(|| self.median_ns as f64 * 1e-6)
+        self.measured().then_some(self.median_ns as f64 * 1e-6)
     }
 
     /// The jitter (the window's p95 − p50), ms; None before the first echo.
     pub fn jitter_ms(&self) -> Option<f64> {
-        self.measured().then(|| self.jitter_ns as f64 * 1e-6)
+        self.measured().then_some(self.jitter_ns as f64 * 1e-6)
     }
 
     /// Samples taken over the session.
