@@ -4,7 +4,9 @@
 //! and parsed by hand). A correct command is accepted (echoed); each bad message of issue
 //! 14's list is rejected, counted under its reason in the process's summary (`gate.<reason>`),
 //! flagged in the feedback's `rejected_reasons`, and never acted on (the arm, 5 mm above a
-//! resin plane, neither moves nor presses: from the feedback's measured pose and force).
+//! resin plane, neither moves nor presses: from the feedback's measured pose and force). And
+//! protocol 3's echo: a client that echoes the newest feedback gives the process a measured
+//! round trip, an impossible echo is refused and counted.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -188,4 +190,83 @@ fn the_slave_process_rejects_counts_and_flags_every_bad_message_from_an_outside_
     assert!(max_dev_mm < 0.5, "the arm moved {max_dev_mm} mm");
     assert!(max_force_n < 1.0, "the arm pressed {max_force_n} N");
     assert!(reasons != 0);
+    // The control of the round-trip test below: this client echoes nothing (0 and 0), so the
+    // slave has no sample and no refusal.
+    assert_eq!(v["round_trip_samples"].as_u64(), Some(0), "{v:#}");
+    assert!(v["rtt_measured_p50_ms"].is_null(), "{v:#}");
+    assert_eq!(v["round_trip_echoes_refused"].as_u64(), Some(0), "{v:#}");
+}
+
+/// Protocol 3 against the process (docs/wire.md, "The command's echo"): an outside client
+/// that echoes the newest feedback it has in every command gives `h4-slave run` a measured
+/// round trip (`rtt_measured_p50_ms`, `round_trip_samples` in its summary); one command echoing
+/// a feedback the slave has not sent is accepted and followed like any other, its echo refused
+/// and counted (`round_trip_echoes_refused`). Control: the test above, whose client echoes
+/// nothing.
+#[test]
+fn the_slave_process_measures_the_round_trip_an_outside_client_echoes() {
+    let (_, slave) = binaries();
+    let scratch = Scratch::new("outside-zenoh-rtt");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let summary = scratch.path("slave.json").display().to_string();
+    let args: Vec<String> = [
+        "run",
+        "--transport",
+        "zenoh",
+        "--zenoh-listen",
+        &endpoint,
+        "--watchdog-ms",
+        "10000",
+        "--summary",
+        &summary,
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let mut sl = Running::spawn("slave", slave, &args, &scratch);
+    let client = Client::connect(&endpoint);
+    let mut newest = until(&client, |_| {}, |_| true);
+    let home = newest.pose;
+    let session = 0xC0FF_EE00_0000_0043u64;
+    const COMMANDS: u64 = 300;
+    for seq in 1..=COMMANDS {
+        for fb in client.feedback() {
+            if fb.seq > newest.seq {
+                newest = fb;
+            }
+        }
+        let mut c = Cmd::position(session, seq, home);
+        (c.echo_seq, c.echo_send_time_ns) = (newest.seq, newest.send_time_ns);
+        client.send(&c.bytes());
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // An echo of a feedback the slave has not sent (its sequence number far ahead).
+    let mut c = Cmd::position(session, COMMANDS + 1, home);
+    (c.echo_seq, c.echo_send_time_ns) = (1 << 62, newest.send_time_ns);
+    client.send(&c.bytes());
+    let fb = until(&client, |_| {}, |fb| fb.echo_seq > COMMANDS);
+    assert_eq!(
+        fb.echo_seq,
+        COMMANDS + 1,
+        "taken and followed: {}",
+        sl.log()
+    );
+    assert_eq!(fb.state, 1);
+    sl.stop();
+    let v = read_json(&scratch.path("slave.json"));
+    assert_eq!(v["gate"]["accepted"].as_u64(), Some(COMMANDS + 1), "{v:#}");
+    assert_eq!(v["round_trip_echoes_refused"].as_u64(), Some(1), "{v:#}");
+    let samples = v["round_trip_samples"].as_u64().unwrap();
+    assert!(samples >= COMMANDS / 2, "{samples} of {COMMANDS}: {v:#}");
+    let p50 = v["rtt_measured_p50_ms"]
+        .as_f64()
+        .expect("a measured round trip");
+    let p99 = v["rtt_measured_p99_ms"].as_f64().unwrap();
+    assert!(p50 > 0.0 && p99 >= p50, "{v:#}");
+    assert!(v["rtt_jitter_ms"].as_f64().unwrap() >= 0.0, "{v:#}");
 }

@@ -460,10 +460,12 @@ fn invalid_feedback_vectors(good: &[u8]) -> Vec<Value> {
         }));
     };
     // A protocol-2 slave's feedback (176 bytes, body 160, version 2 in header and body).
+    // Byte 165 was protocol 2's reserved byte (0), now the contact state.
     let mut b = good[..176].to_vec();
     b[2] = 2;
     b[6..8].copy_from_slice(&160u16.to_le_bytes());
     b[160] = 2;
+    b[165] = 0;
     bad(
         "a protocol version 2 feedback",
         b,
@@ -627,4 +629,53 @@ fn documented_offsets_match_the_encoding() {
         0x0A0B_0C0D
     );
     assert_eq!(b.len(), 232);
+}
+
+/// Protocol 3's new fields in the file's valid vectors, against bytes computed by hand (not by
+/// the encoder): little-endian u64 and IEEE 754 binary64 at docs/wire.md's offsets.
+#[test]
+fn the_new_fields_of_protocol_3_have_their_hand_computed_bytes_in_the_vectors() {
+    let text = std::fs::read_to_string(path()).unwrap();
+    let file: Value = serde_json::from_str(&text).unwrap();
+    let valid = |name: &str| {
+        let v = file["valid"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|v| v["name"] == name)
+            .unwrap_or_else(|| panic!("no vector {name}"));
+        v["bytes"].as_str().unwrap().to_string()
+    };
+    let cmd = valid("force-guided command with clutch");
+    assert_eq!(cmd.len(), 2 * 144);
+    // Header: version 3, kind 1, body length 128 = 0x0080.
+    assert_eq!(&cmd[4..16], "030001008000");
+    // echo_seq = 6 @128, echo_send_time_ns = 1 764 620 000 119 000 000 = 0x187D308A6EA48BC0
+    // @136.
+    assert_eq!(&cmd[2 * 128..], "0600000000000000c08ba46e8a307d18");
+    let hold = valid("hold command");
+    assert_eq!(&hold[2 * 128..], "00000000000000000000000000000000");
+    let fb = valid("active feedback with faults, in contact");
+    assert_eq!(fb.len(), 2 * 232);
+    // Header: version 3, kind 2, body length 216 = 0x00D8; contact_state 2 @165.
+    assert_eq!(&fb[4..16], "03000200d800");
+    assert_eq!(&fb[2 * 165..2 * 166], "02");
+    // contact_point_mm [10.01, -5.49, -253.0] @176 (-253 = -1.9765625 x 2^7: 0xC06FA000...),
+    // contact_normal [0, 0.6, 0.8] @200 (0.6 = 0x3FE3333333333333, 0.8 = 0x3FE999999999999A),
+    // contact_stiffness_n_per_mm 1000 = 1.953125 x 2^9 = 0x408F400000000000 @224.
+    assert_eq!(
+        &fb[2 * 176..],
+        concat!(
+            "85eb51b81e052440",
+            "f6285c8fc2f515c0",
+            "0000000000a06fc0",
+            "0000000000000000",
+            "333333333333e33f",
+            "9a9999999999e93f",
+            "0000000000408f40"
+        )
+    );
+    let free = valid("idle feedback in free space, no surface known");
+    assert_eq!(&free[2 * 165..2 * 166], "01");
+    assert_eq!(&free[2 * 176..], "0".repeat(2 * 56));
 }

@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::arm::ArmDriver;
 use crate::controller::Status;
+use crate::round_trip::RoundTripEstimator;
 use crate::teleop::{SlaveTeleop, TeleopCounters, TeleopCycle, TeleopError};
 
 /// What a driver can tell beyond its sensors, for the recording and the summary only:
@@ -204,6 +205,21 @@ pub struct SlaveRunSummary {
     pub shutdown: ShutdownReport,
     /// What the loop got of `--realtime`: SCHED_FIFO priority, locked memory, refusals.
     pub realtime: h4_telemetry::rt::RealtimeStatus,
+    /// The round trip the slave measured from the commands' echo of its feedback (protocol 3,
+    /// docs/wire.md "The command's echo"), over the run: median, ms (null: no echo taken).
+    pub rtt_measured_p50_ms: Option<f64>,
+    /// Its 99th percentile, ms (null: no echo taken).
+    pub rtt_measured_p99_ms: Option<f64>,
+    /// Its p95 − p50, ms (null: no echo taken).
+    pub rtt_jitter_ms: Option<f64>,
+    /// Echoes taken as round-trip samples (one per command that brought a new echo).
+    pub round_trip_samples: u64,
+    /// Active cycles that used the told round trip (`contact.round_trip_ms`) because none was
+    /// measured yet or measuring is off.
+    pub round_trip_fallback_cycles: u64,
+    /// Echoes refused: of a feedback this slave cannot have sent (an `echo_seq` above its
+    /// own, a send time after its clock's now). The command itself is judged as usual.
+    pub round_trip_echoes_refused: u64,
 }
 
 impl SlaveRunSummary {
@@ -217,6 +233,18 @@ impl SlaveRunSummary {
         self.repairs = k.repairs;
         self.safety_trips = k.safety_trips;
         self.gate = *gate;
+    }
+
+    /// Books the round trip the slave measured (protocol 3's echo) and its counters.
+    fn book_round_trip(&mut self, rtt: &RoundTripEstimator, k: &TeleopCounters) {
+        let (p50, p99, jitter) = rtt.summary_ms();
+        let some = |v: f64| v.is_finite().then_some(v);
+        self.rtt_measured_p50_ms = some(p50);
+        self.rtt_measured_p99_ms = some(p99);
+        self.rtt_jitter_ms = some(jitter);
+        self.round_trip_samples = rtt.samples();
+        self.round_trip_fallback_cycles = k.round_trip_fallback_cycles;
+        self.round_trip_echoes_refused = k.round_trip_echoes_refused;
     }
 }
 
@@ -422,6 +450,7 @@ where
         rt.run(|cx| body(cx, link))
     };
     let k = *teleop.counters();
+    s.book_round_trip(teleop.round_trip(), &k);
     s.shutdown = shut_down(teleop, diag, link, &mut rt, &mut sink, opts);
     progress.finish();
     s.book_endpoint(&k, teleop.gate_counters());

@@ -469,6 +469,11 @@ impl<M: WireMessage> Gate<M> {
                 total.length_mismatch,
                 seen.length_mismatch,
             ),
+            (
+                RejectReason::OutOfRange,
+                total.out_of_range,
+                seen.out_of_range,
+            ),
         ] {
             let n = now.saturating_sub(before);
             if n > 0 {

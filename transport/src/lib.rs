@@ -60,6 +60,8 @@ pub struct DecodeRejects {
     pub reserved_bits: u64,
     /// A header body length other than the kind's.
     pub length_mismatch: u64,
+    /// Finite but out of range: a feedback's surface estimate (protocol 3).
+    pub out_of_range: u64,
 }
 
 impl DecodeRejects {
@@ -69,13 +71,18 @@ impl DecodeRejects {
             RejectReason::WrongVersion => self.wrong_version += 1,
             RejectReason::ReservedBits => self.reserved_bits += 1,
             RejectReason::LengthMismatch => self.length_mismatch += 1,
+            RejectReason::OutOfRange => self.out_of_range += 1,
             _ => self.undecodable += 1,
         }
     }
 
     /// All of them.
     pub fn total(&self) -> u64 {
-        self.undecodable + self.wrong_version + self.reserved_bits + self.length_mismatch
+        self.undecodable
+            + self.wrong_version
+            + self.reserved_bits
+            + self.length_mismatch
+            + self.out_of_range
     }
 }
 
