@@ -198,23 +198,23 @@ mod tests {
         assert_eq!(decode_payload::<Command>(&v1, v1.len()), wrong_version);
         assert_eq!(decode_payload::<Command>(&v1, 4000), wrong_version);
         // Control: the same payload with our version is judged by its size.
-        let v2 = &command_bytes()[..120];
+        let ours = &command_bytes()[..120];
         assert_eq!(
-            decode_payload::<Command>(v2, 120),
+            decode_payload::<Command>(ours, 120),
             Err(WireError::WrongSize {
-                expected: 128,
+                expected: Command::WIRE_SIZE,
                 got: 120
             })
         );
         assert_eq!(
             decode_payload::<Command>(&command_bytes(), 4000),
             Err(WireError::WrongSize {
-                expected: 128,
+                expected: Command::WIRE_SIZE,
                 got: 4000
             })
         );
         assert_eq!(
-            decode_payload::<Command>(&command_bytes(), 128),
+            decode_payload::<Command>(&command_bytes(), Command::WIRE_SIZE),
             Ok(Command::default())
         );
     }
