@@ -879,7 +879,6 @@ impl Evaluator {
         (rendered_hf_rms_n, true_hf_rms_n, free_space_rendered_max_n)
     }
 
-    #[allow(clippy::too_many_arguments)]
     /// The force transparency error, % of the reference (NaN without one).
     fn transparency_err_pct(&self) -> f64 {
         if self.trans_ref > 0.0 {
@@ -898,6 +897,7 @@ impl Evaluator {
         }
     }
 
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn finish(
         self,
         name: String,
