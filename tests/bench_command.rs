@@ -158,6 +158,36 @@ fn the_ros2_part_measures_every_path() {
     );
 }
 
+/// `--only mesh` (issue 34): the mesh fixture's query is timed on each shipped mesh session
+/// (not judged: the figures depend on the host), and the sweep reached into the part (the
+/// fixture moved a share of the poses, not all of them).
+#[test]
+fn the_mesh_part_times_the_fixture_on_each_mesh_session() {
+    let _g = serial();
+    let scratch = Scratch::new("bench-mesh");
+    let json = scratch.path("bench.json");
+    let (code, stdout, stderr) = bench(&["--only", "mesh", "--json", &json.display().to_string()]);
+    assert_eq!(code, 0, "stdout:\n{stdout}\nstderr:\n{stderr}");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("JSON");
+    assert_eq!(report["skipped"], Value::Array(vec![]), "{report:#}");
+    for name in [
+        "mesh: fixture query per cycle, cut-mesh-dome",
+        "mesh: fixture query per cycle, cut-mesh-pawn",
+    ] {
+        let r = row(&report, name);
+        latency_row_is_measured(r);
+        let mean = fig(r, "mean");
+        assert!(mean > 0.0 && mean <= fig(r, "max"), "{r:#}");
+        let moved = fig(r, "moved_share");
+        assert!(moved > 0.05 && moved < 0.95, "{r:#}");
+    }
+    assert!(
+        stdout.contains("| mesh: fixture query per cycle, cut-mesh-pawn (us) |"),
+        "{stdout}"
+    );
+}
+
 #[test]
 fn bad_arguments_are_refused_before_anything_runs() {
     let (code, _, stderr) = bench(&["--only", "everything"]);

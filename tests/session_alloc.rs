@@ -133,3 +133,44 @@ fn mesh_fixture_cycles_allocate_nothing() {
     );
     assert_eq!(n, 0, "{n} allocations in 4000 mesh-fixture cycles");
 }
+
+/// The mesh fixture on the turntable (the pawn session: the part turned by the table's
+/// measured angle every cycle) allocates nothing: cycles while the table turns, the fixture
+/// holds the ball off the part and the tool cuts.
+#[test]
+fn mesh_fixture_on_the_turntable_allocates_nothing() {
+    let mut s = impaired_session("cut-mesh-pawn.toml", 20_000);
+    let angle = |s: &Session| {
+        s.slave
+            .arm()
+            .cut()
+            .unwrap()
+            .turntable()
+            .unwrap()
+            .angle_rad()
+    };
+    let removed_before = s.slave.arm().cut().unwrap().report().removed_mm3;
+    let angle_before = angle(&s);
+    let (n, held) = count_allocations(|| {
+        let mut held = 0u32;
+        for _ in 0..4000 {
+            s.cycle().unwrap();
+            held += u32::from(s.slave.controller().mesh_fixture_active());
+        }
+        held
+    });
+    let removed = s.slave.arm().cut().unwrap().report().removed_mm3 - removed_before;
+    assert!(
+        removed > 1.0,
+        "nothing cut in the counted cycles: {removed} mm³"
+    );
+    assert!(angle(&s) - angle_before > 3.0, "the table did not turn");
+    assert!(
+        held > 100,
+        "the mesh fixture held the tool in {held} cycles"
+    );
+    assert_eq!(
+        n, 0,
+        "{n} allocations in 4000 turntable mesh-fixture cycles"
+    );
+}

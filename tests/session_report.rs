@@ -63,6 +63,7 @@ fn report_of(rec: &Path, dir: &Path) -> (Vec<String>, serde_json::Value) {
         &ReportOptions {
             out_dir: out_dir.clone(),
             tolerance_n: 1.0,
+            part_dir: None,
         },
     )
     .unwrap();

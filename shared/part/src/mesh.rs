@@ -285,6 +285,27 @@ impl Part {
         (d, self.dir_to_workpiece(n))
     }
 
+    /// Signed distance of a workpiece-frame point from the part's surface, mm, exact at
+    /// any distance: the grid's answer within its band, else the nearest triangle's
+    /// distance over every face (the sign from the grid, which holds ± the band beyond it).
+    /// Its cost grows with the mesh: for judging after a run, not for the cycle.
+    pub fn signed_distance_exact_mm(&self, p_wp: [f64; 3]) -> f64 {
+        let d = self.signed_distance_mm(p_wp);
+        if d.abs() < self.grid.band_mm() - 1e-9 || !d.is_finite() {
+            return d;
+        }
+        let p = self.to_part(p_wp);
+        let nearest = self
+            .faces
+            .iter()
+            .map(|f| {
+                let [a, b, c] = f.map(|i| self.vertices[i]);
+                crate::geom::distance_point_triangle(p, a, b, c)
+            })
+            .fold(f64::INFINITY, f64::min);
+        nearest.copysign(d)
+    }
+
     /// Whether a workpiece-frame point is inside the part.
     pub fn contains(&self, p_wp: [f64; 3]) -> bool {
         self.signed_distance_mm(p_wp) < 0.0

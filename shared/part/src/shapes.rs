@@ -132,8 +132,15 @@ pub fn dome_block(cell_mm: f64) -> MeshBuilder {
     m
 }
 
+/// The turned part's height, mm.
+pub const PAWN_HEIGHT_MM: f64 = 22.0;
+/// The turned part's base radius (its largest), mm.
+pub const PAWN_BASE_RADIUS_MM: f64 = 6.0;
+
 /// The turned part's profile: `(radius, height)` points, mm, from the base's rim (r > 0,
-/// z = 0) up to the top's pole (r = 0); the radius never grows with the height.
+/// z = 0) up to the top's pole (r = 0); the radius never grows with the height. Drawn on
+/// an 18 mm radius, 24 mm tall sketch, scaled to `PAWN_BASE_RADIUS_MM` and `PAWN_HEIGHT_MM`
+/// (a part a 3 mm ball end roughs out on the turntable in a short session).
 pub fn pawn_profile_mm() -> Vec<[f64; 2]> {
     let mut p: Vec<[f64; 2]> = vec![[18.0, 0.0], [18.0, 1.5], [18.0, 3.0]];
     // A convex quarter round from the base's rim to the collar: centre (12, 3), semi-axes 6, 4.
@@ -155,7 +162,8 @@ pub fn pawn_profile_mm() -> Vec<[f64; 2]> {
         let r = if k == 12 { 0.0 } else { 6.0 * a.cos() };
         p.push([r, 18.0 + 6.0 * a.sin()]);
     }
-    p
+    let (sr, sz) = (PAWN_BASE_RADIUS_MM / 18.0, PAWN_HEIGHT_MM / 24.0);
+    p.iter().map(|&[r, z]| [r * sr, z * sz]).collect()
 }
 
 /// The turned, chess-pawn-like part: the profile (`pawn_profile_mm`) turned about the z axis

@@ -104,8 +104,7 @@ fn the_pawn_loads_with_its_volume_and_fits_the_stock() {
         "mesh {} mm³, profile {expected} mm³",
         part.volume_mm3
     );
-    // Control: moved 10 mm along x it no longer fits (its base's rim reaches past the stock?
-    // no: 18 mm radius; lifted 10 mm its head leaves the top instead).
+    // Control: lifted 10 mm its head (22 mm above its base) leaves the stock's top.
     let lifted = Placement {
         translation_mm: [-25.0, 0.0, -270.0],
         ..placed_on_the_bottom()

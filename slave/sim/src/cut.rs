@@ -8,7 +8,9 @@ use serde::Serialize;
 
 use crate::plant::SimArm;
 use crate::plant::cutting::export::ExportError;
-use crate::plant::cutting::judge::{CutEvaluator, CutSample, CutSummary, CutTarget, write_outputs};
+use crate::plant::cutting::judge::{
+    CutEvaluator, CutSample, CutSummary, CutTarget, write_cut_json, write_outputs,
+};
 
 /// One cycle of the cut, in a cutting session or a cutting `h4-slave run` (topic
 /// `/slave/cut`, schema `h4.CutCycle`: the simulation's recording and the processes' live
@@ -49,8 +51,8 @@ pub trait CutTeleop {
     fn cut_sample(&self, c: &TeleopCycle) -> Option<CutSample>;
     /// The cutting fields of a summary from the evidence `ev` gathered, judged against
     /// `target` and the fixture floor `floor_z_mm`; with `out_dir`, the part's files there
-    /// (`height.png`, `part.stl`, `deviation.png` with a target). None when the arm does not
-    /// cut.
+    /// (`height.png`, `part.stl`, `deviation.png` with a target, `cut.json`: these cutting
+    /// fields). None when the arm does not cut.
     fn finish_cut(
         &self,
         ev: CutEvaluator,
@@ -80,8 +82,8 @@ impl CutTeleop for SlaveTeleop<SimArm> {
 
     /// The cutting fields of a summary from the evidence `ev` gathered, judged against
     /// `target` and the fixture floor `floor_z_mm`; with `out_dir`, the part's files there
-    /// (`height.png`, `part.stl`, `deviation.png` with a target). None when the arm does not
-    /// cut.
+    /// (`height.png`, `part.stl`, `deviation.png` with a target, `cut.json`: these cutting
+    /// fields). None when the arm does not cut.
     fn finish_cut(
         &self,
         ev: CutEvaluator,
@@ -92,17 +94,19 @@ impl CutTeleop for SlaveTeleop<SimArm> {
         let Some(cut) = self.arm().cut() else {
             return Ok(None);
         };
-        if let Some(dir) = out_dir {
-            write_outputs(dir, cut.stock(), cut.tool(), target)?;
-        }
-        Ok(Some(ev.finish(
+        let summary = ev.finish(
             cut.stock(),
             cut.tool(),
             &cut.report(),
             target,
             floor_z_mm,
             self.controller().fixture_activity().1,
-        )))
+        );
+        if let Some(dir) = out_dir {
+            write_outputs(dir, cut.stock(), cut.tool(), target)?;
+            write_cut_json(dir, &summary)?;
+        }
+        Ok(Some(summary))
     }
 
     /// This cycle's cut, when the simulated arm cuts a workpiece (None otherwise).

@@ -58,6 +58,10 @@ pub struct ReportOptions {
     pub out_dir: PathBuf,
     /// Half-width of the band drawn around the force set-point, N.
     pub tolerance_n: f64,
+    /// A cutting session's part folder (`h4-master sim --out DIR`): its cutting fields
+    /// (`cut.json`: the mesh judge's among them) join the metrics as `cut/<field>`, its
+    /// `deviation.png` and `height.png` the figures, and `part.stl` is linked.
+    pub part_dir: Option<PathBuf>,
 }
 
 /// What a report wrote.
@@ -816,7 +820,12 @@ fn html_escape(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
-fn index_html(title: &str, figures: &[String], metrics: &BTreeMap<String, Value>) -> String {
+fn index_html(
+    title: &str,
+    figures: &[String],
+    links: &[String],
+    metrics: &BTreeMap<String, Value>,
+) -> String {
     let rows: String = metrics
         .iter()
         .map(|(k, v)| {
@@ -831,14 +840,64 @@ fn index_html(title: &str, figures: &[String], metrics: &BTreeMap<String, Value>
         .iter()
         .map(|f| format!("<figure><img src=\"{f}\" alt=\"{f}\"></figure>\n"))
         .collect();
+    let links: String = links
+        .iter()
+        .map(|f| format!("<p><a href=\"{f}\">{f}</a></p>\n"))
+        .collect();
     format!(
         "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>{t}</title>\n\
          <style>body{{font-family:sans-serif;margin:2em;max-width:1250px}}\
          table{{border-collapse:collapse}}td{{border:1px solid #ccc;padding:2px 8px}}\
          img{{max-width:100%}}</style></head>\n<body><h1>{t}</h1>\n\
-         <h2>Metrics</h2><table>\n{rows}</table>\n<h2>Figures</h2>\n{imgs}</body></html>\n",
+         <h2>Metrics</h2><table>\n{rows}</table>\n<h2>Figures</h2>\n{imgs}{links}</body></html>\n",
         t = html_escape(title)
     )
+}
+
+/// A cutting session's part folder into the report: `cut.json`'s fields as `cut/<field>`
+/// metrics, `deviation.png` and `height.png` copied beside the figures, `part.stl` copied
+/// and linked. A folder without `cut.json` is an error naming it.
+fn part_outputs(
+    dir: &Path,
+    out_dir: &Path,
+    figures: &mut Vec<String>,
+    links: &mut Vec<String>,
+    metrics: &mut BTreeMap<String, Value>,
+) -> Result<(), ReportError> {
+    let cut = dir.join(crate::plant::cutting::judge::CUT_JSON);
+    let text = std::fs::read_to_string(&cut).map_err(|source| ReportError::Read {
+        path: cut.display().to_string(),
+        source,
+    })?;
+    let fields: BTreeMap<String, Value> =
+        serde_json::from_str(&text).map_err(|e| ReportError::Recording {
+            path: cut.display().to_string(),
+            message: format!("not the cutting fields of a summary: {e}"),
+        })?;
+    for (k, v) in fields {
+        metrics.insert(format!("cut/{k}"), v);
+    }
+    for (name, figure) in [
+        ("deviation.png", true),
+        ("height.png", true),
+        ("part.stl", false),
+    ] {
+        let from = dir.join(name);
+        if !from.exists() {
+            continue;
+        }
+        let to = out_dir.join(name);
+        std::fs::copy(&from, &to).map_err(|e| ReportError::Write {
+            path: to.display().to_string(),
+            message: e.to_string(),
+        })?;
+        if figure {
+            figures.push(name.to_string());
+        } else {
+            links.push(name.to_string());
+        }
+    }
+    Ok(())
 }
 
 /// Makes the report of `recording` into `opts.out_dir`.
@@ -878,6 +937,10 @@ pub fn report(recording: &Path, opts: &ReportOptions) -> Result<ReportOutput, Re
             written.push(fig.file.to_string());
         }
     }
+    let mut links = Vec::new();
+    if let Some(dir) = &opts.part_dir {
+        part_outputs(dir, &opts.out_dir, &mut written, &mut links, &mut metrics)?;
+    }
     let metrics_text = serde_json::to_string_pretty(&metrics).unwrap_or_default() + "\n";
     write_file(&opts.out_dir.join("metrics.json"), &metrics_text)?;
     let title = format!(
@@ -888,7 +951,7 @@ pub fn report(recording: &Path, opts: &ReportOptions) -> Result<ReportOutput, Re
     );
     write_file(
         &opts.out_dir.join("index.html"),
-        &index_html(&title, &written, &metrics),
+        &index_html(&title, &written, &links, &metrics),
     )?;
     Ok(ReportOutput {
         figures: written,
@@ -896,7 +959,8 @@ pub fn report(recording: &Path, opts: &ReportOptions) -> Result<ReportOutput, Re
     })
 }
 
-/// `report <recording.mcap> [--out DIR] [--tolerance-n N]`, the same in both binaries.
+/// `report <recording.mcap> [--out DIR] [--tolerance-n N] [--part DIR]`, the same in both
+/// binaries.
 #[derive(Clone, Debug, clap::Args)]
 pub struct ReportArgs {
     /// The recording (MCAP) of an experiment, a session or the processes.
@@ -907,6 +971,11 @@ pub struct ReportArgs {
     /// Half-width of the band drawn around the force set-point, N.
     #[arg(long, default_value_t = 1.0, value_parser = positive_finite)]
     pub tolerance_n: f64,
+    /// A cutting session's part folder (`h4-master sim --out DIR`): its cutting fields
+    /// (`cut.json`, the mesh judge's among them) join the metrics as `cut/<field>`, its
+    /// deviation and height maps the figures, and its `part.stl` is linked.
+    #[arg(long, value_name = "DIR")]
+    pub part: Option<PathBuf>,
 }
 
 fn positive_finite(text: &str) -> Result<f64, String> {
@@ -932,6 +1001,7 @@ impl ReportArgs {
             &ReportOptions {
                 out_dir: out_dir.clone(),
                 tolerance_n: self.tolerance_n,
+                part_dir: self.part.clone(),
             },
         )?;
         println!(

@@ -42,6 +42,7 @@ fn an_experiment_gives_its_figures_and_metrics() {
         &ReportOptions {
             out_dir: out_dir.clone(),
             tolerance_n: 1.0,
+            part_dir: None,
         },
     )
     .unwrap();
@@ -85,6 +86,7 @@ fn a_recording_cut_short_still_reports_and_says_so() {
         &ReportOptions {
             out_dir: dir.join("cut-report"),
             tolerance_n: 1.0,
+            part_dir: None,
         },
     )
     .unwrap();
@@ -104,6 +106,7 @@ fn a_file_that_is_not_a_recording_is_an_error() {
         &ReportOptions {
             out_dir: dir.join("r"),
             tolerance_n: 1.0,
+            part_dir: None,
         },
     )
     .unwrap_err();

@@ -1,4 +1,4 @@
-//! `h4-master bench [--duration-s S] [--json FILE] [--only round-trip,lateness,sim,ros2]`: the
+//! `h4-master bench [--duration-s S] [--json FILE] [--only round-trip,lateness,sim,ros2,mesh]`: the
 //! figures of issue 33 measured in one run on one host, as ratios where the issue asks for
 //! them, printed as a table and written as JSON (docs/results.md, "Bench").
 //!
@@ -12,6 +12,8 @@
 //! * **Loop lateness**: a 1 kHz [`Pacer`] alone, idle and with both cores loaded.
 //! * **ROS 2** (issue 35): the CRTK device round trip through Zenoh and the telemetry's cost
 //!   to the 1 kHz loop ([`ros2`]).
+//! * **Mesh fixture** (issue 34): its per-cycle query time on the shipped mesh sessions
+//!   ([`mesh`]).
 //! * **Simulation speed**: the six experiments, the wall-push session, each cutting session
 //!   (simulated time / wall time, the fastest of three runs; and over the thread's CPU time,
 //!   which other work on a shared host does not inflate) and the shipped 384-cell matrix
@@ -33,6 +35,7 @@ use h4_telemetry::rt::{Histogram, Pacer, RealtimeMode};
 use h4_transport::Link;
 use serde::Serialize;
 
+mod mesh;
 mod ros2;
 
 const LABEL: &str = "h4-master bench";
@@ -56,6 +59,9 @@ pub enum Part {
     /// link, and the telemetry's cost to the 1 kHz loop with and without `--ros2`
     /// ([`ros2`]).
     Ros2,
+    /// The mesh fixture's per-cycle query time on the shipped mesh sessions (issue 34,
+    /// [`mesh`]).
+    Mesh,
 }
 
 /// Measure round trips, loop lateness and simulation speed on this host in one run.
@@ -138,7 +144,11 @@ fn quantiles_us(h: &Histogram) -> Vec<(String, f64)> {
 }
 
 fn figure(row: &Row, name: &str) -> f64 {
-    row.figures
+    figure_of(&row.figures, name)
+}
+
+fn figure_of(figures: &[(String, f64)], name: &str) -> f64 {
+    figures
         .iter()
         .find(|(n, _)| n == name)
         .map_or(f64::NAN, |(_, v)| *v)
@@ -620,6 +630,10 @@ impl BenchArgs {
         }
         if self.wants(Part::Ros2) {
             ros2::rows(&mut report, d, realtime, self.no_zenoh);
+        }
+        if self.wants(Part::Mesh) {
+            eprintln!("{LABEL}: mesh fixture query per cycle");
+            mesh::rows(&mut report);
         }
         report.realtime_applied = FIFO_APPLIED.load(Ordering::Relaxed);
         print_table(&report);

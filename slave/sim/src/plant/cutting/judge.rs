@@ -590,7 +590,9 @@ impl CutEvaluator {
 /// A mesh target's judgement.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MeshJudgement {
-    /// 99th percentile of |machined height − the part's top| over the judged cells, mm.
+    /// 99th percentile of |the distance from each judged cell's machined surface point to
+    /// the part's surface| (point to mesh, signed: + outside, − inside; the allowance is
+    /// part of it), mm.
     pub surface_error_p99_mm: f64,
     /// Deepest cut into the part (the part's top − the machined height) over every cut
     /// cell, mm (0: none).
@@ -652,10 +654,13 @@ fn mesh_region_mm(t: &CutTarget) -> Option<[f64; 4]> {
     Some([cx - 0.5 * sx, cx + 0.5 * sx, cy - 0.5 * sy, cy + 0.5 * sy])
 }
 
-/// Judges the block against a mesh target: per cell, the machined height against the
-/// part's top (vertical, workpiece frame: through the table's angle, as the height field
-/// is kept); the material more than the allowance from the part integrated up each judged
-/// column in 0.02 mm steps.
+/// Judges the block against a mesh target, in the workpiece frame the height field is kept
+/// in (through the table's angle): per judged cell, the signed distance of its machined
+/// surface point (the cell's centre at the machined height) from the part's surface, point
+/// to mesh (the vertical height difference would exaggerate the error on a slope by
+/// 1/cos(slope)); the gouge, the part's top less the machined height over every cut cell;
+/// the material more than the allowance from the part integrated up each judged column in
+/// 0.02 mm steps.
 pub fn judge_mesh(stock: &Stock, t: &CutTarget, p: &LoadedPart) -> MeshJudgement {
     let part = &*p.part;
     let top = stock.top_mm();
@@ -685,7 +690,7 @@ pub fn judge_mesh(stock: &Stock, t: &CutTarget, p: &LoadedPart) -> MeshJudgement
                 continue;
             }
             let base = pt.unwrap_or(bottom);
-            errors.push((h - base).abs());
+            errors.push(part.signed_distance_exact_mm([c[0], c[1], h]).abs());
             let mut z = base + 0.5 * dz;
             while z < top {
                 if part.signed_distance_mm([c[0], c[1], z]) > p.allowance_mm {
@@ -734,10 +739,13 @@ pub fn write_outputs(
     if let Some(t) = target {
         let top = stock.top_mm();
         if let Some(p) = &t.part {
-            // A mesh: the deviation from the part's top (its allowance shows as + allowance).
+            // A mesh: the signed distance of the machined surface from the part's surface,
+            // as the judge measures it (its allowance shows as + allowance); the grid's
+            // answer, which saturates at its band, far beyond the map's full scale.
             let bottom = stock.bottom_mm();
             write_deviation_png(&dir.join("deviation.png"), stock, 0.5, |x, y| {
-                part_top_mm(&p.part, x, y, top, bottom).unwrap_or(bottom)
+                let h = stock.height_under(x, y).unwrap_or(bottom);
+                h - p.part.signed_distance_mm([x, y, h])
             })?;
         } else {
             write_deviation_png(&dir.join("deviation.png"), stock, 0.5, |x, y| {
@@ -746,6 +754,23 @@ pub fn write_outputs(
         }
     }
     Ok(())
+}
+
+/// The file `--out DIR` holds the summary's cutting fields in (`h4-master report --part DIR`
+/// reads it).
+pub const CUT_JSON: &str = "cut.json";
+
+/// Writes the summary's cutting fields into `dir` as `cut.json` (pretty JSON).
+pub fn write_cut_json(dir: &Path, summary: &CutSummary) -> Result<(), ExportError> {
+    let path = dir.join(CUT_JSON);
+    let text = serde_json::to_string_pretty(summary).map_err(|e| ExportError {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })?;
+    std::fs::write(&path, text + "\n").map_err(|e| ExportError {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })
 }
 
 #[cfg(test)]
@@ -848,6 +873,11 @@ mod tests {
     /// A 10 × 10 mm box whose top is 3 mm under a 20 × 20 mm block's top, as a loaded part
     /// with a 0.3 mm allowance.
     fn box_part() -> LoadedPart {
+        box_part_placed(h4_part::Placement::default())
+    }
+
+    /// The box of `box_part`, placed by `placement`.
+    fn box_part_placed(placement: h4_part::Placement) -> LoadedPart {
         let c = |i: usize| {
             [
                 if i & 1 == 1 { 5.0 } else { -5.0 },
@@ -872,7 +902,7 @@ mod tests {
         let part = h4_part::Part::from_mesh(
             &vertices,
             &faces,
-            h4_part::Placement::default(),
+            placement,
             None,
             &h4_part::LoadOptions::default(),
         )
@@ -942,6 +972,55 @@ mod tests {
         raster(&mut deep, -3.5);
         let j = judge_mesh(&deep, &t, &p);
         assert!((j.gouge_max_mm - 0.5).abs() < 0.01, "{j:?}");
+        assert!((j.surface_error_p99_mm - 0.5).abs() < 0.01, "{j:?}");
         assert!(j.material_left_mm3 < 1e-9, "{j:?}");
+    }
+
+    /// The surface error is the machined point's distance to the part's surface, not the
+    /// vertical height difference: over the box tilted 30° about x, the uncut block's top
+    /// (2.5 to 3.5 mm from the tilted face over the judged cells) is judged cos 30° of the
+    /// vertical difference; the distance is exact beyond the grid's band too (the fallback
+    /// over every face).
+    #[test]
+    fn the_mesh_judge_measures_the_distance_to_the_surface_not_the_height() {
+        let placement = h4_part::Placement {
+            translation_mm: [0.0; 3],
+            rotation_deg: [30.0, 0.0, 0.0],
+        };
+        let p = box_part_placed(placement);
+        let t = CutTarget {
+            centre_mm: [0.0, 1.0],
+            part: Some(p.clone()),
+            ..mesh_target([4.0, 4.0])
+        };
+        let fresh = Stock::new([0.0, 0.0, 0.0], [20.0, 20.0], 10.0, 0.25).unwrap();
+        let j = judge_mesh(&fresh, &t, &p);
+        let mut vertical = Vec::new();
+        let (nx, ny) = fresh.dims();
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let c = fresh.cell_centre_mm(ix, iy);
+                if c[0].abs() <= 2.0 && (c[1] - 1.0).abs() <= 2.0 {
+                    let z = part_top_mm(&p.part, c[0], c[1], 0.0, -10.0).unwrap();
+                    vertical.push(-z);
+                }
+            }
+        }
+        let v = p99(&mut vertical);
+        let cos = 30f64.to_radians().cos();
+        assert!(
+            (j.surface_error_p99_mm - cos * v).abs() < 0.01,
+            "{j:?}, vertical p99 {v} mm"
+        );
+        // The plane's distance from (x, y, 0): 3 − y/2 mm; the lowest judged cell centre
+        // is at y = −0.875 (0.25 mm cells, the region from y = −1).
+        assert!((j.surface_error_p99_mm - 3.4375).abs() < 0.01, "{j:?}");
+        // Control: the vertical difference is larger by 1/cos 30°.
+        assert!(v > j.surface_error_p99_mm + 0.4, "{v} mm");
+        // Beyond the grid's band (4 mm), the exact distance: 3 − 1/2 + 4 cos 30° mm.
+        let far = [0.0, 1.0, 4.0];
+        assert_eq!(p.part.signed_distance_mm(far), 4.0);
+        let d = p.part.signed_distance_exact_mm(far);
+        assert!((d - (2.5 + 4.0 * cos)).abs() < 1e-6, "{d}");
     }
 }
