@@ -591,8 +591,16 @@ mod tests {
             trips.push(m.check_sample(&r, k % 4 == 0, false, [0.0; 3], 1e-3));
         }
         let frozen = Some(TripReason::SensorFrozen);
-        assert_eq!(trips[..4], [None; 4], "the first repeat (cycle 0), then not new");
-        assert_eq!(trips[4..], [frozen; 8], "the second (cycle 4) trips: {trips:?}");
+        assert_eq!(
+            trips[..4],
+            [None; 4],
+            "the first repeat (cycle 0), then not new"
+        );
+        assert_eq!(
+            trips[4..],
+            [frozen; 8],
+            "the second (cycle 4) trips: {trips:?}"
+        );
     }
 
     #[test]

@@ -22,9 +22,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use serde::{Deserialize, Serialize};
 
+use super::device::StandinSample;
 use super::keys::KeyError;
 use super::msgs::{Header, PoseStamped, Ros2Message, Time, WrenchStamped};
-use super::device::StandinSample;
 use super::subscriber::{RejectCounters, Ros2Rejected};
 use super::telemetry::LatestCell;
 use super::{Ros2Names, units};

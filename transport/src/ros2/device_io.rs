@@ -16,11 +16,11 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::cdr::CdrError;
 use super::device::{
     ButtonsReading, CommandKind, DeviceCells, DeviceTopics, PoseReading, StandinCells,
     TwistReading, command_from_wrench,
 };
-use super::cdr::CdrError;
 use super::msgs::{Joy, PoseStamped, Ros2Message, TwistStamped, WrenchStamped};
 use super::node::{Cadence, NodeConfig, RawPublisher, Ros2Error, Ros2Node, StoppableThread};
 use super::subscriber::{Intake, RejectCounters};

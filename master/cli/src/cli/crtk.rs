@@ -12,10 +12,10 @@ use h4_master_sim::server::RunOutputs;
 use h4_master_sim::session::SessionConfig;
 use h4_shared::wire::{Command, Feedback};
 use h4_transport::Link;
+use h4_transport::ros2::Ros2Names;
 use h4_transport::ros2::device::{DeviceCells, DeviceProfile, DeviceTopics};
 use h4_transport::ros2::device_io::{DeviceIo, DeviceIoConfig};
 use h4_transport::ros2::node::Ros2Args;
-use h4_transport::ros2::Ros2Names;
 
 /// The flags of a ROS 2 haptic device (`--device crtk`). The node's domain, endpoint and
 /// key format are `--ros2-domain`, `--ros2-connect` and `--ros2-distro` (with or without

@@ -13,11 +13,11 @@ use h4_slave_sim::experiment::ExperimentConfig;
 use h4_slave_sim::server::{RunOutputs, SimRunSummary};
 use h4_telemetry::sink::Outputs;
 use h4_transport::Link;
+use h4_transport::ros2::Ros2Names;
 use h4_transport::ros2::arm::{ArmCells, ArmProfile, ArmTopics};
 use h4_transport::ros2::arm_io::{ArmIo, ArmIoConfig};
 use h4_transport::ros2::node::Ros2Args;
 use h4_transport::ros2::telemetry::base_frame_id;
-use h4_transport::ros2::Ros2Names;
 
 /// The flags of a ROS 2 arm (`--arm crtk`). The node's domain, endpoint and key format are
 /// `--ros2-domain`, `--ros2-connect` and `--ros2-distro` (with or without `--ros2`).
