@@ -28,8 +28,8 @@ use h4_slave_sim::server::SimRunSummary;
 use h4_tests::procs::{free_port, serial};
 use h4_tests::record::slave_cycles;
 use h4_tests::remote_procs::{
-    Pair, PairSpec, Running, Scratch, TRUE_FORCE_SHARE, binaries, judge, read_summary, session,
-    slave_config, workspace,
+    self, Pair, PairSpec, Running, Scratch, TRUE_FORCE_SHARE, binaries, judge, read_summary,
+    session, slave_config, workspace,
 };
 use serde_json::Value;
 
@@ -267,7 +267,13 @@ fn stable_push(wall: Wall, device_over_ros2: bool) {
     let o = overrides(wall, true);
     let sim_n = simulated_held_n(&format!("{tag}-sim"), &o);
     let r = over_ros2(&tag, &o, device_over_ros2);
-    let log = &r.log;
+    // A loop the host starved (more than 1 % of its deadlines missed) says so in every
+    // failure: its physics then describe the host, not the ROS 2 path (not excused).
+    let log = &format!(
+        "starved by the host: {}\n{}",
+        remote_procs::starved(&r.master, &r.slave),
+        r.log
+    );
     let held_n = r
         .held_n
         .unwrap_or_else(|| panic!("no settled contact\n{log}"));
