@@ -14,7 +14,14 @@
 //! speaks: a second publisher's pose acted on would jump 40 mm); then the arm falls silent
 //! and the slave safe-stops for it (`driver_stale_stops`, `ros2_arm.stale_events`, the stderr
 //! line): the control is the same run's first four seconds, when the arm spoke and nothing
-//! stopped.
+//! stopped. The arm's `measured_cf` comes at 500 Hz, slower than the slave's 1 kHz loop:
+//! the cycles between two samples repeat the last one, which the safety monitor must not
+//! take for a frozen sensor (it did, and the slave held a safe stop from the start: the
+//! pinned bug; the negative control, a truly frozen sensor's identical new samples, is the
+//! unit test `repeats_of_a_slow_sensors_sample_are_not_frozen_but_identical_new_samples_are`
+//! in `slave/src/safety.rs`). The run also records (`--record --record-ros2`): the slave's
+//! five CRTK topics are in the recording and outside decoders read them
+//! (`tests/python/ros2_mcap.py`).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -39,14 +46,7 @@ fn fl(v: &Value, key: &str) -> f64 {
         .unwrap_or_else(|| panic!("{key} not a number in {v}"))
 }
 
-/// Not yet passing (issue 35): in its one run so far (release build, a 2-vCPU host loaded by
-/// two concurrent cargo builds) the slave's loop ran 1 289 cycles in 6.3 s (4 830 deadline
-/// misses, lateness p99 7.5 ms), held its safe stop, and the arm received 127 `servo_cp` of
-/// the 411 the slave sent; the refusals (25, by reason) and the silent arm's one stale stop
-/// were as asserted. Not yet known whether the host or the arm's path starves the loop; run
-/// it with `--ignored` on an idle host.
 #[test]
-#[ignore = "not yet passing: the slave's loop starved in its one run (see the doc comment)"]
 fn a_python_ros2_arm_follows_the_slave_and_its_bad_input_is_refused_by_reason() {
     let _guard = serial();
     let python = python_with_zenoh_rosbags();
@@ -54,6 +54,7 @@ fn a_python_ros2_arm_follows_the_slave_and_its_bad_input_is_refused_by_reason() 
     let scratch = Scratch::new("ros2-arm");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let slave_summary = scratch.path("slave.json");
+    let rec = scratch.path("slave.mcap");
     let sa = slave_args(
         &scratch,
         &[
@@ -63,6 +64,9 @@ fn a_python_ros2_arm_follows_the_slave_and_its_bad_input_is_refused_by_reason() 
             &endpoint,
             "--summary",
             &slave_summary.display().to_string(),
+            "--record",
+            &rec.display().to_string(),
+            "--record-ros2",
         ],
     );
     // The world file slave_args wrote: the arm rests `gap_mm` above the contact point of a
@@ -179,4 +183,36 @@ fn a_python_ros2_arm_follows_the_slave_and_its_bad_input_is_refused_by_reason() 
         "{log}"
     );
     assert!(log.contains("h4-slave run: ROS 2 arm on /arm:"), "{log}");
+    // No safe stop while the arm spoke: the slow sensor's repeats were not a frozen sensor.
+    assert_eq!(u(&s, &["safety_trips", "sensor_frozen"]), 0, "{s}");
+
+    // `--record-ros2` with `--arm crtk`: the slave's CRTK topics, decoded from the recording.
+    let script = workspace().join("tests/python/ros2_mcap.py");
+    let check_args = vec![script.display().to_string(), rec.display().to_string()];
+    let mut check = Running::spawn("check", python, &check_args, &scratch);
+    assert!(check.wait(120.0), "the checker failed: {}", check.log());
+    let rec_out: Value = serde_json::from_str(check.stdout().trim())
+        .unwrap_or_else(|e| panic!("checker JSON: {e}\n{}", check.stdout()));
+    let topics = rec_out["topics"].as_object().unwrap();
+    let mut names: Vec<&str> = topics.keys().map(String::as_str).collect();
+    names.sort_unstable();
+    assert_eq!(
+        names,
+        [
+            "/h4/measured_cf",
+            "/h4/measured_cp",
+            "/h4/measured_cv",
+            "/h4/operating_state",
+            "/h4/setpoint_cf"
+        ],
+        "{rec_out}"
+    );
+    for (topic, t) in topics {
+        let n = t["messages"].as_u64().unwrap();
+        assert!(n > 100, "{topic}: {n} messages");
+        assert_eq!(t["decoded_mcap_ros2"].as_u64(), Some(n), "{topic}: {t}");
+        assert_eq!(t["decoded_rosbags"].as_u64(), Some(n), "{topic}: {t}");
+        assert_eq!(t["non_finite"].as_u64(), Some(0), "{topic}: {t}");
+    }
+    assert_eq!(rec_out["other_topics"]["/slave/cycle"], "jsonschema");
 }

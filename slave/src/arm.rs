@@ -45,4 +45,11 @@ pub trait ArmDriver {
     /// physics (the server calls this after every cycle, and for the periods a stalled host
     /// missed); a real arm runs on its own (the default: nothing).
     fn advance(&mut self, _dt_ns: u64) {}
+    /// Whether the last [`ArmDriver::read`]'s wrench is a new sample of the force/torque
+    /// sensor (true, the default: a sensor sampled every cycle) or the previous one handed
+    /// out again (a sensor that samples slower than the loop, e.g. a ROS 2 arm's
+    /// `measured_cf`). The safety monitor counts a frozen sensor over new samples only.
+    fn wrench_is_new_sample(&self) -> bool {
+        true
+    }
 }

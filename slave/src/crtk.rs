@@ -10,7 +10,10 @@
 //!   the pose's rotation about y) goes through the inverse kinematics
 //!   ([`H4Params::ik_checked`]) to the actuator positions the controller expects of encoders;
 //!   a pose it cannot map (out of reach, the other assembly mode) is counted and not used.
-//!   The wrench is the newest `measured_cf` (N, N·mm, base frame).
+//!   The wrench is the newest `measured_cf` (N, N·mm, base frame); a cycle with no new
+//!   `measured_cf` repeats the last one and says so
+//!   ([`ArmDriver::wrench_is_new_sample`]: the safety monitor's frozen-sensor rule counts
+//!   new samples only).
 //! * **freshness**: a pose or a wrench is fresh for `timeout_ns` (`--arm-timeout-ms`, default
 //!   20 ms) after the cycle that first saw it, on the arm's clock (the loop's periods through
 //!   [`ArmDriver::advance`]). While either is not fresh the arm is stale: the reading's time
@@ -49,6 +52,7 @@ pub struct CrtkArm {
     pose_ns: Option<u64>,
     wrench: [f64; 4],
     wrench_ns: Option<u64>,
+    wrench_new: bool,
     reading_ns: u64,
 }
 
@@ -79,6 +83,7 @@ impl CrtkArm {
             pose_ns: None,
             wrench: [0.0; 4],
             wrench_ns: None,
+            wrench_new: false,
             reading_ns: 0,
         }
     }
@@ -108,10 +113,12 @@ impl CrtkArm {
                 None => self.cells.status.unreachable(),
             }
         }
+        self.wrench_new = false;
         if let Some((v, r)) = self.cells.wrench.try_newer_than(self.seen[1]) {
             self.seen[1] = v;
             self.wrench = r.wrench_n_nmm;
             self.wrench_ns = Some(self.now_ns);
+            self.wrench_new = true;
         }
     }
 }
@@ -142,6 +149,12 @@ impl ArmDriver for CrtkArm {
 
     fn advance(&mut self, dt_ns: u64) {
         self.now_ns = self.now_ns.saturating_add(dt_ns);
+    }
+
+    /// `measured_cf` arrives at the arm's rate, not the loop's: between two samples the
+    /// reading repeats the last one, which is not a new sample.
+    fn wrench_is_new_sample(&self) -> bool {
+        self.wrench_new
     }
 }
 
@@ -252,6 +265,23 @@ mod tests {
         assert_eq!(cycle(&mut a).time_ns, 24 * MS);
         assert!(!a.cells.status.stale());
         assert_eq!(a.cells.status.stale_events(), 1);
+    }
+
+    /// A wrench is a new sample in the cycle that takes it and not in the cycles that repeat
+    /// it (the arm publishes slower than the loop); control: each new one is flagged again.
+    #[test]
+    fn a_repeated_wrench_is_not_a_new_sample() {
+        let mut a = arm();
+        let mut flags = Vec::new();
+        for k in 0..6 {
+            if k % 3 == 0 {
+                measured(&a, HOME, [0.0, 0.0, f64::from(k), 0.0]);
+            }
+            let r = cycle(&mut a);
+            flags.push(a.wrench_is_new_sample());
+            assert_eq!(r.wrench[2], f64::from(k - k % 3));
+        }
+        assert_eq!(flags, [true, false, false, true, false, false]);
     }
 
     /// A pose the inverse kinematics cannot map is counted and not used: the actuators keep

@@ -14,7 +14,9 @@
 //! * an actuator beyond its stroke by more than the margin, or faster than its rated speed;
 //! * a sensor or encoder reading that is not finite, a force reading at or beyond the
 //!   sensor's range (saturated), a force/torque reading that repeats bit for bit for
-//!   `sensor_freeze_cycles` cycles (frozen);
+//!   `sensor_freeze_cycles` new samples (frozen; a driver whose sensor samples slower than
+//!   the loop hands the same sample to several cycles, [`crate::arm::ArmDriver::wrench_is_new_sample`],
+//!   and those repeats are not counted);
 //! * a driver that stops answering (its reading's time does not move on).
 //!
 //! A trip makes the endpoint put the arm into its safe stop at once: the command of the trip
@@ -275,7 +277,8 @@ impl SafetyMonitor {
     /// ([`SafetyMonitor::observe_time`]) and the sensed force `force_n` (the reading with
     /// its tare and the tool's weight removed). Returns the first rule broken, in the order
     /// of the module's list (the driver and the sensors first: what they say is not to be
-    /// trusted otherwise).
+    /// trusted otherwise). The reading's wrench is taken as a new sample of the sensor
+    /// ([`SafetyMonitor::check_sample`] otherwise).
     pub fn check(
         &mut self,
         reading: &ArmReading,
@@ -283,8 +286,24 @@ impl SafetyMonitor {
         force_n: [f64; 3],
         dt_s: f64,
     ) -> Option<TripReason> {
+        self.check_sample(reading, true, silent, force_n, dt_s)
+    }
+
+    /// [`SafetyMonitor::check`] for a reading whose wrench is a `new_wrench` sample of the
+    /// sensor or (false) the previous sample handed out again by a driver whose sensor
+    /// samples slower than the loop: only new samples count towards the frozen sensor (a
+    /// sensor that sends the same bits in new samples is frozen; one that sends no new
+    /// samples is the driver's staleness, [`SafetyMonitor::observe_time`]).
+    pub fn check_sample(
+        &mut self,
+        reading: &ArmReading,
+        new_wrench: bool,
+        silent: bool,
+        force_n: [f64; 3],
+        dt_s: f64,
+    ) -> Option<TripReason> {
         let r = self.limits.ratings;
-        let persistent = self.sensor_fault(reading, silent, &r);
+        let persistent = self.sensor_fault(reading, new_wrench, silent, &r);
         self.persistent = persistent;
         if persistent.is_some() {
             self.over_cycles = 0;
@@ -319,6 +338,7 @@ impl SafetyMonitor {
     fn sensor_fault(
         &mut self,
         reading: &ArmReading,
+        new_wrench: bool,
         silent: bool,
         r: &ArmRatings,
     ) -> Option<TripReason> {
@@ -341,13 +361,15 @@ impl SafetyMonitor {
         {
             return Some(TripReason::SensorSaturated);
         }
-        let same = self.last_wrench.is_some_and(|w| {
-            w.iter()
-                .zip(&reading.wrench)
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        });
-        self.frozen_cycles = if same { self.frozen_cycles + 1 } else { 0 };
-        self.last_wrench = Some(reading.wrench);
+        if new_wrench {
+            let same = self.last_wrench.is_some_and(|w| {
+                w.iter()
+                    .zip(&reading.wrench)
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            });
+            self.frozen_cycles = if same { self.frozen_cycles + 1 } else { 0 };
+            self.last_wrench = Some(reading.wrench);
+        }
         if self.frozen_cycles >= r.sensor_freeze_cycles {
             return Some(TripReason::SensorFrozen);
         }
@@ -522,6 +544,62 @@ mod tests {
                 Some(TripReason::SensorFrozen),
                 Some(TripReason::SensorFrozen)
             ]
+        );
+    }
+
+    /// A sensor sampled slower than the loop (a ROS 2 arm's `measured_cf` at 250 Hz): the
+    /// driver hands each sample to four cycles, flagged not new, and the repeats do not
+    /// count as frozen while the new samples change. Negative control: the same cadence with
+    /// new samples that repeat bit for bit (a truly frozen sensor) trips at the second
+    /// repeat of a new sample, as at 1 kHz.
+    #[test]
+    fn repeats_of_a_slow_sensors_sample_are_not_frozen_but_identical_new_samples_are() {
+        let (mut m, mut r, _) = monitor();
+        for k in 0..400u32 {
+            r.time_ns += 1_000_000;
+            let new = k % 4 == 0;
+            if new {
+                r.wrench[0] = 0.1 + 1e-3 * f64::from((k / 4) % 5);
+            }
+            assert_eq!(
+                m.check_sample(&r, new, false, [0.0; 3], 1e-3),
+                None,
+                "cycle {k}"
+            );
+        }
+        // The same repeats all called new samples: the old rule, which trips.
+        let (mut m, mut r, _) = monitor();
+        let mut first = None;
+        for k in 0..40u32 {
+            r.time_ns += 1_000_000;
+            if k % 4 == 0 {
+                r.wrench[0] = 0.1 + 1e-3 * f64::from((k / 4) % 5);
+            }
+            if let Some(t) = m.check_sample(&r, true, false, [0.0; 3], 1e-3) {
+                first = Some((k, t));
+                break;
+            }
+        }
+        assert_eq!(first, Some((2, TripReason::SensorFrozen)));
+        // Frozen: new samples, the same bits; the second repeat trips, the cycles in between
+        // (not new) neither trip earlier nor clear it.
+        let (mut m, mut r, _) = monitor();
+        run(&mut m, &mut r, [0.0; 3], 10);
+        let mut trips = Vec::new();
+        for k in 0..12u32 {
+            r.time_ns += 1_000_000;
+            trips.push(m.check_sample(&r, k % 4 == 0, false, [0.0; 3], 1e-3));
+        }
+        let frozen = Some(TripReason::SensorFrozen);
+        assert_eq!(
+            trips[..4],
+            [None; 4],
+            "the first repeat (cycle 0), then not new"
+        );
+        assert_eq!(
+            trips[4..],
+            [frozen; 8],
+            "the second (cycle 4) trips: {trips:?}"
         );
     }
 

@@ -626,7 +626,13 @@ impl<A: ArmDriver> SlaveTeleop<A> {
             out.wrench_measured[2],
         ];
         let trip = if self.p.safety.monitor {
-            self.monitor.check(&reading, silent, force, dt_s)
+            self.monitor.check_sample(
+                &reading,
+                self.arm.wrench_is_new_sample(),
+                silent,
+                force,
+                dt_s,
+            )
         } else {
             None
         };

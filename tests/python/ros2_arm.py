@@ -7,7 +7,10 @@ measured_cf (WrenchStamped) at --rate-hz (rosbags' CDR, rmw_zenoh's key and 33-b
 with its own GID and sequence numbers) and subscribes to servo_cp (PoseStamped), decoding every
 sample with rosbags. Its platform follows the newest servo_cp as a first-order servo (time
 constant --tau-s) from --start-mm; a spring wall (--wall-n-per-mm) below z = --wall-z-mm pushes
-back along +z, and that force is measured_cf.
+back along +z, and that force plus --noise-n of Gaussian noise on each force axis is measured_cf
+(a real sensor's reading is never bit for bit the same twice; the slave's frozen-sensor rule
+trips on one that is). Where permitted it runs under SCHED_FIFO --fifo-priority (below the
+slave's 10), so that a loaded host does not starve the arm the slave's loop waits for.
 
 From the first servo_cp on (time t):
   at --bad-at-s  --bad-each samples of each kind of bad input, interleaved with the good
@@ -23,6 +26,7 @@ import argparse
 import json
 import math
 import os
+import random
 import struct
 import sys
 import threading
@@ -108,7 +112,15 @@ def main():
     ap.add_argument('--silent-at-s', type=float, default=4.0)
     ap.add_argument('--tail-s', type=float, default=1.0)
     ap.add_argument('--timeout-s', type=float, default=60.0)
+    ap.add_argument('--noise-n', type=float, default=0.02)
+    ap.add_argument('--seed', type=int, default=35)
+    ap.add_argument('--fifo-priority', type=int, default=5)
     a = ap.parse_args()
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.fifo_priority))
+    except (AttributeError, OSError):
+        pass  # not permitted: normal scheduling
+    rng = random.Random(a.seed)
 
     store = get_typestore(Stores.ROS2_JAZZY)
     h = {t: store.hash_rihs01(t) for t in (POSE, TWIST, WRENCH)}
@@ -143,8 +155,9 @@ def main():
 
     def wrench_bytes(fz_n, stamp_ns):
         zero = Vector3(x=0.0, y=0.0, z=0.0)
-        msg = WrenchStamped(header=header(stamp_ns),
-                            wrench=Wrench(force=Vector3(x=0.0, y=0.0, z=fz_n), torque=zero))
+        n = [rng.gauss(0.0, a.noise_n) for _ in range(3)]
+        force = Vector3(x=n[0], y=n[1], z=fz_n + n[2])
+        msg = WrenchStamped(header=header(stamp_ns), wrench=Wrench(force=force, torque=zero))
         return bytes(store.serialize_cdr(msg, WRENCH))
 
     def twist_bytes(stamp_ns):

@@ -31,6 +31,11 @@ enum Command {
     /// arm, or `--arm replay --replay FILE`, a recorded one), commanded by a master over
     /// iceoryx2 or Zenoh, until SIGINT/SIGTERM (or --duration-s).
     Run(Box<cli::run::RunArgs>),
+    /// Runs a stand-in arm that speaks only ROS 2: the simulated arm of a world file behind
+    /// CRTK topics (publishes measured_cp, measured_cv, measured_cf; follows servo_cp), for
+    /// `h4-slave run --arm crtk` (docs/ros2.md).
+    #[command(name = "ros2-standin")]
+    Ros2Standin(Box<cli::standin::StandinArgs>),
     /// Draws a recording (MCAP): PNG figures (force against the set-point and its tolerance
     /// band, force along the path, tracking errors; for sessions the rendered force, the
     /// passivity observers and the link), metrics.json and index.html.
@@ -45,6 +50,7 @@ fn main() -> ExitCode {
         Command::Experiment(args) => args.run(),
         Command::Identify(args) => args.run(),
         Command::Run(args) => args.run(),
+        Command::Ros2Standin(args) => args.run(),
         Command::Report(args) => args
             .run()
             .map(|_| ExitStatus::Ok.into())

@@ -22,6 +22,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use serde::{Deserialize, Serialize};
 
+use super::device::StandinSample;
 use super::keys::KeyError;
 use super::msgs::{Header, PoseStamped, Ros2Message, Time, WrenchStamped};
 use super::subscriber::{RejectCounters, Ros2Rejected};
@@ -63,6 +64,15 @@ pub struct ArmTopics {
 }
 
 impl ArmTopics {
+    /// The arm's measured velocity (geometry_msgs/TwistStamped), beside its pose:
+    /// `<ns>/measured_cv` (a stand-in publishes it; the slave does not read it).
+    pub fn twist(&self) -> String {
+        match self.pose.rsplit_once('/') {
+            Some((ns, _)) => format!("{ns}/measured_cv"),
+            None => "measured_cv".to_owned(),
+        }
+    }
+
     /// The topics of `profile` under `namespace` (None: the profile's default).
     pub fn new(profile: ArmProfile, namespace: Option<&str>) -> Result<Self, KeyError> {
         let names = Ros2Names::new(namespace.unwrap_or(profile.default_namespace()))?;
@@ -243,6 +253,38 @@ impl ArmCells {
     }
 }
 
+/// One cycle of a stand-in arm (`h4-slave ros2-standin`) for its publishing thread, in
+/// project units: what the arm publishes on `measured_cp`, `measured_cv`, `measured_cf`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ArmStandinSample {
+    /// The stamp, the platform's pose and velocity (the stand-in device's sample with the
+    /// clutch never held).
+    pub motion: StandinSample,
+    /// The force/torque sensor's reading `[Fx_n, Fy_n, Fz_n, My_n_mm]`.
+    pub wrench_n_nmm: [f64; 4],
+}
+
+impl ArmStandinSample {
+    /// The `measured_cf` message.
+    pub fn wrench_msg(&self, frame_id: &str) -> WrenchStamped {
+        WrenchStamped {
+            header: self.motion.header(frame_id),
+            wrench: units::wrench_to_ros(&self.wrench_n_nmm),
+        }
+    }
+}
+
+/// What a stand-in arm's loop and its node share.
+#[derive(Debug, Default)]
+pub struct ArmStandinCells {
+    /// The newest cycle, for the publishing thread.
+    pub state: LatestCell<ArmStandinSample>,
+    /// The newest accepted pose command (`servo_cp`).
+    pub command: LatestCell<PoseCommand>,
+    /// The command subscription's counts.
+    pub command_counts: RejectCounters,
+}
+
 /// A ROS 2 arm's figures at the end of a run (`ros2_arm` in the slave's summary).
 #[derive(
     Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
@@ -320,6 +362,24 @@ mod tests {
         m.wrench.torque.x = 9.0;
         let r = WrenchReading::from_msg(&m);
         assert_eq!(r.wrench_n_nmm, [0.0, 0.0, 4.0, 250.0]);
+    }
+
+    /// The stand-in's `measured_cf` goes out in N and N·m, stamped and framed as its pose.
+    #[test]
+    fn a_standin_wrench_goes_out_in_si() {
+        let s = ArmStandinSample {
+            motion: StandinSample {
+                stamp_unix_ns: 3_000_000_001,
+                ..StandinSample::default()
+            },
+            wrench_n_nmm: [1.0, -2.0, 5.5, 250.0],
+        };
+        let m = WrenchStamped::decode(&s.wrench_msg("arm_base").encode().unwrap()).unwrap();
+        assert_eq!(m.header.frame_id, "arm_base");
+        assert_eq!((m.header.stamp.sec, m.header.stamp.nanosec), (3, 1));
+        assert_eq!(m.wrench.force.z, 5.5);
+        assert_eq!(m.wrench.torque.y, 0.25);
+        assert_eq!(WrenchReading::from_msg(&m).wrench_n_nmm, s.wrench_n_nmm);
     }
 
     #[test]

@@ -9,6 +9,9 @@
 //! thread wakes at `rate_hz`, takes the newest command the loop left in its cell, stamps it
 //! with the time it sends it and puts it on the command topic; it also says on stderr when
 //! the loop found the arm stale and when it answers again (the loop itself never prints).
+//!
+//! [`ArmStandinIo`] is the other side, a stand-in arm (`h4-slave ros2-standin`): it
+//! subscribes to the command topic and publishes the arm's pose, velocity and wrench.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -16,11 +19,11 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::Serialize;
 
-use super::arm::{ArmCells, ArmTopics, WrenchReading};
+use super::arm::{ArmCells, ArmStandinCells, ArmTopics, PoseCommand, WrenchReading};
 use super::device::PoseReading;
-use super::device_io::subscribe;
-use super::msgs::{PoseStamped, Ros2Message, WrenchStamped};
-use super::node::{NodeConfig, RawPublisher, Ros2Error, Ros2Node, StoppableThread};
+use super::device_io::{StandinIoReport, publish_newest, subscribe};
+use super::msgs::{PoseStamped, Ros2Message, TwistStamped, WrenchStamped};
+use super::node::{Cadence, NodeConfig, RawPublisher, Ros2Error, Ros2Node, StoppableThread};
 
 /// How the arm's node runs.
 #[derive(Clone, Debug)]
@@ -112,7 +115,7 @@ fn command_loop(
     let mut report = ArmIoReport::default();
     let mut seen = 0;
     let mut said_stale = false;
-    let mut next = Instant::now();
+    let mut cadence = Cadence::new(period);
     while !stop.load(Ordering::Relaxed) {
         if let Some((version, cmd)) = cells.command.newer_than(seen) {
             seen = version;
@@ -141,14 +144,70 @@ fn command_loop(
                 );
             }
         }
-        next += period;
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
-        } else {
-            next = now;
-        }
+        cadence.wait();
     }
     drop(node);
     report
+}
+
+/// How a stand-in arm's node runs (`h4-slave ros2-standin`).
+#[derive(Clone, Debug)]
+pub struct ArmStandinIoConfig {
+    /// The node.
+    pub node: NodeConfig,
+    /// The arm's topics (the stand-in publishes what an arm does, subscribes to its
+    /// command).
+    pub topics: ArmTopics,
+    /// The messages' `header.frame_id`.
+    pub frame_id: String,
+    /// The command topic's owner is released after this much silence, ns.
+    pub owner_timeout_ns: u64,
+    /// How often the newest cycle is published, Hz.
+    pub rate_hz: f64,
+}
+
+/// A stand-in arm's node and publishing thread; [`ArmStandinIo::stop`] ends them.
+pub struct ArmStandinIo {
+    thread: StoppableThread<StandinIoReport>,
+}
+
+impl ArmStandinIo {
+    /// Opens the node, subscribes to the command topic (into `cells.command`, checked as
+    /// every subscription is) and starts the thread publishing `cells.state` on the pose,
+    /// velocity (`<ns>/measured_cv`) and wrench topics.
+    pub fn open(cfg: &ArmStandinIoConfig, cells: Arc<ArmStandinCells>) -> Result<Self, Ros2Error> {
+        let t = &cfg.topics;
+        let mut node = Ros2Node::open(&cfg.node)?;
+        subscribe::<_, PoseStamped, _>(
+            &mut node,
+            &t.command,
+            cfg.owner_timeout_ns,
+            Instant::now(),
+            &cells,
+            |c| (&c.command, &c.command_counts),
+            PoseCommand::from_msg,
+        )?;
+        let (mut pose, _) = node.declare_raw_publisher(&t.pose, PoseStamped::TYPE_NAME)?;
+        let (mut twist, _) = node.declare_raw_publisher(&t.twist(), TwistStamped::TYPE_NAME)?;
+        let (mut wrench, _) = node.declare_raw_publisher(&t.wrench, WrenchStamped::TYPE_NAME)?;
+        let period = Duration::from_secs_f64(1.0 / cfg.rate_hz.clamp(1.0, 10_000.0));
+        let frame_id = cfg.frame_id.clone();
+        let thread = StoppableThread::spawn("h4-ros2-arm-standin", move |stop| {
+            let report = publish_newest(&cells.state, period, stop, |s, put| {
+                let stamp = i64::try_from(s.motion.stamp_unix_ns).unwrap_or(i64::MAX);
+                put(&mut pose, s.motion.pose_msg(&frame_id).encode(), stamp);
+                put(&mut twist, s.motion.twist_msg(&frame_id).encode(), stamp);
+                put(&mut wrench, s.wrench_msg(&frame_id).encode(), stamp);
+            });
+            drop((pose, twist, wrench));
+            drop(node);
+            report
+        })?;
+        Ok(ArmStandinIo { thread })
+    }
+
+    /// Stops the thread and closes the node; what the thread did.
+    pub fn stop(self) -> StandinIoReport {
+        self.thread.stop()
+    }
 }

@@ -330,7 +330,8 @@ pub struct StandinSample {
 }
 
 impl StandinSample {
-    fn header(&self, frame_id: &str) -> Header {
+    /// The messages' header: the cycle's stamp, `frame_id`.
+    pub(super) fn header(&self, frame_id: &str) -> Header {
         Header {
             stamp: Time::from_ns(i64::try_from(self.stamp_unix_ns).unwrap_or(i64::MAX))
                 .unwrap_or_default(),

@@ -16,12 +16,13 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::cdr::CdrError;
 use super::device::{
     ButtonsReading, CommandKind, DeviceCells, DeviceTopics, PoseReading, StandinCells,
     TwistReading, command_from_wrench,
 };
 use super::msgs::{Joy, PoseStamped, Ros2Message, TwistStamped, WrenchStamped};
-use super::node::{NodeConfig, Ros2Error, Ros2Node, StoppableThread};
+use super::node::{Cadence, NodeConfig, RawPublisher, Ros2Error, Ros2Node, StoppableThread};
 use super::subscriber::{Intake, RejectCounters};
 use super::telemetry::{LatestCell, base_frame_id};
 
@@ -152,7 +153,7 @@ impl DeviceIo {
 
 fn command_loop(
     node: Ros2Node,
-    mut publisher: super::node::RawPublisher,
+    mut publisher: RawPublisher,
     cfg: &DeviceIoConfig,
     cells: &DeviceCells,
     period: Duration,
@@ -162,7 +163,7 @@ fn command_loop(
     let mut report = DeviceIoReport::default();
     let mut seen = 0;
     let mut said_silent = false;
-    let mut next = Instant::now();
+    let mut cadence = Cadence::new(period);
     while !stop.load(Ordering::Relaxed) {
         if let Some((version, cmd)) = cells.command.newer_than(seen) {
             seen = version;
@@ -191,13 +192,7 @@ fn command_loop(
                 );
             }
         }
-        next += period;
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
-        } else {
-            next = now;
-        }
+        cadence.wait();
     }
     drop(node);
     report
@@ -296,9 +291,9 @@ impl StandinIo {
 }
 
 struct StandinPublishers {
-    pose: super::node::RawPublisher,
-    twist: Option<super::node::RawPublisher>,
-    joy: Option<super::node::RawPublisher>,
+    pose: RawPublisher,
+    twist: Option<RawPublisher>,
+    joy: Option<RawPublisher>,
 }
 
 fn standin_loop(
@@ -308,37 +303,46 @@ fn standin_loop(
     period: Duration,
     stop: &AtomicBool,
 ) -> StandinIoReport {
+    publish_newest(&cells.state, period, stop, |s, put| {
+        let stamp = i64::try_from(s.stamp_unix_ns).unwrap_or(i64::MAX);
+        put(&mut pubs.pose, s.pose_msg(frame_id).encode(), stamp);
+        if let Some(p) = &mut pubs.twist {
+            put(p, s.twist_msg(frame_id).encode(), stamp);
+        }
+        if let Some(p) = &mut pubs.joy {
+            put(p, s.joy_msg(frame_id).encode(), stamp);
+        }
+    })
+}
+
+/// A stand-in's publishing: every `period` (until `stop`) the newest sample of `cell`, if
+/// it is new, goes to `publish`, which puts its messages with the `put` it is given (an
+/// encoding or Zenoh error counts); what went out. Shared by the stand-in device and the
+/// stand-in arm ([`super::arm_io::ArmStandinIo`]).
+pub(super) fn publish_newest<T: Copy>(
+    cell: &LatestCell<T>,
+    period: Duration,
+    stop: &AtomicBool,
+    mut publish: impl FnMut(&T, &mut dyn FnMut(&mut RawPublisher, Result<Vec<u8>, CdrError>, i64)),
+) -> StandinIoReport {
     let mut report = StandinIoReport::default();
     let mut seen = 0;
-    let mut next = Instant::now();
+    let mut cadence = Cadence::new(period);
     while !stop.load(Ordering::Relaxed) {
-        if let Some((version, s)) = cells.state.newer_than(seen) {
+        if let Some((version, s)) = cell.newer_than(seen) {
             seen = version;
             report.samples += 1;
-            let stamp = i64::try_from(s.stamp_unix_ns).unwrap_or(i64::MAX);
-            let mut put = |p: &mut super::node::RawPublisher, bytes: Result<Vec<u8>, _>| {
+            let mut put = |p: &mut RawPublisher, bytes: Result<Vec<u8>, CdrError>, stamp: i64| {
                 let ok = bytes
-                    .map_err(|e: super::cdr::CdrError| Ros2Error::Zenoh(e.to_string()))
+                    .map_err(|e| Ros2Error::Zenoh(e.to_string()))
                     .and_then(|b| p.put(b, stamp));
                 if ok.is_err() {
                     report.errors += 1;
                 }
             };
-            put(&mut pubs.pose, s.pose_msg(frame_id).encode());
-            if let Some(p) = &mut pubs.twist {
-                put(p, s.twist_msg(frame_id).encode());
-            }
-            if let Some(p) = &mut pubs.joy {
-                put(p, s.joy_msg(frame_id).encode());
-            }
+            publish(&s, &mut put);
         }
-        next += period;
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
-        } else {
-            next = now;
-        }
+        cadence.wait();
     }
     report
 }

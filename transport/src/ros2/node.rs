@@ -117,6 +117,27 @@ impl Ros2Args {
         }))
     }
 
+    /// The node of a device-side endpoint of this process (a ROS 2 device or arm, or a
+    /// stand-in for one): named `node_name` in `namespace`, on these flags' domain, endpoint
+    /// and key format, with or without `--ros2`.
+    pub fn endpoint_node(&self, namespace: &str, node_name: &str) -> Result<NodeConfig, String> {
+        if self.ros2_domain > 232 {
+            return Err(format!(
+                "--ros2-domain {} is out of range: allowed 0 to 232",
+                self.ros2_domain
+            ));
+        }
+        Ok(NodeConfig {
+            domain_id: self.ros2_domain,
+            connect: self.ros2_connect.clone(),
+            names: Ros2Names::new(namespace).map_err(|e| format!("{namespace}: {e}"))?,
+            node_name: node_name.to_owned(),
+            distro: self.ros2_distro.into(),
+            rate_hz: 100.0,
+            listen: None,
+        })
+    }
+
     /// The namespace's names after checking `--ros2-rate-hz` and `--ros2-ns` (shared by
     /// `--ros2` and `--record-ros2`).
     fn checked_names(&self, default_ns: &str) -> Result<Ros2Names, Ros2Error> {
@@ -563,7 +584,7 @@ fn publish_loop<T: TelemetrySample>(
     let frame_id = base_frame_id(node.cfg.names.namespace());
     let mut report = PublishReport::default();
     let mut seen = 0;
-    let mut next = Instant::now();
+    let mut cadence = Cadence::new(period);
     // One last round after the stop, so the final state goes out.
     let mut last_round = false;
     loop {
@@ -593,16 +614,45 @@ fn publish_loop<T: TelemetrySample>(
             last_round = true;
             continue;
         }
-        next += period;
-        let now = Instant::now();
-        if next > now {
-            std::thread::sleep(next - now);
-        } else {
-            next = now;
-        }
+        cadence.wait();
     }
     report.loop_writes_skipped = cell.skipped();
     report
+}
+
+/// Paces a thread on absolute deadlines `start + n · period`; a round that ends after its
+/// deadline starts the count again from now (no burst of catch-up rounds). The publishing,
+/// command and stand-in threads of the ROS 2 side.
+#[derive(Debug)]
+pub struct Cadence {
+    period: Duration,
+    next: Instant,
+}
+
+impl Cadence {
+    /// A cadence of `period` from now.
+    pub fn new(period: Duration) -> Self {
+        Cadence {
+            period,
+            next: Instant::now(),
+        }
+    }
+
+    /// A cadence of `rate_hz` (clamped to 1 to 10 000 Hz).
+    pub fn at_hz(rate_hz: f64) -> Self {
+        Self::new(Duration::from_secs_f64(1.0 / rate_hz.clamp(1.0, 10_000.0)))
+    }
+
+    /// Sleeps until the next deadline.
+    pub fn wait(&mut self) {
+        self.next += self.period;
+        let now = Instant::now();
+        if self.next > now {
+            std::thread::sleep(self.next - now);
+        } else {
+            self.next = now;
+        }
+    }
 }
 
 /// A named background thread that runs until asked to stop: [`StoppableThread::stop`] sets

@@ -12,10 +12,10 @@ use h4_master_sim::server::RunOutputs;
 use h4_master_sim::session::SessionConfig;
 use h4_shared::wire::{Command, Feedback};
 use h4_transport::Link;
+use h4_transport::ros2::Ros2Names;
 use h4_transport::ros2::device::{DeviceCells, DeviceProfile, DeviceTopics};
 use h4_transport::ros2::device_io::{DeviceIo, DeviceIoConfig};
-use h4_transport::ros2::node::{NodeConfig, Ros2Args};
-use h4_transport::ros2::{Ros2Names, keys::Distro};
+use h4_transport::ros2::node::Ros2Args;
 
 /// The flags of a ROS 2 haptic device (`--device crtk`). The node's domain, endpoint and
 /// key format are `--ros2-domain`, `--ros2-connect` and `--ros2-distro` (with or without
@@ -120,30 +120,6 @@ impl CrtkDeviceArgs {
     }
 }
 
-/// The node of a ROS 2 endpoint of this process: `--ros2-domain`, `--ros2-connect`,
-/// `--ros2-distro` of `ros2`, named `node_name` in `namespace`.
-pub fn node_config(
-    ros2: &Ros2Args,
-    namespace: &str,
-    node_name: &str,
-) -> Result<NodeConfig, String> {
-    if ros2.ros2_domain > 232 {
-        return Err(format!(
-            "--ros2-domain {} is out of range: allowed 0 to 232",
-            ros2.ros2_domain
-        ));
-    }
-    Ok(NodeConfig {
-        domain_id: ros2.ros2_domain,
-        connect: ros2.ros2_connect.clone(),
-        names: Ros2Names::new(namespace).map_err(|e| format!("{namespace}: {e}"))?,
-        node_name: node_name.to_owned(),
-        distro: Distro::from(ros2.ros2_distro),
-        rate_hz: 100.0,
-        listen: None,
-    })
-}
-
 /// Waits for `cells`' first accepted pose (at most `wait_s`, or until a stop request).
 fn wait_for_first_pose(cells: &DeviceCells, topic: &str, wait_s: f64) -> Result<(), String> {
     let start = Instant::now();
@@ -177,8 +153,7 @@ pub fn run_then<L: Link<Command, Feedback>>(
     at_loop_end: impl FnOnce(),
 ) -> Result<MasterRunSummary, String> {
     let topics = args.topics()?;
-    let node = node_config(
-        ros2,
+    let node = ros2.endpoint_node(
         ros2.ros2_ns
             .as_deref()
             .unwrap_or(Ros2Names::MASTER_NAMESPACE),

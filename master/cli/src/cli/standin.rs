@@ -120,8 +120,9 @@ impl StandinArgs {
         let mut device = cfg.sim_device().map_err(|e| e.to_string())?;
         let topics = DeviceTopics::new(DeviceProfile::Crtk, Some(&self.device_ns))
             .map_err(|e| format!("--device-ns: {e}"))?;
-        let mut node =
-            super::crtk::node_config(&self.ros2, topics.namespace.as_str(), "h4_standin")?;
+        let mut node = self
+            .ros2
+            .endpoint_node(topics.namespace.as_str(), "h4_standin")?;
         node.listen = self.listen.clone();
         let cells = Arc::new(StandinCells::default());
         let io_cfg = StandinIoConfig {

@@ -13,11 +13,11 @@ use h4_slave_sim::experiment::ExperimentConfig;
 use h4_slave_sim::server::{RunOutputs, SimRunSummary};
 use h4_telemetry::sink::Outputs;
 use h4_transport::Link;
+use h4_transport::ros2::Ros2Names;
 use h4_transport::ros2::arm::{ArmCells, ArmProfile, ArmTopics};
 use h4_transport::ros2::arm_io::{ArmIo, ArmIoConfig};
-use h4_transport::ros2::node::{NodeConfig, Ros2Args};
+use h4_transport::ros2::node::Ros2Args;
 use h4_transport::ros2::telemetry::base_frame_id;
-use h4_transport::ros2::{Ros2Names, keys::Distro};
 
 /// The flags of a ROS 2 arm (`--arm crtk`). The node's domain, endpoint and key format are
 /// `--ros2-domain`, `--ros2-connect` and `--ros2-distro` (with or without `--ros2`).
@@ -100,25 +100,6 @@ impl CrtkArmArgs {
     }
 }
 
-/// The node of the arm: `--ros2-domain`, `--ros2-connect`, `--ros2-distro` of `ros2`.
-fn node_config(ros2: &Ros2Args, namespace: &str) -> Result<NodeConfig, String> {
-    if ros2.ros2_domain > 232 {
-        return Err(format!(
-            "--ros2-domain {} is out of range: allowed 0 to 232",
-            ros2.ros2_domain
-        ));
-    }
-    Ok(NodeConfig {
-        domain_id: ros2.ros2_domain,
-        connect: ros2.ros2_connect.clone(),
-        names: Ros2Names::new(namespace).map_err(|e| format!("{namespace}: {e}"))?,
-        node_name: "h4_slave_arm".to_owned(),
-        distro: Distro::from(ros2.ros2_distro),
-        rate_hz: 100.0,
-        listen: None,
-    })
-}
-
 /// Waits for `cells`' first accepted pose and wrench (at most `wait_s`, or until a stop
 /// request).
 fn wait_for_arm(cells: &ArmCells, topics: &ArmTopics, wait_s: f64) -> Result<(), String> {
@@ -165,11 +146,11 @@ pub fn run<L: Link<Feedback, Command>>(
     let topics = args.topics()?;
     let (_, ctrl) = h4_slave_sim::server::sim_parts(cfg).map_err(|e| format!("controller: {e}"))?;
     let params = cfg.arm.geometry.params();
-    let node = node_config(
-        ros2,
+    let node = ros2.endpoint_node(
         ros2.ros2_ns
             .as_deref()
             .unwrap_or(Ros2Names::SLAVE_NAMESPACE),
+        "h4_slave_arm",
     )?;
     let cells = ArmCells::shared();
     let io_cfg = ArmIoConfig {
@@ -206,13 +187,14 @@ pub fn run<L: Link<Feedback, Command>>(
     let period_ns = opts.period_ns.max(1);
     let mut teleop =
         SlaveTeleop::new(opts.teleop_params(), ctrl, arm, period_ns).map_err(|e| e.to_string())?;
-    let sink = Outputs::<server::CycleRecord>::start(
+    let sink = Outputs::<server::CycleRecord>::start_polled(
         outputs.record.as_deref(),
         outputs.foxglove_ws.as_deref(),
         "h4-slave",
         ("/slave/cycle", "h4.SlaveProcessCycle"),
         None,
         1e9 / period_ns as f64,
+        outputs.ros2_polled().map_err(|e| e.to_string())?,
     )
     .map_err(|e| e.to_string())?;
     let sink = h4_slave::ros2::Ros2Tee::new(sink, outputs.ros2.clone());

@@ -5,3 +5,4 @@ pub mod experiment;
 pub mod identify;
 pub mod kin;
 pub mod run;
+pub mod standin;

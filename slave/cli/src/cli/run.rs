@@ -259,9 +259,6 @@ impl RunArgs {
                 return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
             }
             (ArmKind::Replay, Some(file)) => run_replay(&cfg, file, &opts, &outputs, &mut link)?,
-            (ArmKind::Crtk, None) if outputs.ros2_record.is_some() => {
-                return Err("--record-ros2 needs --arm sim or replay (not yet crtk)".to_string());
-            }
             (ArmKind::Crtk, None) if self.inject_fault.is_some() => {
                 return Err("--inject-fault needs --arm sim (the simulated arm)".to_string());
             }
