@@ -25,7 +25,8 @@ pub struct SimArgs {
     /// Record every cycle of both sides and the link's events (MCAP).
     #[arg(long, value_name = "FILE")]
     record: Option<PathBuf>,
-    /// A cutting session writes the part here: `height.png`, `part.stl`, `deviation.png`.
+    /// A cutting session writes the part here: `height.png`, `part.stl`, `deviation.png`,
+    /// `cut.json` (the cutting fields; `report --part DIR` shows them).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
     /// Accept a safety layer turned off (`passivity.enabled=false`,
