@@ -349,10 +349,11 @@ fn the_arm_side_over_ros2_pushes_aluminium_stably() {
     stable_push(Wall::Aluminium, false);
 }
 
-/// Not yet passing (issue 35): with the device's side over ROS 2 too (both stand-ins) the
-/// master's observer fell below −1 mJ with the rendered force at its 30 N limit (see
-/// docs/ros2.md, "The whole session over ROS 2"), as in `tests/ros2_device.rs`'s ignored
-/// test: the device's own round trip. Run it with `--ignored`.
+/// Not yet passing (issue 35): with the device's side over ROS 2 too (both stand-ins), in its
+/// one run (2026-12-08) the master's observer fell to −53.5 mJ with the rendered force at its
+/// 30 N limit and the push held 21.2 N (9.4 N simulated), while the slave's observer stayed
+/// at −0.001 mJ (docs/ros2.md, "The whole session over ROS 2"), as in `tests/ros2_device.rs`'s
+/// ignored test: the device's own round trip. Run it with `--ignored`.
 #[test]
 #[ignore = "unstable over the device stand-in's ROS 2 path so far (see the doc comment)"]
 fn the_whole_session_over_ros2_pushes_resin_stably() {
