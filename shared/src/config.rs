@@ -421,8 +421,11 @@ pub struct ArmRatings {
     /// The force/torque sensor's range on each force axis, N: a reading at or beyond it is
     /// saturated (1 to 1e5).
     pub sensor_range_n: f64,
-    /// A sensor whose reading repeats bit for bit for this many cycles in a row (while
-    /// the encoders' readings are fresh) is frozen (1 to 1000).
+    /// A sensor whose reading repeats bit for bit in this many new samples in a row (while
+    /// the encoders' readings are fresh) is frozen (1 to 1000). A driver whose sensor
+    /// samples slower than the loop hands one sample to several cycles; those repeats are
+    /// not new samples (`ArmDriver::wrench_is_new_sample`). A sensor that sends no new
+    /// sample at all is the driver's staleness.
     pub sensor_freeze_cycles: u32,
     /// Largest proportional gain (`controller.kp`) the controller is stable with on this
     /// arm, on every surface it is rated for (0 to 10).
