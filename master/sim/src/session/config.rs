@@ -529,6 +529,15 @@ pub fn load_with(
     }
     // A part from a mesh: read, checked and its distance grid built now, before any run.
     let dir = path.parent().unwrap_or(Path::new("."));
+    // Its path made absolute, so that the slave's world written from this session
+    // (`loopback`, `slave-config`) names the same file wherever that world is read from.
+    if let Some(t) = cfg.cut_target.as_mut()
+        && let Some(rel) = t.mesh.as_ref()
+        && rel.is_relative()
+    {
+        let joined = dir.join(rel);
+        t.mesh = Some(std::path::absolute(&joined).unwrap_or(joined));
+    }
     h4_slave_sim::plant::cutting::judge::load_mesh_target(
         cfg.cut_target.as_mut(),
         &mut cfg.fixtures,
