@@ -7,33 +7,13 @@
 
 use std::path::PathBuf;
 
-use h4_master_sim::session::{self, SessionConfig, Summary};
+use h4_master_sim::session::{self, SessionConfig};
 
 fn load(overrides: &[&str]) -> SessionConfig {
     let path =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/sessions/cut-mesh-dome.toml");
     let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
     session::load(&path, &o).unwrap()
-}
-
-fn report(label: &str, s: &Summary) {
-    let c = s.cutting.as_ref().unwrap();
-    eprintln!(
-        "{label}: stable {} ({} bounces), true force max {:.1} N, removed {:.1} mm³, \
-         gouge {:.3} mm, surface error p99 {:.3} mm, material left {:.1} of {:.1} mm³ \
-         ({:.1} %), fixture-limited cycles {}",
-        s.stable,
-        s.bounces,
-        s.max_force_n,
-        c.removed_volume_mm3,
-        c.gouge_max_mm,
-        c.surface_error_p99_mm,
-        c.material_left_mm3.unwrap_or(f64::NAN),
-        c.material_to_remove_mm3.unwrap_or(f64::NAN),
-        100.0 * c.material_left_mm3.unwrap_or(f64::NAN)
-            / c.material_to_remove_mm3.unwrap_or(f64::NAN),
-        c.fixture_limited_cycles,
-    );
 }
 
 /// With the mesh fixture the part is not gouged (≤ 0.05 mm), the true force stays within
@@ -44,7 +24,7 @@ fn the_mesh_fixture_keeps_the_part_whole() {
     let cfg = load(&[]);
     let limit = cfg.slave.controller.force_limit_n;
     let s = session::run(&cfg, None).unwrap();
-    report("with the mesh fixture", &s);
+    h4_tests::report_mesh_cut("with the mesh fixture", &s);
     let c = s.cutting.as_ref().unwrap();
     assert!(c.gouge_max_mm <= 0.05, "gouge {} mm", c.gouge_max_mm);
     assert!(
@@ -75,7 +55,7 @@ fn the_mesh_session_is_stable_and_within_the_surface_target() {
     let cfg = load(&[]);
     let allowance = cfg.fixtures.mesh.as_ref().unwrap().allowance_mm;
     let s = session::run(&cfg, None).unwrap();
-    report("with the mesh fixture", &s);
+    h4_tests::report_mesh_cut("with the mesh fixture", &s);
     let c = s.cutting.as_ref().unwrap();
     assert!(s.stable, "{:?}", s.unstable_reasons);
     assert!(
@@ -92,7 +72,7 @@ fn without_the_mesh_fixture_the_operator_gouges_the_part() {
     let mut cfg = load(&[]);
     cfg.fixtures.mesh = None;
     let s = session::run(&cfg, None).unwrap();
-    report("without the mesh fixture", &s);
+    h4_tests::report_mesh_cut("without the mesh fixture", &s);
     let c = s.cutting.as_ref().unwrap();
     assert!(c.gouge_max_mm > 1.0, "gouge {} mm", c.gouge_max_mm);
 }

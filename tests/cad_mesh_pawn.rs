@@ -8,7 +8,7 @@
 
 use std::path::PathBuf;
 
-use h4_master_sim::session::{self, SessionConfig, Summary};
+use h4_master_sim::session::{self, SessionConfig};
 
 /// The session with the link's one-way delay for `round_trip_ms` and `extra` overrides.
 fn load(round_trip_ms: f64, extra: &[&str]) -> SessionConfig {
@@ -17,26 +17,6 @@ fn load(round_trip_ms: f64, extra: &[&str]) -> SessionConfig {
     let mut o = vec![format!("link.delay_ms={}", round_trip_ms / 2.0)];
     o.extend(extra.iter().map(|e| e.to_string()));
     session::load(&path, &o).unwrap()
-}
-
-fn report(label: &str, s: &Summary) {
-    let c = s.cutting.as_ref().unwrap();
-    eprintln!(
-        "{label}: stable {} ({} bounces), true force max {:.1} N, removed {:.1} mm³, \
-         gouge {:.3} mm, surface error p99 {:.3} mm, material left {:.1} of {:.1} mm³ \
-         ({:.1} %), fixture-limited cycles {}",
-        s.stable,
-        s.bounces,
-        s.max_force_n,
-        c.removed_volume_mm3,
-        c.gouge_max_mm,
-        c.surface_error_p99_mm,
-        c.material_left_mm3.unwrap_or(f64::NAN),
-        c.material_to_remove_mm3.unwrap_or(f64::NAN),
-        100.0 * c.material_left_mm3.unwrap_or(f64::NAN)
-            / c.material_to_remove_mm3.unwrap_or(f64::NAN),
-        c.fixture_limited_cycles,
-    );
 }
 
 /// At 0 and 100 ms round trip: the part is not gouged (≤ 0.05 mm), the true force stays
@@ -48,7 +28,7 @@ fn the_mesh_fixture_keeps_the_pawn_whole_at_0_and_100_ms() {
         let cfg = load(rt, &[]);
         let limit = cfg.slave.controller.force_limit_n;
         let s = session::run(&cfg, None).unwrap();
-        report(&format!("{rt} ms round trip"), &s);
+        h4_tests::report_mesh_cut(&format!("{rt} ms round trip"), &s);
         let c = s.cutting.as_ref().unwrap();
         assert!(
             c.gouge_max_mm <= 0.05,
@@ -89,7 +69,7 @@ fn the_pawn_is_roughed_to_the_allowance_and_within_the_surface_target() {
         let cfg = load(rt, &[]);
         let allowance = cfg.fixtures.mesh.as_ref().unwrap().allowance_mm;
         let s = session::run(&cfg, None).unwrap();
-        report(&format!("{rt} ms round trip"), &s);
+        h4_tests::report_mesh_cut(&format!("{rt} ms round trip"), &s);
         let c = s.cutting.as_ref().unwrap();
         let (left, to_remove) = (
             c.material_left_mm3.unwrap(),
@@ -114,7 +94,7 @@ fn without_the_mesh_fixture_the_operator_gouges_the_pawn() {
     let mut cfg = load(0.0, &[]);
     cfg.fixtures.mesh = None;
     let s = session::run(&cfg, None).unwrap();
-    report("without the mesh fixture", &s);
+    h4_tests::report_mesh_cut("without the mesh fixture", &s);
     let c = s.cutting.as_ref().unwrap();
     assert!(c.gouge_max_mm > 1.0, "gouge {} mm", c.gouge_max_mm);
 }

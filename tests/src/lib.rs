@@ -163,3 +163,27 @@ impl Vectors {
         H4Params::new(p.r, p.a_minus_b, p.c, p.d).unwrap_or_else(|e| panic!("{name}: {e}"))
     }
 }
+
+/// One line on stderr of a mesh session's figures (the cad_mesh tests print them).
+pub fn report_mesh_cut(label: &str, s: &h4_master_sim::session::Summary) {
+    let Some(c) = s.cutting.as_ref() else {
+        eprintln!("{label}: not a cutting session");
+        return;
+    };
+    eprintln!(
+        "{label}: stable {} ({} bounces), true force max {:.1} N, removed {:.1} mm³, \
+         gouge {:.3} mm, surface error p99 {:.3} mm, material left {:.1} of {:.1} mm³ \
+         ({:.1} %), fixture-limited cycles {}",
+        s.stable,
+        s.bounces,
+        s.max_force_n,
+        c.removed_volume_mm3,
+        c.gouge_max_mm,
+        c.surface_error_p99_mm,
+        c.material_left_mm3.unwrap_or(f64::NAN),
+        c.material_to_remove_mm3.unwrap_or(f64::NAN),
+        100.0 * c.material_left_mm3.unwrap_or(f64::NAN)
+            / c.material_to_remove_mm3.unwrap_or(f64::NAN),
+        c.fixture_limited_cycles,
+    );
+}
